@@ -1,0 +1,479 @@
+"""The ``fmu-greybox`` command line.
+
+Exit codes: 0 success, 1 user error (a message says what to mend), 2 usage error.
+Tracebacks are shown only with ``--debug``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import click
+import numpy as np
+
+from . import __version__
+from .errors import FmuGreyboxError
+
+EXIT_USER_ERROR = 1
+
+
+class _Group(click.Group):
+    """A click group that turns fmu-greybox errors into a message and exit code 1."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except FmuGreyboxError as exc:
+            if ctx.obj and ctx.obj.get("debug"):
+                raise
+            click.secho(f"error: {exc}", fg="red", err=True)
+            ctx.exit(EXIT_USER_ERROR)
+
+
+def _pairs(items: tuple[str, ...], option: str, numeric: bool) -> dict:
+    """Parse repeated ``NAME=VALUE`` options."""
+    result: dict = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name or not value:
+            raise click.BadParameter(f"{item!r} is not NAME=VALUE", param_hint=option)
+        if numeric:
+            try:
+                result[name] = float(value)
+            except ValueError:
+                raise click.BadParameter(f"{value!r} is not a number", param_hint=option) from None
+        else:
+            result[name] = value
+    return result
+
+
+def _info(ctx: click.Context, message: str) -> None:
+    if not ctx.obj.get("quiet"):
+        click.echo(message)
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="fmu-greybox")
+@click.option("--debug", is_flag=True, help="Show tracebacks of errors.")
+@click.option("-q", "--quiet", is_flag=True, help="Print only results and errors.")
+@click.pass_context
+def main(ctx: click.Context, debug: bool, quiet: bool) -> None:
+    """Grey-box enhancement of white-box FMUs with sparse-GP correctors.
+
+    \b
+    Examples:
+      fmu-greybox fmu build --out fmus/
+      fmu-greybox synth --effect coulomb_friction=800 --seed 3 --out rec.csv
+      fmu-greybox simulate builtin:HydraulicActuator rec.csv --out wb.csv
+      fmu-greybox demo --out out/
+    """
+    ctx.ensure_object(dict)
+    ctx.obj.update(debug=debug, quiet=quiet)
+
+
+@main.group()
+def fmu() -> None:
+    """Build and inspect the reference FMUs."""
+
+
+@fmu.command("build")
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="Folder receiving HydraulicActuator.fmu and HydraulicActuatorTruth.fmu.",
+)
+@click.pass_context
+def fmu_build_cmd(ctx: click.Context, out_dir: Path) -> None:
+    """Compile the reference actuator FMUs from fmu_sources/.
+
+    \b
+    Example:
+      fmu-greybox fmu build --out fmus/
+    """
+    from .fmu_build import build_reference_fmus
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for name, path in build_reference_fmus(out_dir).items():
+        _info(ctx, f"built {name}: {path}")
+
+
+@main.command()
+@click.option(
+    "--effect",
+    "effects",
+    multiple=True,
+    metavar="NAME=VALUE",
+    help="Switch on a concealed truth effect (repeatable).",
+)
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@click.option(
+    "--duration",
+    type=click.FloatRange(min=0.01),
+    default=30.0,
+    show_default=True,
+    help="Length of the recording [s].",
+)
+@click.option(
+    "--noise",
+    type=click.FloatRange(min=0.0),
+    default=1.0,
+    show_default=True,
+    help="Sensor-noise scale (0 = noise-free).",
+)
+@click.option(
+    "--out", type=click.Path(dir_okay=False, path_type=Path), help="Output file (.csv or .parquet)."
+)
+@click.option("--list-effects", is_flag=True, help="List the truth model's effects and exit.")
+@click.pass_context
+def synth(
+    ctx: click.Context,
+    effects: tuple[str, ...],
+    seed: int,
+    duration: float,
+    noise: float,
+    out: Path | None,
+    list_effects: bool,
+) -> None:
+    """Record the truth actuator in closed loop, as a flight test would.
+
+    \b
+    Examples:
+      fmu-greybox synth --list-effects
+      fmu-greybox synth --effect gain_error=0.1 --noise 0 --out exp1.csv
+      fmu-greybox synth --effect coulomb_friction=800 --effect time_delay=0.004 --out rec.parquet
+    """
+    from . import synth as synth_mod
+    from .builtin import reference_fmus
+    from .fmu_archive import open_fmu
+    from .recording import save_recording
+
+    paths = reference_fmus()
+    with (
+        open_fmu(paths["HydraulicActuatorTruth"]) as truth,
+        open_fmu(paths["HydraulicActuator"]) as whitebox,
+    ):
+        if list_effects:
+            for v in synth_mod.list_effects(truth, whitebox):
+                click.echo(f"{v.name:24s} [{v.unit or '-'}]  {v.description}")
+            return
+        if out is None:
+            raise click.UsageError("--out FILE is required (unless --list-effects)")
+        request = synth_mod.SynthRequest(
+            effects=synth_mod.parse_effects(effects),
+            seed=seed,
+            noise=noise,
+            profile=synth_mod.FlightTestProfile(duration=duration),
+        )
+        started = time.perf_counter()
+        recording = synth_mod.synthesise(truth, whitebox, request, progress=not ctx.obj["quiet"])
+    save_recording(recording, out)
+    _info(
+        ctx,
+        f"wrote {out} ({recording.n_samples} samples, {len(recording.names)} signals, "
+        f"{time.perf_counter() - started:.2f} s)",
+    )
+
+
+@main.command()
+@click.argument("fmu_spec", metavar="FMU")
+@click.argument("recording_path", metavar="RECORDING", type=click.Path(path_type=Path))
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="Output file (.csv or .parquet).",
+)
+@click.option(
+    "--map",
+    "mapping",
+    multiple=True,
+    metavar="INPUT=COLUMN",
+    help="Feed an FMU input from a differently named column (repeatable).",
+)
+@click.option(
+    "--fix",
+    "fixed",
+    multiple=True,
+    metavar="INPUT=VALUE",
+    help="Hold an unrecorded FMU input constant (repeatable).",
+)
+@click.option(
+    "--param",
+    "params",
+    multiple=True,
+    metavar="NAME=VALUE",
+    help="Set an FMU parameter (repeatable).",
+)
+@click.option(
+    "--resample",
+    type=float,
+    default=None,
+    metavar="DT",
+    help="Resample an uneven recording onto a uniform grid of step DT [s].",
+)
+@click.pass_context
+def simulate(
+    ctx: click.Context,
+    fmu_spec: str,
+    recording_path: Path,
+    out: Path,
+    mapping: tuple[str, ...],
+    fixed: tuple[str, ...],
+    params: tuple[str, ...],
+    resample: float | None,
+) -> None:
+    """Run a co-simulation FMU open-loop over a recording's inputs.
+
+    FMU is a .fmu path or builtin:HydraulicActuator. Inputs are taken from the columns of the
+    same name unless mapped.
+
+    \b
+    Example:
+      fmu-greybox simulate builtin:HydraulicActuator rec.csv --out wb.csv
+      fmu-greybox simulate my.fmu bench.mat --map valve_current=i_cmd --fix engage=1 --out wb.csv
+    """
+    from .builtin import resolve_fmu
+    from .recording import load_recording, save_recording
+    from .simulate import simulate_recording
+
+    recording = load_recording(recording_path, resample=resample)
+    result = simulate_recording(
+        resolve_fmu(fmu_spec),
+        recording,
+        mapping=_pairs(mapping, "--map", numeric=False),
+        fixed=_pairs(fixed, "--fix", numeric=True),
+        parameters=_pairs(params, "--param", numeric=True),
+        progress=not ctx.obj["quiet"],
+    )
+    save_recording(result, out)
+    _info(ctx, f"wrote {out} ({result.n_samples} samples of {len(result.names)} outputs)")
+
+
+@main.command()
+@click.argument("config_path", metavar="CONFIG", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "--recording",
+    "recording_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Recording to train on (default: the project's [recording] path).",
+)
+@click.option(
+    "--inducing",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Inducing points per stage (overrides [gp] inducing).",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("model"),
+    show_default=True,
+    help="Model folder to write.",
+)
+@click.pass_context
+def train(
+    ctx: click.Context,
+    config_path: Path,
+    recording_path: Path | None,
+    inducing: int | None,
+    out_dir: Path,
+) -> None:
+    """Train the stage correctors of a project (teacher forcing).
+
+    \b
+    Example:
+      fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv --out model/
+    """
+    from .config import load_config
+    from .model_dir import save_model
+    from .project_data import load_project_recording
+    from .training import train_model, with_inducing
+
+    config = with_inducing(load_config(config_path), inducing)
+    recording = load_project_recording(config, recording_path)
+    model = train_model(config, recording, progress=not ctx.obj["quiet"])
+    save_model(model, out_dir)
+    _info(
+        ctx,
+        f"wrote {out_dir} ({len(model.chain.stages)} stages, "
+        f"{model.training['train_rows']} training rows, {model.training['seconds']} s)",
+    )
+
+
+@main.command()
+@click.argument("config_path", metavar="CONFIG", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "--model",
+    "model_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="Model folder written by 'train'.",
+)
+@click.option(
+    "--recording",
+    "recording_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Recording to validate on (default: the project's [recording] path).",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="Folder for metrics.json and plots.",
+)
+@click.option("--json", "as_json", is_flag=True, help="Print metrics as one JSON line.")
+@click.pass_context
+def validate(
+    ctx: click.Context,
+    config_path: Path,
+    model_dir: Path,
+    recording_path: Path | None,
+    out_dir: Path,
+    as_json: bool,
+) -> None:
+    """Free-run the grey-box on held-out data; write metrics.json and plots.
+
+    \b
+    Example:
+      fmu-greybox validate bench_configs/hydraulic_actuator.toml --model model/ \\
+          --recording rec.csv --out validation/
+    """
+    from .config import load_config
+    from .metrics import format_table
+    from .model_dir import load_model
+    from .plots import save_png, trace_figure
+    from .project_data import load_project_recording
+    from .validation import validate_model, write_metrics
+
+    config = load_config(config_path)
+    model = load_model(model_dir)
+    recording = load_project_recording(config, recording_path)
+    result = validate_model(model, recording, progress=not (ctx.obj["quiet"] or as_json))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_metrics(result, model, out_dir / "metrics.json")
+    units = [model.training["target_unit"][n] for n in model.chain.stage_names]
+    run = result.run
+    save_png(
+        trace_figure(
+            run.time,
+            result.data.outputs[run.rows],
+            run.whitebox,
+            run.mean,
+            run.std,
+            model.chain.stage_names,
+            units,
+        ),
+        out_dir / "traces.png",
+    )
+    if as_json:
+        click.echo(json.dumps(result.table))
+        return
+    _info(ctx, f"held out: {result.held_out}")
+    click.echo(format_table(result.table, model.training["target_unit"]))
+    _info(ctx, f"wrote {out_dir / 'metrics.json'} and {out_dir / 'traces.png'}")
+
+
+@main.command()
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("out"),
+    show_default=True,
+    help="Folder for everything produced.",
+)
+@click.option(
+    "--effect",
+    "effects",
+    multiple=True,
+    metavar="NAME=VALUE",
+    help="Concealed truth effect (default: coulomb_friction=800).",
+)
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@click.option(
+    "--duration",
+    type=click.FloatRange(min=1.0),
+    default=30.0,
+    show_default=True,
+    help="Length of the synthetic recording [s].",
+)
+@click.option("--json", "as_json", is_flag=True, help="Print the result as one JSON line.")
+@click.pass_context
+def demo(
+    ctx: click.Context,
+    out_dir: Path,
+    effects: tuple[str, ...],
+    seed: int,
+    duration: float,
+    as_json: bool,
+) -> None:
+    """The main job on the built-in default: reference actuator and a synthetic recording.
+
+    Builds the reference FMUs, records the truth actuator in closed loop with a concealed
+    effect, simulates the white-box open-loop over the recorded inputs and reports how far
+    apart they are, output by output.
+
+    \b
+    Example:
+      fmu-greybox demo --out out/
+    """
+    from . import synth as synth_mod
+    from .builtin import reference_fmus
+    from .fmu_archive import open_fmu
+    from .recording import save_recording
+    from .simulate import simulate_recording
+
+    quiet = ctx.obj["quiet"] or as_json
+    out_dir.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    paths = reference_fmus()
+    chosen = synth_mod.parse_effects(effects) if effects else {"coulomb_friction": 800.0}
+    request = synth_mod.SynthRequest(
+        effects=chosen, seed=seed, profile=synth_mod.FlightTestProfile(duration=duration)
+    )
+    with (
+        open_fmu(paths["HydraulicActuatorTruth"]) as truth,
+        open_fmu(paths["HydraulicActuator"]) as whitebox,
+    ):
+        recording = synth_mod.synthesise(truth, whitebox, request, progress=not quiet)
+        simulated = simulate_recording(whitebox, recording, progress=not quiet)
+    save_recording(recording, out_dir / "recording.csv")
+    save_recording(simulated, out_dir / "whitebox.csv")
+    rows = []
+    for name in simulated.names:
+        residual = recording[name] - simulated[name]
+        spread = float(np.std(recording[name]))
+        rmse = float(np.sqrt(np.mean(residual**2)))
+        rows.append(
+            {
+                "output": name,
+                "unit": simulated.units.get(name, ""),
+                "wb_rmse": rmse,
+                "wb_nrmse": rmse / spread if spread > 0 else float("nan"),
+            }
+        )
+    summary = {
+        "effects": chosen,
+        "seed": seed,
+        "samples": recording.n_samples,
+        "outputs": rows,
+        "seconds": round(time.perf_counter() - started, 2),
+        "out": str(out_dir),
+    }
+    if as_json:
+        click.echo(json.dumps(summary))
+        return
+    _info(ctx, f"recording: {out_dir / 'recording.csv'} (effects {chosen}, seed {seed})")
+    _info(ctx, f"white-box: {out_dir / 'whitebox.csv'}")
+    click.echo(f"{'output':16s} {'unit':8s} {'RMSE':>12s} {'RMSE/std':>9s}")
+    for row in rows:
+        click.echo(
+            f"{row['output']:16s} {row['unit']:8s} {row['wb_rmse']:12.4g} {row['wb_nrmse']:9.3f}"
+        )
+    _info(ctx, f"done in {summary['seconds']} s")

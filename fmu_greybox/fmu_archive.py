@@ -1,0 +1,283 @@
+"""Open an FMU archive safely and read what it declares.
+
+An FMU is a zip file from a supplier, a tool or a colleague: treat it as untrusted. Before any
+byte is written to disk the archive is checked for paths escaping the extraction folder,
+absolute paths, links, absurd sizes and a missing ``modelDescription.xml``; then the model must
+be an FMI 2.0 co-simulation FMU with a binary for this platform.
+"""
+
+from __future__ import annotations
+
+import shutil
+import stat
+import tempfile
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+
+from fmpy import platform as fmpy_platform
+from fmpy import read_model_description, sharedLibraryExtension
+
+from .errors import FmuArchiveError
+
+#: Largest total uncompressed size accepted [bytes].
+MAX_UNCOMPRESSED_BYTES = 2 * 1024**3
+#: Largest number of members accepted.
+MAX_MEMBERS = 100_000
+#: Largest compression ratio accepted for a member (zip bombs have ratios of 1000s).
+MAX_COMPRESSION_RATIO = 1000.0
+
+
+@dataclass(frozen=True)
+class FmuVariable:
+    """One scalar variable declared in ``modelDescription.xml``.
+
+    Attributes
+    ----------
+    name, causality, variability, unit, description : str
+        As declared (``unit`` is ``""`` when none is declared).
+    value_reference : int
+        The FMI value reference.
+    type : str
+        ``"Real"``, ``"Integer"``, ``"Boolean"``, ``"String"`` or ``"Enumeration"``.
+    start : float or None
+        Start value when declared and numeric.
+    """
+
+    name: str
+    value_reference: int
+    type: str
+    causality: str
+    variability: str
+    unit: str
+    description: str
+    start: float | None
+
+
+@dataclass
+class FmuArchive:
+    """An FMU extracted into a private temporary folder.
+
+    Use :func:`open_fmu` to make one; call :meth:`close` (or use it as a context manager) to
+    remove the folder.
+
+    Attributes
+    ----------
+    path : Path
+        The ``.fmu`` file.
+    unzip_dir : Path
+        Folder it was extracted to.
+    model_description : fmpy.model_description.ModelDescription
+        The parsed model description.
+    variables : dict[str, FmuVariable]
+        Every scalar variable by name.
+    """
+
+    path: Path
+    unzip_dir: Path
+    model_description: object
+    variables: dict[str, FmuVariable] = field(default_factory=dict)
+
+    @property
+    def model_identifier(self) -> str:
+        """The co-simulation model identifier (name of the shared library)."""
+        return self.model_description.coSimulation.modelIdentifier
+
+    @property
+    def model_name(self) -> str:
+        """The model name from the model description."""
+        return self.model_description.modelName
+
+    @property
+    def guid(self) -> str:
+        """The FMU's GUID."""
+        return self.model_description.guid
+
+    def names(self, causality: str) -> list[str]:
+        """Names of the variables with the given causality, in declaration order.
+
+        Parameters
+        ----------
+        causality : str
+            ``"input"``, ``"output"``, ``"parameter"``, ``"local"``, ...
+        """
+        return [v.name for v in self.variables.values() if v.causality == causality]
+
+    @property
+    def inputs(self) -> list[str]:
+        """Input names."""
+        return self.names("input")
+
+    @property
+    def outputs(self) -> list[str]:
+        """Output names."""
+        return self.names("output")
+
+    @property
+    def parameters(self) -> list[str]:
+        """Parameter names."""
+        return self.names("parameter")
+
+    def variable(self, name: str) -> FmuVariable:
+        """Look up a variable, with a helpful error when the name is unknown.
+
+        Raises
+        ------
+        FmuArchiveError
+            If the FMU declares no variable of that name; the message lists close names.
+        """
+        try:
+            return self.variables[name]
+        except KeyError:
+            import difflib
+
+            close = difflib.get_close_matches(name, list(self.variables), n=3)
+            hint = f"; did you mean {', '.join(map(repr, close))}?" if close else ""
+            raise FmuArchiveError(f"{self.path.name} declares no variable {name!r}{hint}") from None
+
+    def close(self) -> None:
+        """Remove the extraction folder (idempotent)."""
+        shutil.rmtree(self.unzip_dir, ignore_errors=True)
+
+    def __enter__(self) -> FmuArchive:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def open_fmu(path: str | Path) -> FmuArchive:
+    """Check, extract and describe an FMI 2.0 co-simulation FMU.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.fmu`` file.
+
+    Returns
+    -------
+    FmuArchive
+        The extracted FMU; the caller owns it and must close it.
+
+    Raises
+    ------
+    FmuArchiveError
+        If the file is missing, not a zip archive, hostile (a path escaping the folder, a link,
+        an absurd size), not FMI 2.0 co-simulation, or lacks a binary for this platform.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FmuArchiveError(f"{path}: no such FMU file; check the path")
+    if not zipfile.is_zipfile(path):
+        raise FmuArchiveError(f"{path}: not a zip archive, so not an FMU; re-export it")
+    unzip_dir = Path(tempfile.mkdtemp(prefix=f"fmu_greybox_{path.stem}_"))
+    try:
+        _extract_checked(path, unzip_dir)
+        description = _read_description(path, unzip_dir)
+        _check_binary(path, unzip_dir, description)
+    except BaseException:
+        shutil.rmtree(unzip_dir, ignore_errors=True)
+        raise
+    archive = FmuArchive(path=path, unzip_dir=unzip_dir, model_description=description)
+    archive.variables = _variables(description)
+    return archive
+
+
+def _extract_checked(path: Path, unzip_dir: Path) -> None:
+    """Extract ``path`` into ``unzip_dir`` after checking every member."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            members = zf.infolist()
+            _check_members(path, members)
+            names = {m.filename for m in members}
+            if "modelDescription.xml" not in names:
+                raise FmuArchiveError(
+                    f"{path}: no modelDescription.xml at the archive root; not an FMU"
+                )
+            zf.extractall(unzip_dir)
+    except zipfile.BadZipFile as exc:
+        raise FmuArchiveError(f"{path}: corrupt zip archive ({exc}); re-export the FMU") from exc
+
+
+def _check_members(path: Path, members: list[zipfile.ZipInfo]) -> None:
+    """Refuse members that would escape the folder, links and absurd sizes."""
+    if len(members) > MAX_MEMBERS:
+        raise FmuArchiveError(f"{path}: {len(members)} members is more than an FMU needs")
+    total = 0
+    for member in members:
+        name = member.filename
+        pure = PurePosixPath(name)
+        if "\\" in name or pure.is_absolute() or ":" in name or ".." in pure.parts:
+            raise FmuArchiveError(
+                f"{path}: member {name!r} would be written outside the extraction folder; "
+                "the archive is malformed or hostile and was not extracted"
+            )
+        mode = member.external_attr >> 16
+        if stat.S_ISLNK(mode):
+            raise FmuArchiveError(f"{path}: member {name!r} is a symbolic link; refused")
+        total += member.file_size
+        if member.compress_size and member.file_size / member.compress_size > MAX_COMPRESSION_RATIO:
+            raise FmuArchiveError(
+                f"{path}: member {name!r} expands {member.file_size / member.compress_size:.0f}"
+                " times; refused as a likely zip bomb"
+            )
+    if total > MAX_UNCOMPRESSED_BYTES:
+        raise FmuArchiveError(
+            f"{path}: uncompressed size {total / 1e9:.1f} GB exceeds the "
+            f"{MAX_UNCOMPRESSED_BYTES / 1e9:.1f} GB limit; refused"
+        )
+
+
+def _read_description(path: Path, unzip_dir: Path) -> object:
+    """Parse the model description and require FMI 2.0 co-simulation."""
+    try:
+        description = read_model_description(str(unzip_dir / "modelDescription.xml"))
+    except Exception as exc:  # fmpy raises bare Exceptions for schema problems
+        raise FmuArchiveError(f"{path}: unreadable modelDescription.xml: {exc}") from exc
+    if description.fmiVersion != "2.0":
+        raise FmuArchiveError(
+            f"{path}: FMI version {description.fmiVersion}; fmu-greybox runs FMI 2.0 FMUs. "
+            "Export the model as FMI 2.0 co-simulation"
+        )
+    if description.coSimulation is None:
+        kinds = "model exchange" if description.modelExchange is not None else "no interface"
+        raise FmuArchiveError(
+            f"{path}: a {kinds} FMU; fmu-greybox needs co-simulation. Re-export the model "
+            "with the co-simulation interface (with its own solver)"
+        )
+    return description
+
+
+def _check_binary(path: Path, unzip_dir: Path, description: object) -> None:
+    """Require the shared library for this platform."""
+    identifier = description.coSimulation.modelIdentifier
+    library = unzip_dir / "binaries" / fmpy_platform / f"{identifier}{sharedLibraryExtension}"
+    if not library.is_file():
+        binaries = unzip_dir / "binaries"
+        found = sorted(p.name for p in binaries.iterdir()) if binaries.is_dir() else []
+        raise FmuArchiveError(
+            f"{path}: no binary for this platform ({fmpy_platform}); the FMU has "
+            f"{found or 'no binaries'}. Rebuild or re-export it for {fmpy_platform}"
+        )
+
+
+def _variables(description: object) -> dict[str, FmuVariable]:
+    """Collect the scalar variables with their units."""
+    result: dict[str, FmuVariable] = {}
+    for v in description.modelVariables:
+        unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or ""
+        try:
+            start = float(v.start) if v.start is not None else None
+        except (TypeError, ValueError):
+            start = None
+        result[v.name] = FmuVariable(
+            name=v.name,
+            value_reference=int(v.valueReference),
+            type=v.type,
+            causality=v.causality,
+            variability=v.variability,
+            unit=unit,
+            description=v.description or "",
+            start=start,
+        )
+    return result
