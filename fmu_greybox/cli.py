@@ -240,14 +240,14 @@ def simulate(
     from .recording import load_recording, save_recording
     from .simulate import simulate_recording
 
+    options = {
+        "mapping": _pairs(mapping, "--map", numeric=False),
+        "fixed": _pairs(fixed, "--fix", numeric=True),
+        "parameters": _pairs(params, "--param", numeric=True),
+    }
     recording = load_recording(recording_path, resample=resample)
     result = simulate_recording(
-        resolve_fmu(fmu_spec),
-        recording,
-        mapping=_pairs(mapping, "--map", numeric=False),
-        fixed=_pairs(fixed, "--fix", numeric=True),
-        parameters=_pairs(params, "--param", numeric=True),
-        progress=not ctx.obj["quiet"],
+        resolve_fmu(fmu_spec), recording, progress=not ctx.obj["quiet"], **options
     )
     save_recording(result, out)
     _info(ctx, f"wrote {out} ({result.n_samples} samples of {len(result.names)} outputs)")

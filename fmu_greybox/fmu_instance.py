@@ -10,6 +10,8 @@ last messages the FMU logged.
 from __future__ import annotations
 
 import ctypes
+import itertools
+import weakref
 from collections import deque
 from collections.abc import Mapping, Sequence
 
@@ -23,6 +25,7 @@ from fmpy.fmi2 import (
     fmi2CallbackFunctions,
     fmi2CallbackLoggerTYPE,
     fmi2FMUstate,
+    printLogMessage,
 )
 
 from .errors import FmuError
@@ -51,14 +54,37 @@ class _LogBuffer:
         return " | ".join(list(self.messages)[-n:])
 
 
+#: Log buffers of the live instances, by the ``componentEnvironment`` their FMU passes back.
+_BUFFERS: weakref.WeakValueDictionary[int, _LogBuffer] = weakref.WeakValueDictionary()
+_KEYS = itertools.count(1)
+
+
+def _route(env, instance, status, category, message) -> None:
+    """Send a formatted message to its instance's buffer; print other FMUs' as fmpy does."""
+    buffer = _BUFFERS.get(env) if env else None
+    if buffer is not None:
+        buffer(env, instance, status, category, message)
+    else:
+        printLogMessage(env, instance, status, category, message)
+
+
+#: The one Python logger behind fmpy's C proxy. The proxy keeps a single process-wide pointer to
+#: the last logger it wrapped (fmpy's default callbacks use it too), so that logger must live as
+#: long as the process and route each message by its ``componentEnvironment``.
+_LOGGER = fmi2CallbackLoggerTYPE(_route)
+
+
 def _callbacks(log: _LogBuffer) -> fmi2CallbackFunctions:
     """FMI callbacks routing the FMU's (variadic) logger through fmpy's C proxy to ``log``."""
     from fmpy.logging import addLoggerProxy
 
     callbacks = fmi2CallbackFunctions()
-    callbacks.logger = fmi2CallbackLoggerTYPE(log)
+    callbacks.logger = _LOGGER
     callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy_calloc)
     callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy_free)
+    key = next(_KEYS)
+    _BUFFERS[key] = log
+    callbacks.componentEnvironment = key
     addLoggerProxy(ctypes.byref(callbacks))
     return callbacks
 
@@ -240,7 +266,7 @@ class FmuInstance:
     def deserialize_state(self, data: bytes, time: float) -> None:
         """Restore a state produced by :meth:`serialize_state` at master time ``time``."""
         state = self._guarded(
-            "fmi2DeSerializeFMUstate", self._slave.deSerializeFMUstate, bytearray(data)
+            "fmi2DeSerializeFMUstate", self._slave.deSerializeFMUstate, bytes(data)
         )
         try:
             self.set_state((state, time))

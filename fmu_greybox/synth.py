@@ -278,13 +278,15 @@ def synthesise(
     signals = {name: u[:, j] + noise[name] for j, name in enumerate(INPUTS)}
     signals.update({name: y[:, j] + noise[name] for j, name in enumerate(outputs)})
     units = {name: whitebox.variable(name).unit for name in signals}
+    stride = max(1, n // 2000)
     metadata = {
         "generator": "fmu-greybox synth",
         "truth_fmu": truth.path.name,
         "effects": json.dumps(request.effects, sort_keys=True),
         "seed": str(request.seed),
         "noise": repr(request.noise),
-        "reference": json.dumps(reference[:: max(1, n // 2000)].round(6).tolist()),
+        "reference_step": repr(dt * stride),
+        "reference": json.dumps(reference[::stride].round(6).tolist()),
     }
     return Recording(time=time, signals=signals, units=units, source="synth", metadata=metadata)
 

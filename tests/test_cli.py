@@ -1,0 +1,244 @@
+"""The ``fmu-greybox`` command line: build, synth, simulate, demo; exit codes and messages."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner, Result
+
+from fmu_greybox.builtin import sources_digest
+from fmu_greybox.cli import main
+from fmu_greybox.recording import load_recording
+from fmu_greybox.synth import SENSOR_NOISE
+
+SCRIPT = Path(sys.executable).with_name("fmu-greybox")
+
+
+@pytest.fixture(scope="module")
+def env(fmu_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    """Environment whose built-in FMU cache already holds this session's FMUs."""
+    base = tmp_path_factory.mktemp("cache")
+    folder = base / "fmus" / sources_digest()[:16]
+    folder.mkdir(parents=True)
+    for fmu in fmu_dir.glob("*.fmu"):
+        shutil.copy2(fmu, folder / fmu.name)
+    return {"FMU_GREYBOX_CACHE": str(base)}
+
+
+def cli(env: dict[str, str], *args: object) -> Result:
+    return CliRunner().invoke(main, [str(a) for a in args], env=env)
+
+
+def run_script(env: dict[str, str], *args: object) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [str(SCRIPT), *map(str, args)],
+        capture_output=True,
+        text=True,
+        env={**os.environ, **env},
+        timeout=120,
+        check=False,
+    )
+
+
+def assert_user_error(result: Result, *parts: str) -> None:
+    assert result.exit_code == 1, result.output
+    assert result.stderr.startswith("error: ")
+    assert "Traceback" not in result.output
+    for part in parts:
+        assert part in result.stderr
+
+
+def test_fmu_build_writes_both_fmus(tmp_path: Path) -> None:
+    result = run_script({}, "fmu", "build", "--out", tmp_path / "fmus")
+    assert result.returncode == 0, result.stderr
+    for name in ("HydraulicActuator", "HydraulicActuatorTruth"):
+        path = tmp_path / "fmus" / f"{name}.fmu"
+        assert f"built {name}: {path}" in result.stdout
+        with zipfile.ZipFile(path) as zf:
+            assert "modelDescription.xml" in zf.namelist()
+
+
+def test_synth_list_effects(env: dict[str, str]) -> None:
+    result = cli(env, "synth", "--list-effects")
+    assert result.exit_code == 0, result.output
+    lines = result.stdout.splitlines()
+    names = [line.split()[0] for line in lines]
+    assert names[:2] == ["gain_error", "offset"] and "coulomb_friction" in names
+    assert "time_delay" in names and len(names) == 11
+    coulomb = next(line for line in lines if line.startswith("coulomb_friction"))
+    assert "[N]" in coulomb
+
+
+@pytest.mark.parametrize(("recorded", "simulated"), [(".csv", ".parquet"), (".parquet", ".csv")])
+def test_synth_then_simulate(
+    env: dict[str, str], tmp_path: Path, recorded: str, simulated: str
+) -> None:
+    record = tmp_path / f"x{recorded}"
+    result = cli(
+        env,
+        "-q",
+        "synth",
+        "--effect",
+        "coulomb_friction=800",
+        "--seed",
+        3,
+        "--duration",
+        2,
+        "--out",
+        record,
+    )
+    assert result.exit_code == 0, result.output
+    assert result.stdout == ""  # --quiet
+    recording = load_recording(record)
+    assert recording.n_samples == 2001 and recording.names[0] == "valve_current"
+    assert set(recording.names) >= set(SENSOR_NOISE)
+    assert recording.units["supply_pressure"] == "Pa" and recording.units["engage"] == "1"
+    if recorded == ".parquet":  # Parquet keeps the provenance too
+        assert json.loads(recording.metadata["effects"]) == {"coulomb_friction": 800.0}
+    out = tmp_path / f"y{simulated}"
+    result = cli(env, "simulate", "builtin:HydraulicActuator", record, "--out", out)
+    assert result.exit_code == 0, result.output
+    assert f"wrote {out} (2001 samples of 10 outputs)" in result.stdout
+    whitebox = load_recording(out)
+    assert np.array_equal(whitebox.time, recording.time)
+    assert whitebox.units["ram_position"] == "m"
+    residual = recording["ram_position"] - whitebox["ram_position"]
+    assert 0 < np.sqrt(np.mean(residual**2)) < 0.05  # friction makes the white-box drift
+
+
+def test_simulate_with_map_fix_and_param(env: dict[str, str], tmp_path: Path) -> None:
+    record = tmp_path / "x.csv"
+    assert cli(env, "synth", "--duration", 2, "--noise", 0, "--out", record).exit_code == 0
+    plain = tmp_path / "plain.csv"
+    assert cli(env, "simulate", "builtin:HydraulicActuator", record, "--out", plain).exit_code == 0
+    frame = record.read_text().replace("valve_current", "i_cmd", 1)
+    edited = tmp_path / "edited.csv"
+    edited.write_text(frame)
+    result = cli(env, "simulate", "builtin:HydraulicActuator", edited, "--out", tmp_path / "m.csv")
+    assert_user_error(result, "'valve_current' needs column 'valve_current'", "--map", "--fix")
+    result = cli(
+        env,
+        "simulate",
+        "builtin:HydraulicActuator",
+        edited,
+        "--out",
+        tmp_path / "m.csv",
+        "--map",
+        "valve_current=i_cmd",
+        "--fix",
+        "engage=1",
+    )
+    assert result.exit_code == 0, result.output
+    assert load_recording(tmp_path / "m.csv") == load_recording(plain)
+    result = cli(
+        env,
+        "simulate",
+        "builtin:HydraulicActuator",
+        record,
+        "--out",
+        tmp_path / "p.csv",
+        "--param",
+        "viscous_damping=5000",
+    )
+    assert result.exit_code == 0, result.output
+    assert load_recording(tmp_path / "p.csv") != load_recording(plain)
+
+
+@pytest.mark.parametrize(
+    ("args", "parts"),
+    [
+        (
+            ("synth", "--effect", "coulomb_frictoin=800", "--out", "x.csv"),
+            ("unknown effect 'coulomb_frictoin'", "did you mean coulomb_friction"),
+        ),
+        (
+            ("synth", "--effect", "compliance=2", "--out", "x.csv"),
+            ("fmi2ExitInitializationMode", "compliance = 2 is outside its range [0, 0.9]"),
+        ),
+        (
+            ("simulate", "builtin:HydraulicActuator", "missing.csv", "--out", "y.csv"),
+            ("missing.csv", "cannot read the file"),
+        ),
+    ],
+)
+def test_user_error_exits_1_with_a_message(
+    env: dict[str, str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, args: tuple, parts: tuple
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert_user_error(cli(env, *args), *parts)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_simulate_errors(env: dict[str, str], tmp_path: Path) -> None:
+    record = tmp_path / "x.csv"
+    assert cli(env, "synth", "--duration", 0.5, "--out", record).exit_code == 0
+    result = cli(
+        env,
+        "simulate",
+        "builtin:HydraulicActuator",
+        record,
+        "--out",
+        tmp_path / "y.csv",
+        "--map",
+        "novalue",
+    )
+    assert result.exit_code == 2 and "'novalue' is not NAME=VALUE" in result.stderr
+    assert_user_error(
+        cli(env, "simulate", tmp_path / "absent.fmu", record, "--out", tmp_path / "y.csv"),
+        "absent.fmu: no such FMU file",
+    )
+    assert_user_error(
+        cli(env, "simulate", "builtin:NoSuchModel", record, "--out", tmp_path / "y.csv"),
+        "unknown built-in FMU 'builtin:NoSuchModel'",
+    )
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("synth", "--duration", "abc", "--out", "x.csv"),
+        ("synth", "--seed", "1"),  # no --out
+        ("synth", "--no-such-option"),
+        ("simulate", "builtin:HydraulicActuator"),
+    ],
+)
+def test_usage_error_exits_2(env: dict[str, str], args: tuple) -> None:
+    result = cli(env, *args)
+    assert result.exit_code == 2, result.output
+    assert "Usage:" in result.stderr and "Traceback" not in result.output
+
+
+def test_subprocess_user_error_and_debug_traceback(env: dict[str, str], tmp_path: Path) -> None:
+    args = ("synth", "--effect", "nope=1", "--out", tmp_path / "x.csv")
+    plain = run_script(env, *args)
+    assert plain.returncode == 1
+    assert plain.stderr.startswith("error: ") and "Traceback" not in plain.stderr
+    debug = run_script(env, "--debug", *args)
+    assert debug.returncode == 1
+    assert "Traceback (most recent call last)" in debug.stderr
+    assert "fmu_greybox.errors.ConfigError" in debug.stderr
+    assert not (tmp_path / "x.csv").exists()
+
+
+def test_demo_prints_one_json_line(env: dict[str, str], tmp_path: Path) -> None:
+    result = cli(env, "demo", "--out", tmp_path / "demo", "--duration", 3, "--json")
+    assert result.exit_code == 0, result.output
+    lines = result.stdout.splitlines()
+    assert len(lines) == 1
+    summary = json.loads(lines[0])
+    assert summary["effects"] == {"coulomb_friction": 800.0} and summary["samples"] == 3001
+    rows = {row["output"]: row for row in summary["outputs"]}
+    assert set(rows) >= {"spool_position", "ram_position", "itfv_pressure"}
+    for row in rows.values():
+        assert row["wb_rmse"] >= 0.0 and row["unit"]
+    assert rows["ram_position"]["unit"] == "m" and rows["ram_position"]["wb_rmse"] > 1e-4
+    for name in ("recording.csv", "whitebox.csv"):
+        assert load_recording(tmp_path / "demo" / name).n_samples == 3001
