@@ -1,8 +1,9 @@
-"""The built-in reference FMUs, built from ``fmu_sources/`` on first use and cached.
+"""The built-in FMUs, built from ``fmu_sources/`` on first use and cached.
 
-``builtin:HydraulicActuator`` and ``builtin:HydraulicActuatorTruth`` name them wherever an FMU
-path is accepted. The cache folder is keyed by a hash of the C sources and the builder, so an
-edit of either rebuilds; set ``FMU_GREYBOX_CACHE`` to move it.
+``builtin:HydraulicActuator``, ``builtin:HydraulicActuatorTruth``,
+``builtin:ElectroMechanicalPositioner`` and ``builtin:ElectroMechanicalPositionerTruth`` name
+them wherever an FMU path is accepted. The cache folder is keyed by a hash of the C sources and
+the builder, so an edit of either rebuilds; set ``FMU_GREYBOX_CACHE`` to move it.
 """
 
 from __future__ import annotations
@@ -14,7 +15,17 @@ from pathlib import Path
 from .errors import FmuArchiveError, FmuBuildError
 
 PREFIX = "builtin:"
+#: The reference actuator's models (white-box, truth).
 REFERENCE_MODELS = ("HydraulicActuator", "HydraulicActuatorTruth")
+
+#: Every built-in model -> its folder under ``fmu_sources/`` (one folder builds a white-box and
+#: its truth model).
+BUILTIN_MODELS: dict[str, str] = {
+    "HydraulicActuator": "HydraulicActuator",
+    "HydraulicActuatorTruth": "HydraulicActuator",
+    "ElectroMechanicalPositioner": "ElectroMechanicalPositioner",
+    "ElectroMechanicalPositionerTruth": "ElectroMechanicalPositioner",
+}
 
 
 def sources_root() -> Path:
@@ -57,20 +68,37 @@ def sources_digest() -> str:
 
 
 def reference_fmus() -> dict[str, Path]:
-    """Paths of the built-in FMUs, building them once if needed.
+    """Paths of the reference actuator FMUs, building them once if needed.
 
     Returns
     -------
     dict[str, Path]
         Model identifier -> ``.fmu`` path.
     """
-    from .fmu_build import build_reference_fmus
+    return model_fmus(BUILTIN_MODELS[REFERENCE_MODELS[0]])
+
+
+def model_fmus(model_folder: str) -> dict[str, Path]:
+    """Paths of the built-in FMUs of one model folder, building them once if needed.
+
+    Parameters
+    ----------
+    model_folder : str
+        A folder named in :data:`BUILTIN_MODELS`, e.g. ``"ElectroMechanicalPositioner"``.
+
+    Returns
+    -------
+    dict[str, Path]
+        Model identifier -> ``.fmu`` path, for the white-box and its truth model.
+    """
+    from .fmu_build import SOURCES_DIR, build_model_pair
 
     folder = cache_dir()
-    paths = {name: folder / f"{name}.fmu" for name in REFERENCE_MODELS}
+    names = [name for name, source in BUILTIN_MODELS.items() if source == model_folder]
+    paths = {name: folder / f"{name}.fmu" for name in names}
     if not all(p.is_file() for p in paths.values()):
         folder.mkdir(parents=True, exist_ok=True)
-        paths = build_reference_fmus(folder)
+        paths = build_model_pair(SOURCES_DIR / model_folder, folder)
     return paths
 
 
@@ -85,16 +113,16 @@ def resolve_fmu(spec: str | Path) -> Path:
     text = str(spec)
     if text.startswith(PREFIX):
         name = text[len(PREFIX) :]
-        if name not in REFERENCE_MODELS:
+        if name not in BUILTIN_MODELS:
             raise FmuArchiveError(
                 f"unknown built-in FMU {text!r}; choose one of "
-                + ", ".join(PREFIX + n for n in REFERENCE_MODELS)
+                + ", ".join(PREFIX + n for n in BUILTIN_MODELS)
             )
-        return reference_fmus()[name]
+        return model_fmus(BUILTIN_MODELS[name])[name]
     path = Path(text)
     if not path.is_file():
         raise FmuArchiveError(
             f"{path}: no such FMU file; give a path or one of "
-            + ", ".join(PREFIX + n for n in REFERENCE_MODELS)
+            + ", ".join(PREFIX + n for n in BUILTIN_MODELS)
         )
     return path

@@ -350,7 +350,8 @@ _SYMBOLS: dict[str, tuple[dict[str, int], float]] = {
     "J": ({"kg": 1, "m": 2, "s": -2}, 1.0), "W": ({"kg": 1, "m": 2, "s": -3}, 1.0),
     "V": ({"kg": 1, "m": 2, "s": -3, "A": -1}, 1.0), "Hz": ({"s": -1}, 1.0),
     "bar": ({"kg": 1, "m": -1, "s": -2}, 1e5), "l": ({"m": 3}, 1e-3),
-    "min": ({"s": 1}, 60.0),
+    "min": ({"s": 1}, 60.0), "Ohm": ({"kg": 1, "m": 2, "s": -3, "A": -2}, 1.0),
+    "H": ({"kg": 1, "m": 2, "s": -2, "A": -2}, 1.0),
 }
 _PREFIXES = {"G": 1e9, "M": 1e6, "k": 1e3, "c": 1e-2, "m": 1e-3, "u": 1e-6}
 _TOKEN = re.compile(r"\s*(?:(?P<sym>[A-Za-z]+)(?P<exp>[+-]?\d+)?|(?P<op>[./()])|(?P<one>1))")
@@ -800,8 +801,32 @@ def build_reference_fmus(out_dir: Path) -> dict[str, Path]:
     FmuBuildError
         As :func:`build_fmu`.
     """
-    table = load_variable_table(REFERENCE_MODEL_DIR / "variables.toml")
+    return build_model_pair(REFERENCE_MODEL_DIR, out_dir)
+
+
+def build_model_pair(model_dir: Path, out_dir: Path) -> dict[str, Path]:
+    """Build every model a folder's table declares (white-box and truth), in parallel.
+
+    Parameters
+    ----------
+    model_dir : Path
+        Model folder (see :func:`build_fmu`); its ``variables.toml`` lists the white-box first
+        and then the truth model, whose truth-only variables carry ``models``.
+    out_dir : Path
+        Where the FMUs are written.
+
+    Returns
+    -------
+    dict of str to Path
+        Model identifier -> ``.fmu`` path, in the table's order.
+
+    Raises
+    ------
+    FmuBuildError
+        As :func:`build_fmu`.
+    """
+    table = load_variable_table(Path(model_dir) / "variables.toml")
     identifiers = [m.identifier for m in table.models]
     with ThreadPoolExecutor(max_workers=len(identifiers)) as pool:
-        paths = pool.map(lambda i: build_fmu(REFERENCE_MODEL_DIR, out_dir, i), identifiers)
+        paths = pool.map(lambda i: build_fmu(model_dir, out_dir, i), identifiers)
         return dict(zip(identifiers, paths, strict=True))
