@@ -1,0 +1,298 @@
+"""The autoregressive grey-box: stage correctors chained in the paper's order.
+
+:class:`GreyBoxChain` owns the stage layouts and their sparse-GP correctors. It is trained by
+teacher forcing (:meth:`GreyBoxChain.fit`) and run one communication step at a time
+(:meth:`GreyBoxChain.step`), the same code serving the co-simulation master, the array-based
+free run used for validation, and the exported FMU.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .config import ProjectConfig
+from .errors import ConfigError
+from .gp import SparseGPR
+from .stage import TARGET_MODES, StageLayout
+
+ProgressCallback = Callable[[str, int, float], None]
+
+
+@dataclass
+class ChainState:
+    """Everything the chain remembers between steps (its autoregressive memory).
+
+    Attributes
+    ----------
+    memory : list of ndarray, each shape (L_q,)
+        Per stage, its previous levels, most recent first.
+    memory_var : list of ndarray, each shape (L_q,)
+        Their variances.
+    out_mean, out_var : ndarray, shape (Q,)
+        Stage outputs and variances of the last step.
+    """
+
+    memory: list[np.ndarray]
+    memory_var: list[np.ndarray]
+    out_mean: np.ndarray
+    out_var: np.ndarray
+
+    def copy(self) -> ChainState:
+        """An independent copy (for saving and restoring state)."""
+        return ChainState(
+            memory=[m.copy() for m in self.memory],
+            memory_var=[m.copy() for m in self.memory_var],
+            out_mean=self.out_mean.copy(),
+            out_var=self.out_var.copy(),
+        )
+
+    def to_array(self) -> np.ndarray:
+        """Flatten into one float64 vector (for FMU state serialisation)."""
+        return np.concatenate([*self.memory, *self.memory_var, self.out_mean, self.out_var])
+
+    def load_array(self, flat: np.ndarray) -> None:
+        """Restore from :meth:`to_array` output, in place."""
+        pos = 0
+        for block in [*self.memory, *self.memory_var, self.out_mean, self.out_var]:
+            block[:] = flat[pos : pos + block.size]
+            pos += block.size
+
+
+class GreyBoxChain:
+    """The chain of stage correctors of a project.
+
+    Parameters
+    ----------
+    config : ProjectConfig
+        Stages, signals and GP settings.
+    target_mode : str, optional
+        Overrides ``config.gp.target``.
+
+    Attributes
+    ----------
+    stages : list of StageLayout
+        In autoregressive order.
+    exo_names : list of str
+        Signals forming the chain's exogenous vector (union of the stages' inputs).
+    correctors_ : list of SparseGPR
+        Fitted correctors, one per stage (after :meth:`fit` or loading).
+    """
+
+    def __init__(self, config: ProjectConfig, target_mode: str | None = None) -> None:
+        mode = target_mode or config.gp.target
+        if mode not in TARGET_MODES:
+            raise ConfigError(
+                f"{mode!r} is not one of {', '.join(TARGET_MODES)}", field="gp.target"
+            )
+        self.config = config
+        self.target_mode = mode
+        self.exo_names: list[str] = []
+        for stage in config.stages:
+            self.exo_names += [s for s in stage.inputs if s not in self.exo_names]
+        names = [s.name for s in config.stages]
+        self.stages = [
+            StageLayout(
+                config=s,
+                target_mode=mode,
+                exo_index=np.array([self.exo_names.index(i) for i in s.inputs], dtype=int),
+                stage_index=q,
+                feed_index=np.array([names.index(f) for f in s.feeds_from], dtype=int),
+            )
+            for q, s in enumerate(config.stages)
+        ]
+        self.correctors_: list[SparseGPR] = []
+        self._features = [np.empty(s.n_features) for s in self.stages]
+
+    # ------------------------------------------------------------------ names
+    @property
+    def stage_names(self) -> list[str]:
+        """Stage names in order."""
+        return [s.name for s in self.stages]
+
+    @property
+    def target_signals(self) -> list[str]:
+        """Recorded signal of each stage."""
+        return [s.config.target for s in self.stages]
+
+    @property
+    def whitebox_outputs(self) -> list[str]:
+        """White-box FMU output of each stage."""
+        return [s.config.whitebox_output for s in self.stages]
+
+    @property
+    def max_lag(self) -> int:
+        """Longest memory of any stage."""
+        return max(s.lags for s in self.stages)
+
+    def feature_names(self, q: int) -> list[str]:
+        """Feature names of stage ``q``."""
+        return self.stages[q].feature_names(self.exo_names, self.stage_names)
+
+    # ------------------------------------------------------------------ training
+    def fit(
+        self,
+        exo: np.ndarray,
+        y_wb: np.ndarray,
+        outputs: np.ndarray,
+        progress: ProgressCallback | None = None,
+    ) -> GreyBoxChain:
+        """Train every stage by teacher forcing.
+
+        Parameters
+        ----------
+        exo : ndarray, shape (n, n_exo)
+            Exogenous inputs per row (columns as :attr:`exo_names`).
+        y_wb : ndarray, shape (n, Q)
+            White-box predictions of the stage outputs.
+        outputs : ndarray, shape (n, Q)
+            Recorded stage outputs.
+        progress : callable, optional
+            Called as ``progress(stage_name, iteration, bound)`` during optimisation.
+
+        Returns
+        -------
+        GreyBoxChain
+            ``self``, with :attr:`correctors_` set.
+        """
+        gp = self.config.gp
+        self.correctors_ = []
+        for stage in self.stages:
+            X, t = stage.teacher_forced(exo, y_wb, outputs)
+            X, t = _thin(X, t, gp.max_train_samples)
+            corrector = SparseGPR(
+                n_inducing=min(gp.inducing, t.size),
+                inducing=gp.inducing_method,
+                max_iter=gp.max_iter,
+                seed=gp.seed,
+            )
+            callback = None
+            if progress is not None:
+                callback = _stage_progress(progress, stage.name)
+            self.correctors_.append(corrector.fit(X, t, progress=callback))
+        return self
+
+    # ------------------------------------------------------------------ running
+    def start(self, outputs: np.ndarray, y_wb: np.ndarray) -> ChainState:
+        """Initial memory from known outputs before the first predicted row.
+
+        Parameters
+        ----------
+        outputs, y_wb : ndarray, shape (L_max, Q)
+            Known stage outputs and white-box predictions of the last ``L_max`` rows, oldest
+            first (fewer rows are repeated backwards from the oldest).
+
+        Returns
+        -------
+        ChainState
+        """
+        outputs = np.atleast_2d(outputs)
+        y_wb = np.atleast_2d(y_wb)
+        memory, memory_var = [], []
+        for stage in self.stages:
+            level = stage.level(outputs[:, stage.stage_index], y_wb[:, stage.stage_index])[::-1]
+            taken = np.resize(level, stage.lags) if level.size < stage.lags else level[: stage.lags]
+            memory.append(np.array(taken, dtype=np.float64))
+            memory_var.append(np.zeros(stage.lags))
+        return ChainState(
+            memory=memory,
+            memory_var=memory_var,
+            out_mean=np.array(outputs[-1], dtype=np.float64),
+            out_var=np.zeros(len(self.stages)),
+        )
+
+    def step(
+        self, state: ChainState, exo_prev: np.ndarray, y_wb: np.ndarray, enabled: bool = True
+    ) -> ChainState:
+        """Advance the chain by one row, in place.
+
+        Parameters
+        ----------
+        state : ChainState
+            Memory; updated in place.
+        exo_prev : ndarray, shape (n_exo,)
+            Exogenous inputs of the previous row.
+        y_wb : ndarray, shape (Q,)
+            White-box predictions of this row.
+        enabled : bool
+            ``False`` passes the white-box through (for A/B runs) while keeping the memory
+            consistent with it.
+
+        Returns
+        -------
+        ChainState
+            ``state``, whose ``out_mean`` / ``out_var`` hold this row's outputs.
+        """
+        for stage, corrector in zip(self.stages, self.correctors_, strict=True):
+            q = stage.stage_index
+            memory, memory_var = state.memory[q], state.memory_var[q]
+            if enabled:
+                x = self._features[q]
+                stage.assemble(x, exo_prev, y_wb[q], state.out_mean, memory)
+                mu, var_gp, grad = corrector.predict_one_grad(x)
+                out, var, level = stage.combine(
+                    mu, var_gp, grad, y_wb[q], state.out_var, memory, memory_var
+                )
+            else:
+                out, var = float(y_wb[q]), 0.0
+                level = stage.level(np.float64(out), np.float64(y_wb[q]))
+            state.out_mean[q] = out
+            state.out_var[q] = var
+            if memory.size > 1:
+                memory[1:] = memory[:-1].copy()
+                memory_var[1:] = memory_var[:-1].copy()
+            memory[0] = level
+            memory_var[0] = var
+        return state
+
+    def free_run(
+        self,
+        exo: np.ndarray,
+        y_wb: np.ndarray,
+        outputs: np.ndarray,
+        start: int,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Free-running prediction over precomputed white-box outputs.
+
+        Parameters
+        ----------
+        exo : ndarray, shape (n, n_exo)
+        y_wb : ndarray, shape (n, Q)
+        outputs : ndarray, shape (n, Q)
+            Recorded outputs; only rows ``start - L_max + 1 .. start`` are used, to
+            initialise the memory.
+        start : int
+            Last row whose outputs are taken as known (``>= 0``).
+
+        Returns
+        -------
+        mean, std : ndarray, shape (n - start - 1, Q)
+            Predictions of rows ``start + 1 .. n - 1``.
+        """
+        first = max(0, start - self.max_lag + 1)
+        state = self.start(outputs[first : start + 1], y_wb[first : start + 1])
+        n = exo.shape[0]
+        mean = np.empty((n - start - 1, len(self.stages)))
+        var = np.empty_like(mean)
+        for i, j in enumerate(range(start + 1, n)):
+            self.step(state, exo[j - 1], y_wb[j])
+            mean[i] = state.out_mean
+            var[i] = state.out_var
+        return mean, np.sqrt(var)
+
+
+def _thin(X: np.ndarray, t: np.ndarray, limit: int) -> tuple[np.ndarray, np.ndarray]:
+    """Keep at most ``limit`` rows, evenly spread over the sequence."""
+    if t.size <= limit:
+        return X, t
+    rows = np.linspace(0, t.size - 1, limit).round().astype(int)
+    return np.ascontiguousarray(X[rows]), t[rows]
+
+
+def _stage_progress(progress: ProgressCallback, name: str) -> Callable[[int, float], None]:
+    def callback(iteration: int, bound: float) -> None:
+        progress(name, iteration, bound)
+
+    return callback

@@ -1,0 +1,104 @@
+"""The co-simulation master: the white-box FMU and the stage correctors, stepped together.
+
+Each communication step does what a bench does: set the FMU's inputs, ``fmi2DoStep``, read the
+white-box outputs, then run the stage correctors in autoregressive order, each fed its own and
+the earlier stages' corrected outputs (free run). Rows up to ``start`` only advance the FMU and
+provide the chain's initial memory from the recording.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from .fmu_archive import open_fmu
+from .fmu_instance import FmuInstance
+from .model_dir import GreyBoxModel
+from .project_data import ProjectData
+
+
+@dataclass
+class MasterRun:
+    """What the master produced over the rows it predicted.
+
+    Attributes
+    ----------
+    rows : ndarray of int, shape (m,)
+        Recording rows predicted (``start + 1 .. n - 1``).
+    time : ndarray, shape (m,)
+        Their times [s].
+    whitebox : ndarray, shape (m, Q)
+        White-box stage outputs.
+    mean, std : ndarray, shape (m, Q)
+        Grey-box stage outputs and their standard deviations.
+    """
+
+    rows: np.ndarray
+    time: np.ndarray
+    whitebox: np.ndarray
+    mean: np.ndarray
+    std: np.ndarray
+
+
+def run_master(
+    model: GreyBoxModel,
+    data: ProjectData,
+    start: int,
+    progress: bool = False,
+) -> MasterRun:
+    """Step the white-box FMU and the chain over a recording, one communication step at a time.
+
+    Parameters
+    ----------
+    model : GreyBoxModel
+        The trained grey-box.
+    data : ProjectData
+        The recording arranged for the chain (its ``y_wb`` is not used: the FMU is stepped
+        here).
+    start : int
+        Last row whose recorded outputs initialise the chain's memory.
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    MasterRun
+    """
+    chain = model.chain
+    u = data.binding.matrix(data.recording)
+    n = u.shape[0]
+    lag = chain.max_lag
+    m = n - start - 1
+    wb = np.empty((n, len(chain.stages)))
+    mean = np.empty((m, len(chain.stages)))
+    var = np.empty_like(mean)
+    dt = data.recording.dt
+    with (
+        open_fmu(model.whitebox_fmu) as archive,
+        FmuInstance(
+            archive,
+            inputs=data.binding.inputs,
+            outputs=chain.whitebox_outputs,
+            parameters=model.config.parameters,
+            start_values=dict(zip(data.binding.inputs, u[0], strict=True)),
+            instance_name="greybox_master",
+            start_time=float(data.recording.time[0]),
+        ) as fmu,
+    ):
+        wb[0] = fmu.read_outputs()
+        state = None
+        for j in tqdm(range(1, n), disable=not progress, desc="free run", unit="step", leave=False):
+            wb[j] = fmu.step(u[j - 1], dt)
+            if j == start + 1:
+                first = max(0, start - lag + 1)
+                state = chain.start(data.outputs[first : start + 1], wb[first : start + 1])
+            if state is not None:
+                chain.step(state, data.exo[j - 1], wb[j])
+                mean[j - start - 1] = state.out_mean
+                var[j - start - 1] = state.out_var
+    rows = np.arange(start + 1, n)
+    return MasterRun(
+        rows=rows, time=data.recording.time[rows], whitebox=wb[rows], mean=mean, std=np.sqrt(var)
+    )

@@ -1,0 +1,76 @@
+"""Error measures of the paper's tables: RMSE, normalised RMSE, improvement."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+
+def rmse(predicted: np.ndarray, recorded: np.ndarray) -> float:
+    """Root of the mean square difference.
+
+    Parameters
+    ----------
+    predicted, recorded : ndarray, shape (n,)
+    """
+    return float(np.sqrt(np.mean((np.asarray(predicted) - np.asarray(recorded)) ** 2)))
+
+
+def improvement(before: float, after: float) -> float:
+    """Relative change of an error, as a fraction: ``after / before - 1`` (negative = better)."""
+    if before == 0.0:
+        return 0.0 if after == 0.0 else float("inf")
+    return after / before - 1.0
+
+
+def stage_table(
+    names: Sequence[str],
+    recorded: np.ndarray,
+    whitebox: np.ndarray,
+    greybox: np.ndarray,
+    target_std: Mapping[str, float],
+) -> dict[str, dict[str, float]]:
+    """Per-stage white-box and grey-box errors on the same rows.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Stage names, one per column.
+    recorded, whitebox, greybox : ndarray, shape (m, Q)
+        Recorded targets and the two predictions.
+    target_std : mapping
+        Stage -> standard deviation of its training target (normalises the RMSE).
+
+    Returns
+    -------
+    dict
+        Stage -> ``wb_rmse``, ``gb_rmse``, ``wb_nrmse``, ``gb_nrmse``, ``improvement``.
+    """
+    table = {}
+    for q, name in enumerate(names):
+        wb = rmse(whitebox[:, q], recorded[:, q])
+        gb = rmse(greybox[:, q], recorded[:, q])
+        scale = target_std[name] or 1.0
+        table[name] = {
+            "wb_rmse": wb,
+            "gb_rmse": gb,
+            "wb_nrmse": wb / scale,
+            "gb_nrmse": gb / scale,
+            "improvement": improvement(wb, gb),
+        }
+    return table
+
+
+def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, str]) -> str:
+    """The table as fixed-width text, one stage a line (for the terminal)."""
+    lines = [
+        f"{'stage':8s} {'unit':6s} {'WB RMSE':>11s} {'GB RMSE':>11s} {'WB nRMSE':>9s} "
+        f"{'GB nRMSE':>9s} {'improvement':>11s}"
+    ]
+    for name, row in table.items():
+        lines.append(
+            f"{name:8s} {units.get(name, ''):6s} {row['wb_rmse']:11.3e} {row['gb_rmse']:11.3e} "
+            f"{row['wb_nrmse']:9.3g} {row['gb_nrmse']:9.3g} {100 * row['improvement']:10.1f}%"
+        )
+    return "\n".join(lines)

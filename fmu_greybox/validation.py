@@ -1,0 +1,74 @@
+"""Validate a trained grey-box on held-out data (the ``validate`` command)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from .atomic import atomic_write
+from .fmu_archive import open_fmu
+from .master import MasterRun, run_master
+from .metrics import stage_table
+from .model_dir import GreyBoxModel
+from .project_data import ProjectData, prepare, split_row
+from .recording import Recording
+
+
+@dataclass
+class Validation:
+    """A free run on held-out data and its error table.
+
+    Attributes
+    ----------
+    run : MasterRun
+        The master's output over the held-out rows.
+    data : ProjectData
+        The recording arranged for the chain.
+    table : dict
+        Stage -> ``wb_rmse``, ``gb_rmse``, ``wb_nrmse``, ``gb_nrmse``, ``improvement``.
+    held_out : str
+        Which rows were held out, in words.
+    """
+
+    run: MasterRun
+    data: ProjectData
+    table: dict[str, dict[str, float]]
+    held_out: str
+
+
+def validate_model(model: GreyBoxModel, recording: Recording, progress: bool = False) -> Validation:
+    """Free-run the grey-box over held-out rows and compare with the white-box.
+
+    On the training recording the held-out rows are those after the training split; on any
+    other recording, every row after the first.
+
+    Returns
+    -------
+    Validation
+    """
+    with open_fmu(model.whitebox_fmu) as archive:
+        data = prepare(model.config, model.chain, archive, recording, progress)
+    if recording.sha256() == model.training.get("recording_sha256"):
+        start = split_row(model.config, data.n_samples)
+        held_out = f"rows {start + 1}..{data.n_samples - 1} of the training recording"
+    else:
+        start = 0
+        held_out = f"all {data.n_samples - 1} rows of a recording not used in training"
+    run = run_master(model, data, start, progress)
+    table = stage_table(
+        model.chain.stage_names, data.outputs[run.rows], run.whitebox, run.mean, model.target_std
+    )
+    return Validation(run=run, data=data, table=table, held_out=held_out)
+
+
+def write_metrics(validation: Validation, model: GreyBoxModel, path: Path) -> None:
+    """Write ``metrics.json`` atomically."""
+    payload = {
+        "held_out": validation.held_out,
+        "n_rows": int(validation.run.rows.size),
+        "units": model.training.get("target_unit", {}),
+        "stages": validation.table,
+    }
+    with atomic_write(path, "w") as f:
+        json.dump(payload, f, indent=2)
