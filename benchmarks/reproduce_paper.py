@@ -52,6 +52,7 @@ EXPERIMENTS = {
     },
     "experiment2": {
         "effects": {
+            "offset": 0.2,
             "coulomb_friction": 600.0,
             "internal_leakage": 2.0e-12,
             "compliance": 0.3,
@@ -69,35 +70,59 @@ EXPERIMENTS = {
 def project(train: int, validation: int, inducing: int) -> ProjectConfig:
     """The reference project with the experiment's split and inducing points."""
     raw = tomllib.loads(CONFIG.read_text())
-    raw["gp"] = {**raw.get("gp", {}), "inducing": inducing}
-    raw["split"] = {"train_fraction": (train + 0.5) / (train + validation)}
+    raw["gp"].update(overrides(train, validation, inducing)["gp"])
+    raw["split"] = overrides(train, validation, inducing)["split"]
     return parse_config(raw, CONFIG)
+
+
+def overrides(train: int, validation: int, inducing: int) -> dict:
+    """Project-file overrides of an experiment: inducing points and the train/held-out split."""
+    return {
+        "gp": {"inducing": inducing},
+        "split": {"train_fraction": (train + 0.5) / (train + validation)},
+    }
+
+
+def sizes(spec: dict, scale: float) -> tuple[int, int, int]:
+    """Training rows, validation rows and inducing points of an experiment at a scale."""
+    train = max(200, int(spec["train"] * scale))
+    validation = max(100, int(spec["validation"] * scale))
+    return train, validation, min(spec["inducing"], train // 4)
+
+
+def synthesise_experiment(spec: dict, scale: float) -> tuple:
+    """The experiment's recording and its project overrides."""
+    train, validation, inducing = sizes(spec, scale)
+    paths = reference_fmus()
+    profile = FlightTestProfile(duration=(train + validation - 1) * 1e-3)
+    request = SynthRequest(
+        effects=spec["effects"], seed=spec["seed"], noise=spec["noise"], profile=profile
+    )
+    with (
+        open_fmu(paths["HydraulicActuatorTruth"]) as truth,
+        open_fmu(paths["HydraulicActuator"]) as whitebox,
+    ):
+        recording = synthesise(truth, whitebox, request)
+    return recording, overrides(train, validation, inducing)
 
 
 def run_experiment(name: str, spec: dict, scale: float, quiet: bool) -> dict:
     """Synthesise, train, validate; returns the stage table."""
-    train = max(200, int(spec["train"] * scale))
-    validation = max(100, int(spec["validation"] * scale))
-    config = project(train, validation, min(spec["inducing"], train // 4))
-    paths = reference_fmus()
-    profile = FlightTestProfile(duration=(train + validation - 1) * 1e-3)
-    request = SynthRequest(effects=spec["effects"], seed=spec["seed"], noise=spec["noise"],
-                           profile=profile)
+    config = project(*sizes(spec, scale))
     started = time.perf_counter()
-    with open_fmu(paths["HydraulicActuatorTruth"]) as truth, open_fmu(
-        paths["HydraulicActuator"]
-    ) as whitebox:
-        recording = synthesise(truth, whitebox, request)
-    model = train_model(config, recording, progress=not quiet)
+    recording, _ = synthesise_experiment(spec, scale)
+    model = train_model(config, recording, progress=sys.stderr.isatty() and not quiet)
     result = validate_model(model, recording)
     seconds = time.perf_counter() - started
     if not quiet:
-        print(f"\n{name}: effects {spec['effects']}, noise {spec['noise']}, "
-              f"{model.training['train_rows']} training rows, {result.run.rows.size} validation "
-              f"rows, {config.gp.inducing} inducing points, {seconds:.1f} s")
+        print(
+            f"\n{name}: effects {spec['effects']}, noise {spec['noise']}, "
+            f"{model.training['train_rows']} training rows, {result.run.rows.size} validation "
+            f"rows, {config.gp.inducing} inducing points, {seconds:.1f} s"
+        )
         print(format_table(result.table, model.training["target_unit"]))
         paper = ", ".join(f"{k} {100 * v:.1f}%" for k, v in PAPER[name].items())
-        print(f"paper: {paper}")
+        print(f"paper: {paper}", flush=True)
     return {
         stage: {k: row[k] for k in ("wb_rmse", "gb_rmse", "wb_nrmse", "gb_nrmse", "improvement")}
         for stage, row in result.table.items()

@@ -376,6 +376,9 @@ def validate(
         return
     _info(ctx, f"held out: {result.held_out}")
     click.echo(format_table(result.table, model.training["target_unit"]))
+    passed = [n for n, a in zip(model.chain.stage_names, model.chain.active_, strict=True) if not a]
+    if passed:
+        _info(ctx, f"passed through (corrector lost to the white-box in training): {passed}")
     _info(ctx, f"wrote {out_dir / 'metrics.json'} and {out_dir / 'traces.png'}")
 
 
@@ -477,3 +480,136 @@ def demo(
             f"{row['output']:16s} {row['unit']:8s} {row['wb_rmse']:12.4g} {row['wb_nrmse']:9.3f}"
         )
     _info(ctx, f"done in {summary['seconds']} s")
+
+
+@main.command()
+@click.argument("model_dir", metavar="MODEL_DIR", type=click.Path(file_okay=False, path_type=Path))
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="The grey-box FMU to write (NAME.fmu).",
+)
+@click.option("--author", default=None, help="Author in the model description (default: you).")
+@click.option(
+    "--fmu-version", default="1.0", show_default=True, help="Version in the model description."
+)
+@click.option(
+    "--ood-threshold",
+    type=click.FloatRange(0.0, 1.0, min_open=True, max_open=True),
+    default=0.1,
+    show_default=True,
+    help="Default of the FMU's ood_threshold parameter (domain_score below it: out of domain).",
+)
+@click.option(
+    "--ssp",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Also write an SSP bench: the recording played back into the grey-box FMU.",
+)
+@click.option(
+    "--recording",
+    "recording_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Recording the bench plays back (needed with --ssp).",
+)
+@click.option(
+    "--greybox-only",
+    is_flag=True,
+    help="Leave the white-box FMU out of the bench (default: side by side).",
+)
+@click.pass_context
+def export(
+    ctx: click.Context,
+    model_dir: Path,
+    out: Path,
+    author: str | None,
+    fmu_version: str,
+    ood_threshold: float,
+    ssp: Path | None,
+    recording_path: Path | None,
+    greybox_only: bool,
+) -> None:
+    """Export a trained grey-box as an FMI 2.0 co-simulation FMU (and an SSP bench).
+
+    The FMU replaces the white-box on a bench: same inputs, corrected outputs, and per corrected
+    output NAME_std and NAME_wb, plus domain_score, out_of_domain and the parameters
+    correction_enabled and ood_threshold. See docs/bench.md.
+
+    \b
+    Examples:
+      fmu-greybox export model/ --out greybox.fmu
+      fmu-greybox export model/ --out greybox.fmu --ssp bench.ssp --recording rec.csv
+    """
+    from .bench import make_bench
+    from .export import export_greybox
+    from .model_dir import load_model
+    from .project_data import load_project_recording
+
+    if ssp is not None and recording_path is None:
+        raise click.UsageError("--ssp needs --recording (the recording the bench plays back)")
+    result = export_greybox(
+        model_dir, out, author=author, version=fmu_version, ood_threshold=ood_threshold
+    )
+    ports = result.interface.ports
+    counts = {k: sum(p.causality == k for p in ports) for k in ("input", "output", "parameter")}
+    _info(
+        ctx,
+        f"wrote {out} ({counts['input']} inputs, {counts['output']} outputs, "
+        f"{counts['parameter']} parameters; model {result.model_sha256[:12]}, GUID {result.guid})",
+    )
+    if ssp is not None:
+        recording = load_project_recording(load_model(model_dir).config, recording_path)
+        make_bench(out, recording, ssp, side_by_side=not greybox_only)
+        _info(ctx, f"wrote {ssp} (run it: fmu-greybox cosim {ssp} --out results.csv)")
+
+
+@main.command()
+@click.argument("ssp", metavar="BENCH", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "--engine",
+    type=click.Choice(["fmpy", "libcosim"]),
+    default="fmpy",
+    show_default=True,
+    help="Co-simulation master.",
+)
+@click.option("--stop-time", type=float, default=None, help="Stop time [s] (default: the SSD's).")
+@click.option(
+    "--step", type=float, default=None, help="Communication step [s] (default: the SSD's)."
+)
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="Results: every FMU output (.csv or .parquet).",
+)
+@click.pass_context
+def cosim(
+    ctx: click.Context,
+    ssp: Path,
+    engine: str,
+    stop_time: float | None,
+    step: float | None,
+    out: Path,
+) -> None:
+    """Co-simulate an SSP bench in fmpy or libcosim; write every FMU output.
+
+    Columns are COMPONENT.OUTPUT (Booleans as 0/1), one row per communication step.
+
+    \b
+    Examples:
+      fmu-greybox cosim bench.ssp --out results.csv
+      fmu-greybox cosim bench.ssp --engine libcosim --stop-time 2 --out results.parquet
+    """
+    from .bench import run_bench
+    from .recording import save_recording
+
+    started = time.perf_counter()
+    result = run_bench(ssp, engine=engine, stop_time=stop_time, step=step)
+    save_recording(result, out)
+    _info(
+        ctx,
+        f"wrote {out} ({result.n_samples} steps of {len(result.names)} outputs in {engine}, "
+        f"{time.perf_counter() - started:.2f} s)",
+    )

@@ -82,6 +82,12 @@ class StageConfig:
         Earlier stages whose outputs feed this one.
     lags : int
         Number of own previous outputs fed back (>= 1).
+    target_mode : str or None
+        What this stage's corrector learns (overrides ``[gp] target``).
+    feed_rates : bool
+        Also feed the rates of change of the feeding stages' outputs and of their residuals
+        to the white-box (e.g. a pressure stage fed by a position stage sees the velocity
+        and the velocity error).
     """
 
     name: str
@@ -90,6 +96,8 @@ class StageConfig:
     inputs: tuple[str, ...]
     feeds_from: tuple[str, ...]
     lags: int = 1
+    target_mode: str | None = None
+    feed_rates: bool = False
 
 
 @dataclass(frozen=True)
@@ -383,7 +391,18 @@ def _stages(reader: _Reader, items: Any, signals: Mapping[str, Signal]) -> tuple
         if not isinstance(entry, Mapping):
             reader.fail(where, "must be a table ([[stages]])")
         reader.keys(
-            entry, where, {"name", "target", "whitebox_output", "inputs", "feeds_from", "lags"}
+            entry,
+            where,
+            {
+                "name",
+                "target",
+                "whitebox_output",
+                "inputs",
+                "feeds_from",
+                "lags",
+                "target_mode",
+                "feed_rates",
+            },
         )
         name = reader.get(entry, "name", str, None, where + ".", required=True)
         target = reader.get(entry, "target", str, None, where + ".", required=True)
@@ -402,6 +421,9 @@ def _stages(reader: _Reader, items: Any, signals: Mapping[str, Signal]) -> tuple
         lags = reader.get(entry, "lags", int, 1, where + ".")
         if not 1 <= lags <= 10:
             reader.fail(where + ".lags", f"{lags} is outside 1..10")
+        mode = reader.get(entry, "target_mode", str, None, where + ".")
+        if mode is not None and mode not in TARGET_MODES:
+            reader.fail(where + ".target_mode", f"{mode!r} is not one of {', '.join(TARGET_MODES)}")
         stages.append(
             StageConfig(
                 name=name,
@@ -412,6 +434,8 @@ def _stages(reader: _Reader, items: Any, signals: Mapping[str, Signal]) -> tuple
                 inputs=inputs,
                 feeds_from=tuple(reader.strings(entry, "feeds_from", where + ".")),
                 lags=lags,
+                target_mode=mode,
+                feed_rates=reader.get(entry, "feed_rates", bool, False, where + "."),
             )
         )
     _check_order(reader, stages)

@@ -109,3 +109,11 @@ class ModelFormatError(FmuGreyboxError):
 
 class NumericalError(FmuGreyboxError):
     """A numerical procedure failed (e.g. a Cholesky factorisation beyond the jitter limit)."""
+
+
+class ExportError(FmuGreyboxError):
+    """A trained model cannot be exported as an FMU as it is (the message says why, what to do)."""
+
+
+class BenchError(FmuGreyboxError):
+    """A bench (SSP system structure) cannot be built or co-simulated as asked."""

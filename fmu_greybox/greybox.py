@@ -20,6 +20,9 @@ from .stage import TARGET_MODES, StageLayout
 
 ProgressCallback = Callable[[str, int, float], None]
 
+#: Features are clipped to their training range widened by this share of the range.
+RANGE_MARGIN = 0.05
+
 
 @dataclass
 class ChainState:
@@ -33,12 +36,35 @@ class ChainState:
         Their variances.
     out_mean, out_var : ndarray, shape (Q,)
         Stage outputs and variances of the last step.
+    wb : ndarray, shape (Q,)
+        White-box predictions of the last step.
+    prev_mean, prev_wb : ndarray, shape (Q,)
+        Stage outputs and white-box predictions of the step before.
+    outside : ndarray, shape (Q,)
+        1.0 where a stage's features left their training range in the last step (they were
+        clipped to it), else 0.0.
     """
 
     memory: list[np.ndarray]
     memory_var: list[np.ndarray]
     out_mean: np.ndarray
     out_var: np.ndarray
+    wb: np.ndarray
+    prev_mean: np.ndarray
+    prev_wb: np.ndarray
+    outside: np.ndarray
+
+    def _blocks(self) -> list[np.ndarray]:
+        return [
+            *self.memory,
+            *self.memory_var,
+            self.out_mean,
+            self.out_var,
+            self.wb,
+            self.prev_mean,
+            self.prev_wb,
+            self.outside,
+        ]
 
     def copy(self) -> ChainState:
         """An independent copy (for saving and restoring state)."""
@@ -47,16 +73,20 @@ class ChainState:
             memory_var=[m.copy() for m in self.memory_var],
             out_mean=self.out_mean.copy(),
             out_var=self.out_var.copy(),
+            wb=self.wb.copy(),
+            prev_mean=self.prev_mean.copy(),
+            prev_wb=self.prev_wb.copy(),
+            outside=self.outside.copy(),
         )
 
     def to_array(self) -> np.ndarray:
         """Flatten into one float64 vector (for FMU state serialisation)."""
-        return np.concatenate([*self.memory, *self.memory_var, self.out_mean, self.out_var])
+        return np.concatenate(self._blocks())
 
     def load_array(self, flat: np.ndarray) -> None:
         """Restore from :meth:`to_array` output, in place."""
         pos = 0
-        for block in [*self.memory, *self.memory_var, self.out_mean, self.out_var]:
+        for block in self._blocks():
             block[:] = flat[pos : pos + block.size]
             pos += block.size
 
@@ -79,6 +109,12 @@ class GreyBoxChain:
         Signals forming the chain's exogenous vector (union of the stages' inputs).
     correctors_ : list of SparseGPR
         Fitted correctors, one per stage (after :meth:`fit` or loading).
+    active_ : ndarray of bool, shape (Q,)
+        Stages whose corrector is used; a stage found to free-run worse than its white-box on
+        the tail of its training data is passed through (see :meth:`check_free_run`).
+    feature_bounds_ : list of ndarray, each shape (2, D_q)
+        Per stage, the training range of each feature (widened by :data:`RANGE_MARGIN`);
+        features are clipped to it when the chain steps, so a free run never extrapolates.
     """
 
     def __init__(self, config: ProjectConfig, target_mode: str | None = None) -> None:
@@ -96,7 +132,7 @@ class GreyBoxChain:
         self.stages = [
             StageLayout(
                 config=s,
-                target_mode=mode,
+                target_mode=s.target_mode or mode,
                 exo_index=np.array([self.exo_names.index(i) for i in s.inputs], dtype=int),
                 stage_index=q,
                 feed_index=np.array([names.index(f) for f in s.feeds_from], dtype=int),
@@ -104,6 +140,8 @@ class GreyBoxChain:
             for q, s in enumerate(config.stages)
         ]
         self.correctors_: list[SparseGPR] = []
+        self.feature_bounds_: list[np.ndarray] = []
+        self.active_ = np.ones(len(self.stages), dtype=bool)
         self._features = [np.empty(s.n_features) for s in self.stages]
 
     # ------------------------------------------------------------------ names
@@ -123,9 +161,10 @@ class GreyBoxChain:
         return [s.config.whitebox_output for s in self.stages]
 
     @property
-    def max_lag(self) -> int:
-        """Longest memory of any stage."""
-        return max(s.lags for s in self.stages)
+    def history(self) -> int:
+        """Rows of known outputs :meth:`start` needs: the longest memory, and at least two
+        (for the rate features)."""
+        return max(2, *(s.lags for s in self.stages))
 
     def feature_names(self, q: int) -> list[str]:
         """Feature names of stage ``q``."""
@@ -159,9 +198,11 @@ class GreyBoxChain:
         """
         gp = self.config.gp
         self.correctors_ = []
+        self.feature_bounds_ = []
         for stage in self.stages:
             X, t = stage.teacher_forced(exo, y_wb, outputs)
             X, t = _thin(X, t, gp.max_train_samples)
+            self.feature_bounds_.append(_widened_range(X))
             corrector = SparseGPR(
                 n_inducing=min(gp.inducing, t.size),
                 inducing=gp.inducing_method,
@@ -180,9 +221,9 @@ class GreyBoxChain:
 
         Parameters
         ----------
-        outputs, y_wb : ndarray, shape (L_max, Q)
-            Known stage outputs and white-box predictions of the last ``L_max`` rows, oldest
-            first (fewer rows are repeated backwards from the oldest).
+        outputs, y_wb : ndarray, shape (h, Q)
+            Known stage outputs and white-box predictions of the last ``h`` rows, oldest
+            first, ``h <= history`` (fewer rows are repeated backwards from the oldest).
 
         Returns
         -------
@@ -196,11 +237,16 @@ class GreyBoxChain:
             taken = np.resize(level, stage.lags) if level.size < stage.lags else level[: stage.lags]
             memory.append(np.array(taken, dtype=np.float64))
             memory_var.append(np.zeros(stage.lags))
+        before = -2 if outputs.shape[0] > 1 else -1
         return ChainState(
             memory=memory,
             memory_var=memory_var,
             out_mean=np.array(outputs[-1], dtype=np.float64),
             out_var=np.zeros(len(self.stages)),
+            wb=np.array(y_wb[-1], dtype=np.float64),
+            prev_mean=np.array(outputs[before], dtype=np.float64),
+            prev_wb=np.array(y_wb[before], dtype=np.float64),
+            outside=np.zeros(len(self.stages)),
         )
 
     def step(
@@ -228,9 +274,24 @@ class GreyBoxChain:
         for stage, corrector in zip(self.stages, self.correctors_, strict=True):
             q = stage.stage_index
             memory, memory_var = state.memory[q], state.memory_var[q]
-            if enabled:
+            state.prev_wb[q] = state.wb[q]
+            state.wb[q] = y_wb[q]
+            state.prev_mean[q] = state.out_mean[q]
+            if enabled and self.active_[q]:
                 x = self._features[q]
-                stage.assemble(x, exo_prev, y_wb[q], state.out_mean, memory)
+                stage.assemble(
+                    x,
+                    exo_prev,
+                    y_wb[q],
+                    state.out_mean,
+                    memory,
+                    state.prev_mean,
+                    state.wb,
+                    state.prev_wb,
+                )
+                low, high = self.feature_bounds_[q]
+                state.outside[q] = float(np.any(x < low) or np.any(x > high))
+                np.clip(x, low, high, out=x)
                 mu, var_gp, grad = corrector.predict_one_grad(x)
                 out, var, level = stage.combine(
                     mu, var_gp, grad, y_wb[q], state.out_var, memory, memory_var
@@ -247,6 +308,41 @@ class GreyBoxChain:
             memory_var[0] = var
         return state
 
+    def check_free_run(
+        self, exo: np.ndarray, y_wb: np.ndarray, outputs: np.ndarray, tail: float = 0.2
+    ) -> dict[str, dict[str, float]]:
+        """Free-run the last ``tail`` of the training rows; pass through stages that lose.
+
+        A corrector trained by teacher forcing can still drift when it is fed its own
+        predictions. Each stage is compared with its white-box on the free run; a stage whose
+        RMSE is not below the white-box's is deactivated (its output is the white-box's), so
+        the grey-box is never knowingly worse than the model it corrects.
+
+        Parameters
+        ----------
+        exo, y_wb, outputs : ndarray
+            The training rows, as given to :meth:`fit`.
+        tail : float
+            Share of the rows free-run.
+
+        Returns
+        -------
+        dict
+            Stage -> ``{"wb_rmse", "gb_rmse", "active"}`` on the free-run rows.
+        """
+        n = exo.shape[0]
+        start = max(1, int((1.0 - tail) * n) - 1)
+        self.active_[:] = True
+        mean, _ = self.free_run(exo, y_wb, outputs, start)
+        recorded = outputs[start + 1 :]
+        wb = np.sqrt(np.mean((y_wb[start + 1 :] - recorded) ** 2, axis=0))
+        gb = np.sqrt(np.mean((mean - recorded) ** 2, axis=0))
+        self.active_[:] = gb < wb
+        return {
+            name: {"wb_rmse": float(wb[q]), "gb_rmse": float(gb[q]), "active": bool(gb[q] < wb[q])}
+            for q, name in enumerate(self.stage_names)
+        }
+
     def free_run(
         self,
         exo: np.ndarray,
@@ -261,7 +357,7 @@ class GreyBoxChain:
         exo : ndarray, shape (n, n_exo)
         y_wb : ndarray, shape (n, Q)
         outputs : ndarray, shape (n, Q)
-            Recorded outputs; only rows ``start - L_max + 1 .. start`` are used, to
+            Recorded outputs; only rows ``start - history + 1 .. start`` are used, to
             initialise the memory.
         start : int
             Last row whose outputs are taken as known (``>= 0``).
@@ -271,7 +367,7 @@ class GreyBoxChain:
         mean, std : ndarray, shape (n - start - 1, Q)
             Predictions of rows ``start + 1 .. n - 1``.
         """
-        first = max(0, start - self.max_lag + 1)
+        first = max(0, start - self.history + 1)
         state = self.start(outputs[first : start + 1], y_wb[first : start + 1])
         n = exo.shape[0]
         mean = np.empty((n - start - 1, len(self.stages)))
@@ -281,6 +377,13 @@ class GreyBoxChain:
             mean[i] = state.out_mean
             var[i] = state.out_var
         return mean, np.sqrt(var)
+
+
+def _widened_range(X: np.ndarray) -> np.ndarray:
+    """Training range of each feature widened by :data:`RANGE_MARGIN`; shape (2, D)."""
+    low, high = X.min(axis=0), X.max(axis=0)
+    margin = RANGE_MARGIN * (high - low)
+    return np.vstack([low - margin, high + margin])
 
 
 def _thin(X: np.ndarray, t: np.ndarray, limit: int) -> tuple[np.ndarray, np.ndarray]:

@@ -3,7 +3,9 @@
 Each communication step does what a bench does: set the FMU's inputs, ``fmi2DoStep``, read the
 white-box outputs, then run the stage correctors in autoregressive order, each fed its own and
 the earlier stages' corrected outputs (free run). Rows up to ``start`` only advance the FMU and
-provide the chain's initial memory from the recording.
+provide the chain's initial memory: from the recording by default, or from the white-box outputs
+(``memory_from="whitebox"``), which is what an exported grey-box FMU does since it has no
+recording.
 """
 
 from __future__ import annotations
@@ -17,6 +19,9 @@ from .fmu_archive import open_fmu
 from .fmu_instance import FmuInstance
 from .model_dir import GreyBoxModel
 from .project_data import ProjectData
+
+#: Where :func:`run_master` can take the chain's initial memory from.
+MEMORY_SOURCES = ("recorded", "whitebox")
 
 
 @dataclass
@@ -47,6 +52,7 @@ def run_master(
     data: ProjectData,
     start: int,
     progress: bool = False,
+    memory_from: str = "recorded",
 ) -> MasterRun:
     """Step the white-box FMU and the chain over a recording, one communication step at a time.
 
@@ -61,15 +67,20 @@ def run_master(
         Last row whose recorded outputs initialise the chain's memory.
     progress : bool
         Show a progress bar.
+    memory_from : {"recorded", "whitebox"}
+        Initial memory from the recorded outputs of rows ``..start`` or from the white-box
+        outputs of those rows (zero residual memory: what an exported grey-box FMU does).
 
     Returns
     -------
     MasterRun
     """
+    if memory_from not in MEMORY_SOURCES:
+        raise ValueError(f"memory_from={memory_from!r} is not one of {', '.join(MEMORY_SOURCES)}")
     chain = model.chain
     u = data.binding.matrix(data.recording)
     n = u.shape[0]
-    lag = chain.max_lag
+    history = chain.history
     m = n - start - 1
     wb = np.empty((n, len(chain.stages)))
     mean = np.empty((m, len(chain.stages)))
@@ -92,8 +103,9 @@ def run_master(
         for j in tqdm(range(1, n), disable=not progress, desc="free run", unit="step", leave=False):
             wb[j] = fmu.step(u[j - 1], dt)
             if j == start + 1:
-                first = max(0, start - lag + 1)
-                state = chain.start(data.outputs[first : start + 1], wb[first : start + 1])
+                first = max(0, start - history + 1)
+                known = data.outputs if memory_from == "recorded" else wb
+                state = chain.start(known[first : start + 1], wb[first : start + 1])
             if state is not None:
                 chain.step(state, data.exo[j - 1], wb[j])
                 mean[j - start - 1] = state.out_mean

@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from . import __version__
 from .atomic import atomic_dir, atomic_write
 from .config import ProjectConfig, parse_config
@@ -95,6 +97,9 @@ def save_model(model: GreyBoxModel, out_dir: str | Path) -> Path:
                     "name": stage.name,
                     "stem": stem,
                     "features": model.chain.feature_names(stage.stage_index),
+                    "active": bool(model.chain.active_[stage.stage_index]),
+                    "feature_low": model.chain.feature_bounds_[stage.stage_index][0].tolist(),
+                    "feature_high": model.chain.feature_bounds_[stage.stage_index][1].tolist(),
                 }
             )
         files = sorted(p.name for p in tmp.iterdir())
@@ -173,6 +178,11 @@ def load_model(model_dir: str | Path) -> GreyBoxModel:
         raise ModelFormatError(f"{model_dir}: stored project is invalid: {exc}") from exc
     chain = GreyBoxChain(config, manifest["target_mode"])
     chain.correctors_ = [SparseGPR.load(model_dir / s["stem"]) for s in manifest["stages"]]
+    chain.active_ = np.array([s["active"] for s in manifest["stages"]], dtype=bool)
+    chain.feature_bounds_ = [
+        np.array([s["feature_low"], s["feature_high"]], dtype=np.float64)
+        for s in manifest["stages"]
+    ]
     return GreyBoxModel(
         config=config,
         chain=chain,

@@ -5,6 +5,8 @@ Timing (see :mod:`fmu_greybox.simulate`): the prediction of the stage output at 
 * the exogenous inputs of row ``j - 1`` (the inputs that acted over the last step),
 * the white-box prediction of the stage's output at row ``j``,
 * the outputs of the earlier stages at row ``j`` (already computed this step),
+* with ``feed_rates``, the changes over the last step of the earlier stages' outputs and of
+  their residuals to the white-box (a velocity and a velocity error, for a position stage),
 * the stage's own previous values at rows ``j - 1 ... j - L`` (its *memory*).
 
 What the corrector learns (``target``):
@@ -66,9 +68,19 @@ class StageLayout:
         return self.config.lags
 
     @property
+    def n_rates(self) -> int:
+        """Number of rate features (two per feeding stage with ``feed_rates``)."""
+        return 2 * self.feed_index.size if self.config.feed_rates else 0
+
+    @property
     def n_features(self) -> int:
         """Number of corrector inputs D."""
-        return self.exo_index.size + 1 + self.feed_index.size + self.lags
+        return self.exo_index.size + 1 + self.feed_index.size + self.n_rates + self.lags
+
+    @property
+    def memory_slice(self) -> slice:
+        """Positions of the memory features."""
+        return slice(self.n_features - self.lags, self.n_features)
 
     def feature_names(self, exo_names: list[str], stage_names: list[str]) -> list[str]:
         """Human-readable names of the D features, in order."""
@@ -77,6 +89,12 @@ class StageLayout:
             [f"{exo_names[i]}[k-1]" for i in self.exo_index]
             + [f"{self.config.whitebox_output}_wb"]
             + [stage_names[i] for i in self.feed_index]
+            + (
+                [f"d{stage_names[i]}" for i in self.feed_index]
+                + [f"d{stage_names[i]}.r" for i in self.feed_index]
+                if self.config.feed_rates
+                else []
+            )
             + [f"{self.name}.{own}[k-{lag}]" for lag in range(1, self.lags + 1)]
         )
 
@@ -114,11 +132,16 @@ class StageLayout:
         q = self.stage_index
         level = self.level(outputs[:, q], y_wb[:, q])
         rows = np.arange(L, outputs.shape[0])
+        feeds = self.feed_index
         columns = [
             exo[rows - 1][:, self.exo_index],
             y_wb[rows, q][:, None],
-            outputs[rows][:, self.feed_index],
+            outputs[rows][:, feeds],
         ]
+        if self.config.feed_rates:
+            d_out = outputs[rows][:, feeds] - outputs[rows - 1][:, feeds]
+            d_wb = y_wb[rows][:, feeds] - y_wb[rows - 1][:, feeds]
+            columns += [d_out, d_out - d_wb]
         columns += [level[rows - lag][:, None] for lag in range(1, L + 1)]
         X = np.hstack(columns)
         if self.target_mode == "increment":
@@ -135,14 +158,28 @@ class StageLayout:
         y_wb: float,
         out_mean: np.ndarray,
         memory: np.ndarray,
+        prev_mean: np.ndarray,
+        wb: np.ndarray,
+        prev_wb: np.ndarray,
     ) -> None:
-        """Fill the feature vector ``x`` (shape (D,)) in place for one step."""
+        """Fill the feature vector ``x`` (shape (D,)) in place for one step.
+
+        ``out_mean``/``wb`` hold this step's stage outputs and white-box predictions (earlier
+        stages already updated), ``prev_mean``/``prev_wb`` those of the previous step.
+        """
         n_exo = self.exo_index.size
         n_feed = self.feed_index.size
         x[:n_exo] = exo_prev[self.exo_index]
         x[n_exo] = y_wb
-        x[n_exo + 1 : n_exo + 1 + n_feed] = out_mean[self.feed_index]
-        x[n_exo + 1 + n_feed :] = memory
+        pos = n_exo + 1
+        x[pos : pos + n_feed] = out_mean[self.feed_index]
+        pos += n_feed
+        if self.config.feed_rates:
+            feeds = self.feed_index
+            d_out = out_mean[feeds] - prev_mean[feeds]
+            x[pos : pos + n_feed] = d_out
+            x[pos + n_feed : pos + 2 * n_feed] = d_out - (wb[feeds] - prev_wb[feeds])
+        x[self.memory_slice] = memory
 
     def combine(
         self,
@@ -158,7 +195,9 @@ class StageLayout:
 
         Variance propagation is first order (the delta method): the corrector's own latent
         variance plus, for every uncertain input ``i`` (earlier stages' outputs and the stage's
-        memory), ``(d output / d input_i)^2 * var_i``; covariances between inputs are ignored.
+        memory), ``(d output / d input_i)^2 * var_i``; covariances between inputs are ignored,
+        and rate features are taken as exact (their uncertainty is that of the outputs they
+        are differences of, already counted through those outputs).
 
         Parameters
         ----------
@@ -181,7 +220,7 @@ class StageLayout:
         n_exo = self.exo_index.size
         n_feed = self.feed_index.size
         g_feed = grad[n_exo + 1 : n_exo + 1 + n_feed]
-        g_mem = grad[n_exo + 1 + n_feed :].copy()
+        g_mem = grad[self.memory_slice].copy()
         if self.target_mode == "increment":
             level = memory[0] + mu
             g_mem[0] += 1.0

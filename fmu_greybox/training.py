@@ -75,6 +75,7 @@ def train_model(
     chain.fit(data.exo[rows], data.y_wb[rows], data.outputs[rows], progress=report)
     for bar in bars.values():
         bar.close()
+    free_run_check = chain.check_free_run(data.exo[rows], data.y_wb[rows], data.outputs[rows])
     training = {
         "recording_sha256": recording.sha256(),
         "recording_source": str(recording.source),
@@ -88,6 +89,7 @@ def train_model(
         "bounds": {
             s.name: float(c.bound_) for s, c in zip(chain.stages, chain.correctors_, strict=True)
         },
+        "free_run_check": free_run_check,
         "whitebox_source": str(fmu_path),
         "whitebox_sha256": file_sha256(fmu_path),
         "seconds": round(time.perf_counter() - started, 2),

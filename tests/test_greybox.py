@@ -1,0 +1,205 @@
+"""The autoregressive grey-box: datasets, chain, master, model folder, small experiments."""
+
+from __future__ import annotations
+
+import json
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from fmu_greybox.cli import main
+from fmu_greybox.config import parse_config
+from fmu_greybox.errors import ModelFormatError
+from fmu_greybox.fmu_archive import open_fmu
+from fmu_greybox.master import run_master
+from fmu_greybox.model_dir import MANIFEST, load_model, save_model
+from fmu_greybox.project_data import prepare, split_row
+from fmu_greybox.recording import save_recording
+from fmu_greybox.synth import FlightTestProfile, SynthRequest, synthesise
+from fmu_greybox.training import train_model
+from fmu_greybox.validation import validate_model
+
+ROOT = Path(__file__).resolve().parents[1]
+REFERENCE = ROOT / "bench_configs" / "hydraulic_actuator.toml"
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+
+def small_config(inducing: int = 40, max_iter: int = 40, train_fraction: float = 0.8):
+    raw = tomllib.loads(REFERENCE.read_text())
+    raw["gp"].update(inducing=inducing, max_iter=max_iter)
+    raw["split"] = {"train_fraction": train_fraction}
+    return parse_config(raw, REFERENCE)
+
+
+@pytest.fixture(scope="module")
+def recording(whitebox_fmu: Path, truth_fmu: Path):
+    with open_fmu(truth_fmu) as truth, open_fmu(whitebox_fmu) as whitebox:
+        request = SynthRequest(effects={"gain_error": 0.1}, seed=3, noise=0.0,
+                               profile=FlightTestProfile(duration=4.0))
+        return synthesise(truth, whitebox, request)
+
+
+@pytest.fixture(scope="module")
+def model(recording, fmu_dir):
+    return train_model(small_config(), recording)
+
+
+@pytest.fixture(scope="module")
+def data(model, recording):
+    with open_fmu(model.whitebox_fmu) as archive:
+        return prepare(model.config, model.chain, archive, recording)
+
+
+def test_teacher_forced_rows_are_aligned(model, data) -> None:
+    chain = model.chain
+    ram = chain.stages[1]
+    X, t = ram.teacher_forced(data.exo, data.y_wb, data.outputs)
+    names = chain.feature_names(1)
+    j = 123  # row of the recording predicted by X[j - L]
+    row = X[j - ram.lags]
+    exo = {name: data.exo[j - 1, i] for i, name in enumerate(chain.exo_names)}
+    assert row[names.index("supply_pressure[k-1]")] == exo["supply_pressure"]
+    assert row[names.index("load_force[k-1]")] == exo["load_force"]
+    assert row[names.index("ram_position_wb")] == data.y_wb[j, 1]
+    assert row[names.index("EHV")] == data.outputs[j, 0]
+    residual = data.outputs[:, 1] - data.y_wb[:, 1]
+    assert row[names.index("RAM.r[k-1]")] == residual[j - 1]
+    assert t[j - ram.lags] == residual[j]
+
+
+def test_master_equals_array_free_run(model, data) -> None:
+    start = split_row(model.config, data.n_samples)
+    run = run_master(model, data, start)
+    mean, std = model.chain.free_run(data.exo, data.y_wb, data.outputs, start)
+    np.testing.assert_array_equal(run.whitebox, data.y_wb[start + 1 :])
+    np.testing.assert_allclose(run.mean, mean, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(run.std, std, rtol=1e-12, atol=0)
+    assert np.all(run.std > 0)
+
+
+def test_steps_equal_a_batch_prediction_of_the_same_features(model, data) -> None:
+    """The first stage's free-run outputs equal a batch GP prediction over the features it saw."""
+    chain = model.chain
+    start = 50
+    mean, _ = chain.free_run(data.exo, data.y_wb, data.outputs, start)
+    rows = np.arange(start + 1, data.n_samples)
+    residual = mean[:, 0] - data.y_wb[rows, 0]
+    previous = np.r_[data.outputs[start, 0] - data.y_wb[start, 0], residual[:-1]]
+    X = np.column_stack([data.exo[rows - 1][:, chain.stages[0].exo_index], data.y_wb[rows, 0],
+                         previous])
+    low, high = chain.feature_bounds_[0]
+    batch, _ = chain.correctors_[0].predict(np.clip(X, low, high))
+    np.testing.assert_allclose(batch, residual, rtol=0, atol=1e-9 * np.abs(residual).max())
+
+
+def test_chain_state_round_trip(model, data) -> None:
+    chain = model.chain
+    state = chain.start(data.outputs[:2], data.y_wb[:2])
+    for j in range(2, 20):
+        chain.step(state, data.exo[j - 1], data.y_wb[j])
+    saved = state.to_array()
+    copy = state.copy()
+    for j in range(20, 40):
+        chain.step(state, data.exo[j - 1], data.y_wb[j])
+    after_first = state.out_mean.copy()
+    state.load_array(saved)
+    np.testing.assert_array_equal(state.to_array(), copy.to_array())
+    for j in range(20, 40):
+        chain.step(state, data.exo[j - 1], data.y_wb[j])
+    np.testing.assert_array_equal(state.out_mean, after_first)
+
+
+def test_features_outside_the_training_range_are_clipped_and_flagged(model, data) -> None:
+    chain = model.chain
+    state = chain.start(data.outputs[:2], data.y_wb[:2])
+    chain.step(state, data.exo[1], data.y_wb[2])
+    assert not state.outside.any()
+    far = data.exo[1] * 100.0
+    chain.step(state, far, data.y_wb[3])
+    assert state.outside[0] == 1.0
+    assert np.all(np.isfinite(state.out_mean))
+
+
+def test_correction_off_passes_the_white_box_through(model, data) -> None:
+    chain = model.chain
+    state = chain.start(data.outputs[:2], data.y_wb[:2])
+    chain.step(state, data.exo[1], data.y_wb[2], enabled=False)
+    np.testing.assert_array_equal(state.out_mean, data.y_wb[2])
+    np.testing.assert_array_equal(state.out_var, 0.0)
+
+
+def test_model_folder_round_trip_and_tamper_detection(model, data, tmp_path: Path) -> None:
+    folder = save_model(model, tmp_path / "model")
+    manifest = json.loads((folder / MANIFEST).read_text())
+    assert manifest["format_version"] == 1
+    assert manifest["training"]["recording_sha256"] == data.recording.sha256()
+    assert len(manifest["whitebox_sha256"]) == 64
+    assert not list(folder.glob("*.pkl")) and not list(folder.glob("*.pickle"))
+    loaded = load_model(folder)
+    start = split_row(model.config, data.n_samples)
+    a = model.chain.free_run(data.exo, data.y_wb, data.outputs, start)
+    b = loaded.chain.free_run(data.exo, data.y_wb, data.outputs, start)
+    np.testing.assert_array_equal(a[0], b[0])
+    stage_file = folder / "stage_RAM.npz"
+    content = bytearray(stage_file.read_bytes())
+    content[len(content) // 2] ^= 0xFF
+    stage_file.write_bytes(bytes(content))
+    with pytest.raises(ModelFormatError, match="stage_RAM.npz.*modified or corrupted"):
+        load_model(folder)
+    stage_file.unlink()
+    with pytest.raises(ModelFormatError, match="missing"):
+        load_model(folder)
+    manifest["format_version"] = 99
+    (folder / MANIFEST).write_text(json.dumps(manifest))
+    with pytest.raises(ModelFormatError, match="format version 99"):
+        load_model(folder)
+    with pytest.raises(ModelFormatError, match="not a model folder"):
+        load_model(tmp_path)
+
+
+def test_failed_save_leaves_the_previous_model_intact(model, tmp_path: Path, monkeypatch) -> None:
+    folder = save_model(model, tmp_path / "model")
+    before = (folder / MANIFEST).read_bytes()
+
+    def disk_full(stem: Path) -> None:
+        raise OSError("No space left on device")
+
+    monkeypatch.setattr(model.chain.correctors_[1], "save", disk_full)
+    with pytest.raises(OSError, match="No space"):
+        save_model(model, folder)
+    assert (folder / MANIFEST).read_bytes() == before
+    load_model(folder)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model"]
+
+
+def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
+    rec = save_recording(recording, tmp_path / "rec.csv")
+    runner = CliRunner()
+    result = runner.invoke(main, ["-q", "train", str(REFERENCE), "--recording", str(rec),
+                                  "--inducing", "30", "--out", str(tmp_path / "model")])
+    assert result.exit_code == 0, result.output
+    result = runner.invoke(main, ["validate", str(REFERENCE), "--model", str(tmp_path / "model"),
+                                  "--recording", str(rec), "--out", str(tmp_path / "val")])
+    assert result.exit_code == 0, result.output
+    assert "EHV" in result.output and "improvement" in result.output
+    metrics = json.loads((tmp_path / "val" / "metrics.json").read_text())
+    for stage in ("EHV", "RAM", "ITFV"):
+        assert set(metrics["stages"][stage]) == {"wb_rmse", "gb_rmse", "wb_nrmse", "gb_nrmse",
+                                                 "improvement"}
+    png = (tmp_path / "val" / "traces.png").read_bytes()
+    assert png.startswith(b"\x89PNG") and len(png) > 10_000
+
+
+@pytest.mark.parametrize("experiment", ["experiment1", "experiment2"])
+def test_small_paper_experiment_improves_every_stage(experiment: str, fmu_dir) -> None:
+    """A reduced version of each paper experiment: EHV much better, no stage worse."""
+    from reproduce_paper import EXPERIMENTS, run_experiment
+
+    table = run_experiment(experiment, EXPERIMENTS[experiment], scale=0.12, quiet=True)
+    for stage, row in table.items():  # never worse: losing stages are passed through
+        assert row["gb_rmse"] <= row["wb_rmse"] * (1 + 1e-9), (stage, row)
+    assert table["EHV"]["improvement"] < -0.5, table
