@@ -1,0 +1,323 @@
+"""Cost per 1 kHz communication step of the exported grey-box FMU, against the bare white-box.
+
+The three-stage hydraulic actuator (EHV -> RAM -> ITFV) is trained on a synthetic 6 s recording
+with M inducing points per stage (a few optimiser iterations: the cost of a step depends on M
+and the number of features, not on how well the hyperparameters fit), exported, and stepped:
+
+- ``fmpy``: fmpy's ``FMU2Slave``; per step set the four inputs (from the recording),
+  ``fmi2DoStep``, get every Real output (and ``out_of_domain`` for the grey-box) -- what a
+  Python master does;
+- ``libcosim``: the FMU alone in libcosim (libcosimpy), inputs held at their first recorded
+  values, a last-value observer attached, all steps in one ``step(n)`` call -- libcosim's loop
+  with no Python between steps (the FMU's own Python runs inside ``fmi2DoStep``);
+- ``in-process``: the grey-box's slave class called directly from Python (set, step, get), i.e.
+  without pythonfmu's C++ wrapper -- the difference to ``fmpy`` is that wrapper's cost.
+
+The bare white-box FMU is measured the same way in the same run (``x white-box`` is the ratio).
+Figures are CPU time of the process per step (wall time in brackets: it also counts time the
+process waited for a shared CPU), of the run with the least CPU time out of ``--repeats``; the
+in-process breakdown shows where a step's time goes (white-box FMU step, the chain of
+correctors, the out-of-domain score, the rest of the slave).
+
+With ``--equivalence`` it also runs the grey-box of the first M on a separate 2.048 s validation
+recording in fmpy's ``simulate_fmu``, in fmpy's SSP simulation and in libcosim (the SSP bench of
+:func:`fmu_greybox.bench.make_bench`) and prints the largest difference to the in-process master
+(:func:`fmu_greybox.master.run_master`, memory from the white-box), relative to each signal's
+range, over the corrected outputs, their standard deviations and the white-box outputs.
+
+Usage: ``.venv/bin/python benchmarks/bench_export.py [--inducing 50,100,200,400] [--steps N]
+[--repeats R] [--equivalence] [--json]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from fmu_greybox import synth
+from fmu_greybox.builtin import reference_fmus
+from fmu_greybox.config import load_config
+from fmu_greybox.export import export_greybox
+from fmu_greybox.export_slave import GreyBoxSlave
+from fmu_greybox.fmu_archive import open_fmu
+from fmu_greybox.model_dir import save_model
+from fmu_greybox.training import train_model, with_inducing
+
+ROOT = Path(__file__).resolve().parent.parent
+INPUTS = ("valve_current", "supply_pressure", "load_force", "engage")
+TARGET_US = 100.0
+
+
+def recording(duration: float = 6.0, seed: int = 3):
+    """The truth actuator in closed loop (Coulomb friction)."""
+    paths = reference_fmus()
+    request = synth.SynthRequest(
+        effects={"coulomb_friction": 600.0},
+        seed=seed,
+        profile=synth.FlightTestProfile(duration=duration),
+    )
+    with (
+        open_fmu(paths["HydraulicActuatorTruth"]) as truth,
+        open_fmu(paths["HydraulicActuator"]) as whitebox,
+    ):
+        return synth.synthesise(truth, whitebox, request)
+
+
+def export(rec, inducing: int, folder: Path) -> Path:
+    """Train with ``inducing`` points per stage (5 iterations) and export."""
+    project = load_config(ROOT / "bench_configs" / "hydraulic_actuator.toml")
+    config = with_inducing(project, inducing)
+    config = dataclasses.replace(
+        config,
+        gp=dataclasses.replace(config.gp, max_iter=5),
+        raw={**config.raw, "gp": {**config.raw["gp"], "max_iter": 5}},
+    )
+    save_model(train_model(config, rec), folder / f"model{inducing}")
+    return export_greybox(folder / f"model{inducing}", folder / f"greybox{inducing}.fmu").path
+
+
+class Clock:
+    """Wall and CPU time of a block [s] (CPU time of the whole process, all threads)."""
+
+    def __enter__(self) -> Clock:
+        self.wall, self.cpu = time.perf_counter(), time.process_time()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.wall = time.perf_counter() - self.wall
+        self.cpu = time.process_time() - self.cpu
+
+
+def fmpy_loop(fmu: Path, u: np.ndarray) -> Clock:
+    """Time the FMU2Slave loop over the input rows ``u``."""
+    description = read_model_description(str(fmu))
+    refs = {v.name: v.valueReference for v in description.modelVariables}
+    reals = [v.valueReference for v in description.modelVariables
+             if v.causality == "output" and v.type == "Real"]
+    bools = [v.valueReference for v in description.modelVariables
+             if v.causality == "output" and v.type == "Boolean"]
+    with tempfile.TemporaryDirectory() as folder:
+        slave = FMU2Slave(guid=description.guid, unzipDirectory=extract(str(fmu), folder),
+                          modelIdentifier=description.coSimulation.modelIdentifier,
+                          instanceName="bench")
+        slave.instantiate()
+        slave.setupExperiment(startTime=0.0)
+        slave.enterInitializationMode()
+        inputs = [refs[n] for n in INPUTS]
+        slave.setReal(inputs, list(u[0]))
+        slave.exitInitializationMode()
+        rows = u.tolist()
+        with Clock() as clock:
+            for k, row in enumerate(rows):
+                slave.setReal(inputs, row)
+                slave.doStep(k * 1e-3, 1e-3)
+                slave.getReal(reals)
+                if bools:
+                    slave.getBoolean(bools)
+        slave.terminate()
+        slave.freeInstance()
+    return clock
+
+
+def libcosim_run(fmu: Path, u: np.ndarray) -> Clock:
+    """Time libcosim stepping the FMU alone ``len(u)`` times."""
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    from libcosimpy.CosimObserver import CosimObserver
+    from libcosimpy.CosimSlave import CosimLocalSlave
+
+    log_output_level(CosimLogLevel.ERROR)
+    refs = {v.name: v.valueReference for v in read_model_description(str(fmu)).modelVariables}
+    execution = CosimExecution.from_step_size(step_size=1_000_000)
+    index = execution.add_local_slave(CosimLocalSlave(fmu_path=str(fmu), instance_name="bench"))
+    execution.add_observer(CosimObserver.create_last_value())
+    for name, value in zip(INPUTS, u[0], strict=True):
+        execution.real_initial_value(index, refs[name], float(value))
+    execution.step(1)  # initialisation happens here
+    with Clock() as clock:
+        execution.step(len(u))
+    execution.stop()
+    return clock
+
+
+class Parts:
+    """CPU time spent in a few callables, accumulated [s]."""
+
+    def __init__(self) -> None:
+        self.cpu: dict[str, float] = {}
+
+    def wrap(self, name: str, fn):
+        self.cpu[name] = 0.0
+
+        def timed(*args):
+            start = time.process_time()
+            try:
+                return fn(*args)
+            finally:
+                self.cpu[name] += time.process_time() - start
+
+        return timed
+
+
+def in_process(fmu: Path, u: np.ndarray, parts: Parts | None = None) -> Clock:
+    """Time the grey-box slave class called directly; ``parts`` times its pieces."""
+    with tempfile.TemporaryDirectory() as folder:
+        resources = Path(extract(str(fmu), folder)) / "resources"
+        slave = GreyBoxSlave(instance_name="bench", resources=str(resources))
+        n_in = len(INPUTS)
+        inputs = list(range(n_in))
+        reals = list(range(n_in, len(slave.interface.reals) - 1))
+        flag = [len(slave.interface.reals)]
+        slave.setup_experiment(0.0)
+        slave.enter_initialization_mode()
+        slave.set_real(inputs, list(u[0]))
+        slave.exit_initialization_mode()
+        if parts is not None:
+            whitebox, chain, monitor = slave._run.whitebox, slave.model.chain, slave._monitor
+            whitebox.step = parts.wrap("white-box step", whitebox.step)
+            chain.step = parts.wrap("chain step", chain.step)
+            monitor.score = parts.wrap("domain score", monitor.score)
+        rows = u.tolist()
+        with Clock() as clock:
+            for k, row in enumerate(rows):
+                slave.set_real(inputs, row)
+                slave.do_step(k * 1e-3, 1e-3)
+                slave.get_real(reals)
+                slave.get_boolean(flag)
+        slave.terminate()
+    return clock
+
+
+def equivalence(model_dir: Path, fmu: Path, folder: Path) -> dict[str, float]:
+    """Largest relative difference to the master per engine (see the module docstring)."""
+    from fmpy import simulate_fmu
+
+    from fmu_greybox.bench import make_bench, run_bench
+    from fmu_greybox.master import run_master
+    from fmu_greybox.model_dir import load_model
+    from fmu_greybox.project_data import prepare
+    from fmu_greybox.recording import Recording
+
+    rec = recording(duration=2.048, seed=8)  # 2048 steps: its mean step is exactly 1 ms
+    model = load_model(model_dir)
+
+    def master(r: Recording):
+        with open_fmu(model.whitebox_fmu) as archive:
+            data = prepare(model.config, model.chain, archive, r)
+        return run_master(model, data, 0, memory_from="whitebox")
+
+    def worst(columns, run) -> float:
+        largest = 0.0
+        for q, name in enumerate(model.chain.whitebox_outputs):
+            for suffix, ref in (("", run.mean), ("_std", run.std), ("_wb", run.whitebox)):
+                ref = ref[:, q]
+                scale = max(np.ptp(ref), np.max(np.abs(ref)))
+                largest = max(largest, float(np.max(np.abs(columns(name + suffix) - ref)) / scale))
+        return largest
+
+    reference = master(rec)
+    signal = np.zeros(rec.n_samples, dtype=[("time", float)] + [(n, float) for n in INPUTS])
+    signal["time"] = rec.time
+    for name in INPUTS:
+        signal[name] = rec[name]
+    names = [n + s for n in model.chain.whitebox_outputs for s in ("", "_std", "_wb")]
+    result = simulate_fmu(str(fmu), stop_time=rec.time[-1], step_size=rec.dt,
+                          output_interval=rec.dt, input=signal, output=names)
+    figures = {"fmpy simulate_fmu": worst(lambda n: result[n][1:], reference)}
+    bench = make_bench(fmu, rec, folder / "bench.ssp")
+    cosim = run_bench(bench, "libcosim")
+    figures["libcosim (SSP)"] = worst(lambda n: cosim[f"greybox.{n}"], reference)
+    # fmpy's SSP simulation feeds 0 to connected inputs in its first step: so does the master
+    signals = {n: np.array(v) for n, v in rec.signals.items()}
+    for name in INPUTS:
+        signals[name][0] = 0.0
+    zeroed = master(Recording(time=rec.time, signals=signals, units=rec.units))
+    ssp = run_bench(bench, "fmpy")
+    figures["fmpy SSP"] = worst(lambda n: ssp[f"greybox.{n}"], zeroed)
+    return figures
+
+
+def best(run, fmu: Path, u: np.ndarray, repeats: int) -> dict[str, float]:
+    """CPU and wall time per step [us], of the run with the least CPU time."""
+    clock = min((run(fmu, u) for _ in range(repeats)), key=lambda c: c.cpu)
+    return {"cpu_us": clock.cpu / len(u) * 1e6, "wall_us": clock.wall / len(u) * 1e6}
+
+
+def breakdown(fmu: Path, u: np.ndarray) -> dict[str, float]:
+    """CPU time per step [us] of the slave's pieces, called in-process."""
+    parts = Parts()
+    clock = in_process(fmu, u, parts)
+    pieces = {name: cpu / len(u) * 1e6 for name, cpu in parts.cpu.items()}
+    pieces["rest of the slave"] = clock.cpu / len(u) * 1e6 - sum(pieces.values())
+    return pieces
+
+
+def main() -> None:
+    """Run the benchmark and print the figures."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--inducing", default="50,100,200,400",
+                        help="inducing points per stage, comma separated")
+    parser.add_argument("--steps", type=int, default=3000, help="communication steps per run")
+    parser.add_argument("--repeats", type=int, default=3, help="runs per figure (best kept)")
+    parser.add_argument("--equivalence", action="store_true",
+                        help="also compare fmpy, fmpy SSP and libcosim with the master")
+    parser.add_argument("--json", action="store_true", help="print a final JSON line")
+    args = parser.parse_args()
+    sizes = [int(m) for m in args.inducing.split(",")]
+
+    rec = recording()
+    u = np.column_stack([rec[n] for n in INPUTS])[: args.steps]
+    rows = []
+    figures = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        whitebox = reference_fmus()["HydraulicActuator"]
+        bare = {"fmpy": best(fmpy_loop, whitebox, u, args.repeats),
+                "libcosim": best(libcosim_run, whitebox, u, args.repeats)}
+        for m in sizes:
+            fmu = export(rec, m, tmp)
+            rows.append({
+                "inducing": m,
+                "fmpy": best(fmpy_loop, fmu, u, args.repeats),
+                "libcosim": best(libcosim_run, fmu, u, args.repeats),
+                "in-process": best(in_process, fmu, u, args.repeats),
+                "breakdown": breakdown(fmu, u),
+            })
+            if args.equivalence and not figures:
+                figures = equivalence(tmp / f"model{m}", fmu, tmp)
+    print(f"grey-box FMU of the three-stage actuator, {len(u)} steps of 1 ms, CPU time per step "
+          f"(wall in brackets), best of {args.repeats} runs")
+    print(f"white-box FMU alone: fmpy {bare['fmpy']['cpu_us']:.1f} us "
+          f"({bare['fmpy']['wall_us']:.1f}), libcosim {bare['libcosim']['cpu_us']:.1f} us "
+          f"({bare['libcosim']['wall_us']:.1f})")
+    print(f"{'M/stage':>8} {'engine':>11} {'us/step':>9} {'(wall)':>9} {'x white-box':>12} "
+          f"{'< 100 us':>9}")
+    for row in rows:
+        for engine in ("fmpy", "libcosim", "in-process"):
+            cpu, wall = row[engine]["cpu_us"], row[engine]["wall_us"]
+            ratio = f"{cpu / bare[engine]['cpu_us']:12.1f}" if engine in bare else f"{'':12}"
+            print(f"{row['inducing']:8d} {engine:>11} {cpu:9.1f} {wall:9.1f} {ratio} "
+                  f"{'yes' if cpu < TARGET_US else 'no':>9}")
+        pieces = ", ".join(f"{name} {us:.1f}" for name, us in row["breakdown"].items())
+        print(f"{'':8} {'':>11} in-process breakdown [us]: {pieces}")
+    for engine, difference in figures.items():
+        print(f"equivalence, M = {sizes[0]}: {engine:18} max |FMU - master| / range = "
+              f"{difference:.2e}")
+    if args.json:
+        print(json.dumps({"steps": len(u), "repeats": args.repeats, "target_us": TARGET_US,
+                          "whitebox_us_per_step": bare, "greybox_us_per_step": rows,
+                          "equivalence": figures}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,174 @@
+"""SSP benches: playback FMU, the generated SSD, and co-simulation in fmpy and libcosim.
+
+Uses the session's model and grey-box FMU from ``test_export`` (trained once). Bench runs stop
+after about 1 s of the 1.5 s validation recording to stay quick.
+"""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from fmpy import simulate_fmu
+from fmpy.ssp.ssd import read_ssd
+from fmpy.validation import validate_fmu
+from test_export import (
+    INPUTS,
+    STAGE_OUTPUTS,
+    assert_close,
+    assert_matches_master,
+    master_run,
+    trained,
+)
+
+from fmu_greybox.bench import SSD_FILE, build_playback_fmu, make_bench, read_layout, run_bench
+from fmu_greybox.cli import main
+from fmu_greybox.errors import BenchError
+from fmu_greybox.recording import Recording, load_recording, save_recording
+
+#: 1024 steps: the recording's mean step (the master's) is then exactly libcosim's 1 ms, which
+#: it counts in integer nanoseconds
+STOP = 1.024
+
+
+@pytest.fixture(scope="session")
+def model_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return trained(tmp_path_factory)["model_dir"]
+
+
+@pytest.fixture(scope="session")
+def greybox_fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return trained(tmp_path_factory)["fmu"]
+
+
+@pytest.fixture(scope="session")
+def validation(tmp_path_factory: pytest.TempPathFactory) -> Recording:
+    return trained(tmp_path_factory)["validation"]
+
+
+@pytest.fixture(scope="session")
+def bench(greybox_fmu: Path, validation: Recording, tmp_path_factory) -> Path:
+    return make_bench(greybox_fmu, validation, tmp_path_factory.mktemp("bench") / "bench.ssp")
+
+
+def first_rows(recording: Recording, stop: float, zero_inputs: bool = False) -> Recording:
+    """The recording up to ``stop``; with ``zero_inputs``, the inputs of row 0 set to 0."""
+    part = recording.slice_time(recording.time[0], stop)
+    signals = {name: np.array(values) for name, values in part.signals.items()}
+    if zero_inputs:
+        for name in INPUTS:
+            signals[name][0] = 0.0
+    return Recording(time=part.time, signals=signals, units=part.units, source=part.source)
+
+
+def test_playback_fmu_plays_the_recording(validation: Recording, tmp_path: Path) -> None:
+    fmu = build_playback_fmu(validation, tmp_path / "playback.fmu")
+    assert validate_fmu(str(fmu)) == []
+    result = simulate_fmu(
+        str(fmu), stop_time=validation.time[-1], step_size=validation.dt,
+        output_interval=validation.dt, output=list(validation.names),
+    )
+    for name in validation.names:
+        np.testing.assert_array_equal(result[name], validation[name], err_msg=name)
+
+
+def test_bench_is_a_valid_ssp_wiring_the_playback(bench: Path, validation: Recording) -> None:
+    ssd = read_ssd(str(bench))  # validates against the SSP 1.0 schema
+    assert [c.name for c in ssd.system.elements] == ["playback", "greybox", "whitebox"]
+    links = {(c.endElement, c.endConnector, c.startConnector) for c in ssd.system.connections}
+    for component in ("greybox", "whitebox"):
+        for name in INPUTS:
+            assert (component, name, name) in links
+    layout = read_layout(bench)
+    assert layout.step == pytest.approx(validation.dt)
+    assert layout.stop == pytest.approx(validation.time[-1])
+    assert {"out_of_domain", "ram_position_std"} <= set(layout.outputs["greybox"])
+    with zipfile.ZipFile(bench) as archive:
+        assert {SSD_FILE, "resources/greybox.fmu", "resources/whitebox.fmu",
+                "resources/playback.fmu"} <= set(archive.namelist())
+
+
+def test_libcosim_gives_the_masters_outputs(
+    bench: Path, model_dir: Path, validation: Recording
+) -> None:
+    result = run_bench(bench, "libcosim", stop_time=STOP)
+    run = master_run(model_dir, first_rows(validation, STOP))
+    assert result.n_samples == run.rows.size
+    np.testing.assert_allclose(result.time, run.time)
+    assert_matches_master(result.signals, run, prefix="greybox.")
+    for q, name in enumerate(STAGE_OUTPUTS):
+        assert_close(result[f"whitebox.{name}"], run.whitebox[:, q], f"whitebox.{name}")
+
+
+def test_fmpy_ssp_gives_the_masters_outputs(
+    bench: Path, model_dir: Path, validation: Recording
+) -> None:
+    # fmpy's simulate_ssp feeds 0 to every connected input during the first step (run_bench
+    # initialises them at 0 too); the master gets the same inputs
+    result = run_bench(bench, "fmpy", stop_time=STOP)
+    run = master_run(model_dir, first_rows(validation, STOP, zero_inputs=True))
+    assert result.n_samples == run.rows.size
+    assert_matches_master(result.signals, run, prefix="greybox.")
+    for q, name in enumerate(STAGE_OUTPUTS):
+        assert_close(result[f"whitebox.{name}"], run.whitebox[:, q], f"whitebox.{name}")
+    np.testing.assert_array_equal(result["playback.valve_current"],
+                                  validation["valve_current"][1 : run.rows.size + 1])
+
+
+def test_cosim_command_writes_every_output(bench: Path, tmp_path: Path) -> None:
+    out = tmp_path / "results.csv"
+    result = CliRunner().invoke(
+        main, ["cosim", str(bench), "--engine", "libcosim", "--stop-time", "0.2", "--out", str(out)]
+    )
+    assert result.exit_code == 0, result.output
+    results = load_recording(out)
+    assert results.n_samples == 200
+    assert {"greybox.ram_position", "greybox.ram_position_std", "greybox.out_of_domain",
+            "whitebox.ram_position", "playback.load_force"} <= set(results.names)
+    assert results.units["greybox.ram_position"] == "m"
+
+
+def test_export_command_writes_a_bench(model_dir: Path, validation: Recording,
+                                       tmp_path: Path) -> None:
+    recording = save_recording(validation, tmp_path / "rec.csv")
+    result = CliRunner().invoke(main, [
+        "export", str(model_dir), "--out", str(tmp_path / "gb.fmu"), "--ssp",
+        str(tmp_path / "bench.ssp"), "--recording", str(recording), "--greybox-only",
+    ])
+    assert result.exit_code == 0, result.output
+    assert set(read_layout(tmp_path / "bench.ssp").components) == {"playback", "greybox"}
+
+
+def test_bench_needs_every_input_recorded(greybox_fmu: Path, validation: Recording,
+                                          tmp_path: Path) -> None:
+    missing = validation.select([n for n in validation.names if n != "load_force"])
+    with pytest.raises(BenchError, match="load_force"):
+        make_bench(greybox_fmu, missing, tmp_path / "b.ssp")
+    assert not (tmp_path / "b.ssp").exists()
+
+
+def test_bench_refuses_another_sample_time(greybox_fmu: Path, validation: Recording,
+                                           tmp_path: Path) -> None:
+    coarse = Recording(
+        time=validation.time[::2], signals={n: v[::2] for n, v in validation.signals.items()},
+        units=validation.units,
+    )
+    with pytest.raises(BenchError, match="resample"):
+        make_bench(greybox_fmu, coarse, tmp_path / "b.ssp")
+
+
+def test_a_failing_fmu_stops_libcosim_cleanly(bench: Path) -> None:
+    with pytest.raises(BenchError, match="failed in libcosim"):
+        run_bench(bench, "libcosim", stop_time=0.01, step=0.002)  # not the trained step
+
+
+def test_run_bench_errors_are_clear(bench: Path, tmp_path: Path) -> None:
+    with pytest.raises(BenchError, match="engine"):
+        run_bench(bench, "openmodelica")
+    not_ssp = tmp_path / "x.ssp"
+    not_ssp.write_text("no")
+    with pytest.raises(BenchError, match="not an SSP archive"):
+        run_bench(not_ssp)

@@ -1,0 +1,434 @@
+"""The exported grey-box FMU: validation, equivalence with the master, state, instances, errors.
+
+One small model is trained once per session (5 s synthetic recording, 40 inducing points, 30
+optimiser iterations) and exported; the equivalence runs use a separate 1.5 s validation
+recording. "Equal to 1e-9" means ``max |a - b| <= 1e-9 * max(ptp(b), max |b|)`` per signal.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import logging
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from fmpy import extract, read_model_description, simulate_fmu
+from fmpy.fmi2 import FMU2Slave
+from fmpy.validation import validate_fmu
+from lxml import etree
+
+from fmu_greybox.cli import main
+from fmu_greybox.config import load_config
+from fmu_greybox.export import export_greybox
+from fmu_greybox.export_slave import MODEL_FOLDER, check_python
+from fmu_greybox.fmu_archive import open_fmu
+from fmu_greybox.fmu_entry import LOGGER, runtime_message
+from fmu_greybox.master import MasterRun, run_master
+from fmu_greybox.model_dir import MANIFEST, GreyBoxModel, file_sha256, load_model, save_model
+from fmu_greybox.project_data import prepare
+from fmu_greybox.recording import Recording
+from fmu_greybox.simulate import simulate_recording
+from fmu_greybox.training import train_model, with_inducing
+
+ROOT = Path(__file__).resolve().parents[1]
+RTOL = 1e-9
+STAGE_OUTPUTS = ("spool_position", "ram_position", "itfv_pressure")
+INPUTS = ("valve_current", "supply_pressure", "load_force", "engage")
+
+_CACHE: dict[str, object] = {}
+
+
+def synth_recording(duration: float, seed: int) -> Recording:
+    """A closed-loop recording of the truth actuator with Coulomb friction."""
+    from fmu_greybox import synth
+    from fmu_greybox.builtin import reference_fmus
+
+    paths = reference_fmus()
+    request = synth.SynthRequest(
+        effects={"coulomb_friction": 600.0},
+        seed=seed,
+        profile=synth.FlightTestProfile(duration=duration),
+    )
+    with (
+        open_fmu(paths["HydraulicActuatorTruth"]) as truth,
+        open_fmu(paths["HydraulicActuator"]) as whitebox,
+    ):
+        return synth.synthesise(truth, whitebox, request)
+
+
+def trained(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
+    """Model folder, exported FMU and validation recording, made once per session."""
+    if not _CACHE:
+        folder = tmp_path_factory.mktemp("greybox")
+        config = with_inducing(load_config(ROOT / "bench_configs" / "hydraulic_actuator.toml"), 40)
+        config = dataclasses.replace(
+            config,
+            gp=dataclasses.replace(config.gp, max_iter=30),
+            raw={**config.raw, "gp": {**config.raw["gp"], "max_iter": 30}},
+        )
+        training = synth_recording(5.0, seed=11)
+        save_model(train_model(config, training), folder / "model")
+        export_greybox(folder / "model", folder / "greybox.fmu", author="tests")
+        _CACHE.update(
+            model_dir=folder / "model",
+            fmu=folder / "greybox.fmu",
+            training=training,
+            validation=synth_recording(1.5, seed=12),
+        )
+    return _CACHE
+
+
+@pytest.fixture(scope="session")
+def model_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return trained(tmp_path_factory)["model_dir"]
+
+
+@pytest.fixture(scope="session")
+def greybox_fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return trained(tmp_path_factory)["fmu"]
+
+
+@pytest.fixture(scope="session")
+def training(tmp_path_factory: pytest.TempPathFactory) -> Recording:
+    return trained(tmp_path_factory)["training"]
+
+
+@pytest.fixture(scope="session")
+def validation(tmp_path_factory: pytest.TempPathFactory) -> Recording:
+    return trained(tmp_path_factory)["validation"]
+
+
+def master_run(model_dir: Path, recording: Recording) -> MasterRun:
+    """The in-process master over a recording, memory from the white-box (as the FMU)."""
+    model = load_model(model_dir)
+    with open_fmu(model.whitebox_fmu) as archive:
+        data = prepare(model.config, model.chain, archive, recording)
+    return run_master(model, data, 0, memory_from="whitebox")
+
+
+def assert_close(got: np.ndarray, ref: np.ndarray, what: str) -> None:
+    scale = max(float(np.ptp(ref)), float(np.max(np.abs(ref))))
+    worst = float(np.max(np.abs(np.asarray(got) - ref)))
+    assert worst <= RTOL * scale, f"{what}: max difference {worst:.3g}, scale {scale:.3g}"
+
+
+def assert_matches_master(columns, run: MasterRun, prefix: str = "") -> None:
+    """``columns[prefix + name]`` (rows = the master's rows) equal the master's outputs."""
+    for q, name in enumerate(STAGE_OUTPUTS):
+        assert_close(columns[prefix + name], run.mean[:, q], name)
+        assert_close(columns[prefix + name + "_std"], run.std[:, q], name + "_std")
+        assert_close(columns[prefix + name + "_wb"], run.whitebox[:, q], name + "_wb")
+
+
+def input_signal(recording: Recording) -> np.ndarray:
+    """The recording's inputs as fmpy's structured input array."""
+    signal = np.zeros(recording.n_samples, dtype=[("time", float)] + [(n, float) for n in INPUTS])
+    signal["time"] = recording.time
+    for name in INPUTS:
+        signal[name] = recording[name]
+    return signal
+
+
+class Slave:
+    """An initialised fmpy FMU2Slave of an FMU, stepped through a list of input rows."""
+
+    def __init__(self, fmu: Path, name: str, inputs: np.ndarray, logging_on: bool = False):
+        description = read_model_description(str(fmu))
+        self.refs = {v.name: v.valueReference for v in description.modelVariables}
+        self.dt = description.defaultExperiment.stepSize
+        self.slave = FMU2Slave(
+            guid=description.guid,
+            unzipDirectory=unpacked(fmu),
+            modelIdentifier=description.coSimulation.modelIdentifier,
+            instanceName=name,
+        )
+        self.slave.instantiate(loggingOn=logging_on)
+        self.inputs = [self.refs[n] for n in INPUTS]
+        names = [*STAGE_OUTPUTS, *[o + "_std" for o in STAGE_OUTPUTS]]
+        self.outputs = [self.refs[n] for n in names]
+        self.start(inputs[0])
+
+    def start(self, u0: np.ndarray) -> None:
+        self.slave.setupExperiment(startTime=0.0)
+        self.slave.enterInitializationMode()
+        self.slave.setReal(self.inputs, list(u0))
+        self.slave.exitInitializationMode()
+        self.k = 0
+
+    def run(self, inputs: np.ndarray) -> np.ndarray:
+        rows = []
+        for u in inputs:
+            self.slave.setReal(self.inputs, list(u))
+            self.slave.doStep(self.k * float(self.dt), float(self.dt))
+            self.k += 1
+            rows.append(self.slave.getReal(self.outputs))
+        return np.array(rows)
+
+    def close(self) -> None:
+        self.slave.terminate()
+        self.slave.freeInstance()
+
+
+@functools.cache
+def unpacked(fmu: Path) -> str:
+    """The FMU extracted once, next to it."""
+    return extract(str(fmu), unzipdir=str(fmu.with_suffix("")))
+
+
+def input_rows(recording: Recording) -> np.ndarray:
+    return np.column_stack([recording[n] for n in INPUTS])
+
+
+# ---------------------------------------------------------------------------- the FMU itself
+def test_exported_fmu_passes_fmpy_validation(greybox_fmu: Path) -> None:
+    assert validate_fmu(str(greybox_fmu)) == []
+
+
+def test_interface_is_a_drop_in_replacement(greybox_fmu: Path, model_dir: Path) -> None:
+    with open_fmu(greybox_fmu) as greybox, open_fmu(model_dir / "whitebox.fmu") as whitebox:
+        for name in whitebox.inputs:
+            assert greybox.variable(name).causality == "input"
+            assert greybox.variable(name).unit == whitebox.variable(name).unit
+            assert greybox.variable(name).start == whitebox.variable(name).start
+        for name in whitebox.outputs:
+            assert greybox.variable(name).causality == "output"
+            assert greybox.variable(name).unit == whitebox.variable(name).unit
+            assert greybox.variable(name).description
+        for name in STAGE_OUTPUTS:
+            for extra in ("_std", "_wb"):
+                assert greybox.variable(name + extra).unit == whitebox.variable(name).unit
+        assert greybox.variable("out_of_domain").type == "Boolean"
+        enabled = greybox.variable("correction_enabled")
+        assert (enabled.type, enabled.causality, enabled.variability) == (
+            "Boolean", "parameter", "tunable"
+        )
+        cosim = greybox.model_description.coSimulation
+        assert cosim.canGetAndSetFMUstate and cosim.canSerializeFMUstate
+        assert greybox.model_description.author == "tests"
+    root = etree.fromstring(zipfile.ZipFile(greybox_fmu).read("modelDescription.xml"))
+    annotation = root.find("VendorAnnotations/Tool[@name='fmu-greybox']/GreyBox")
+    assert annotation.get("model_sha256") == file_sha256(model_dir / MANIFEST)
+    assert annotation.get("whitebox_sha256") == file_sha256(model_dir / "whitebox.fmu")
+    assert [s.get("name") for s in annotation] == ["EHV", "RAM", "ITFV"]
+
+
+# ---------------------------------------------------------------------------- equivalence
+def test_simulate_fmu_gives_the_masters_outputs(
+    greybox_fmu: Path, model_dir: Path, validation: Recording
+) -> None:
+    run = master_run(model_dir, validation)
+    names = [f"{o}{s}" for o in STAGE_OUTPUTS for s in ("", "_std", "_wb")]
+    result = simulate_fmu(
+        str(greybox_fmu),
+        start_time=0.0,
+        stop_time=validation.time[-1],
+        step_size=validation.dt,
+        output_interval=validation.dt,
+        input=input_signal(validation),
+        output=names,
+    )
+    assert len(result) == validation.n_samples
+    assert_matches_master({n: result[n][1:] for n in names}, run)
+
+
+def test_correction_disabled_gives_the_whitebox_exactly(
+    greybox_fmu: Path, model_dir: Path, validation: Recording
+) -> None:
+    short = validation.slice_time(0.0, 0.5)
+    plain = simulate_recording(model_dir / "whitebox.fmu", short)  # the white-box alone
+    greybox = simulate_fmu(
+        str(greybox_fmu),
+        start_values={"correction_enabled": False},
+        start_time=0.0,
+        stop_time=short.time[-1],
+        step_size=short.dt,
+        output_interval=short.dt,
+        input=input_signal(short),
+        output=[*plain.names, "spool_position_std", "out_of_domain", "domain_score"],
+    )
+    for name in plain.names:
+        np.testing.assert_array_equal(greybox[name], plain[name], err_msg=name)
+    assert not greybox["spool_position_std"].any()
+    assert not greybox["out_of_domain"].any()
+    assert (greybox["domain_score"] == 1.0).all()
+
+
+# ---------------------------------------------------------------------------- state, instances
+def test_restored_state_continues_identically(greybox_fmu: Path, validation: Recording) -> None:
+    u = input_rows(validation)[:400]
+    first = Slave(greybox_fmu, "first", u)
+    first.run(u[:200])
+    state = first.slave.getFMUstate()
+    saved = first.slave.serializeFMUstate(state)
+    reference = first.run(u[200:])
+    first.slave.setFMUstate(state)
+    first.k = 200
+    np.testing.assert_array_equal(first.run(u[200:]), reference)
+    first.slave.freeFMUstate(state)
+    first.close()
+
+    second = Slave(greybox_fmu, "second", u)
+    second.run(u[:50])  # somewhere else entirely
+    restored = second.slave.deSerializeFMUstate(saved)
+    second.slave.setFMUstate(restored)
+    second.slave.freeFMUstate(restored)
+    second.k = 200
+    np.testing.assert_array_equal(second.run(u[200:]), reference)
+    second.close()
+
+
+def test_instances_in_one_process_are_independent(
+    greybox_fmu: Path, validation: Recording
+) -> None:
+    u = input_rows(validation)[:300]
+    v = u.copy()
+    v[:, 0] *= -0.5  # another valve current
+    solo = []
+    for inputs in (u, v):
+        slave = Slave(greybox_fmu, "solo", inputs)
+        solo.append(slave.run(inputs))
+        slave.close()
+    a, b = Slave(greybox_fmu, "a", u), Slave(greybox_fmu, "b", v)
+    rows_a, rows_b = [], []
+    for k in range(len(u)):
+        rows_a.append(a.run(u[k : k + 1])[0])
+        rows_b.append(b.run(v[k : k + 1])[0])
+    a.close()
+    b.close()
+    np.testing.assert_array_equal(np.array(rows_a), solo[0])
+    np.testing.assert_array_equal(np.array(rows_b), solo[1])
+    assert not np.array_equal(solo[0], solo[1])
+
+
+def test_many_instantiations_in_one_process(greybox_fmu: Path, validation: Recording) -> None:
+    u = input_rows(validation)[:3]
+    for k in range(12):  # pythonfmu 0.7 used to crash the process after about seven
+        slave = Slave(greybox_fmu, f"again{k}", u)
+        slave.run(u)
+        slave.close()
+
+
+def test_reset_starts_over(greybox_fmu: Path, validation: Recording) -> None:
+    u = input_rows(validation)[:200]
+    slave = Slave(greybox_fmu, "reset", u)
+    first = slave.run(u)
+    slave.slave.reset()
+    slave.start(u[0])
+    np.testing.assert_array_equal(slave.run(u), first)
+    slave.close()
+
+
+def test_out_of_domain_flags_an_untrained_load(greybox_fmu: Path, training: Recording) -> None:
+    u = input_rows(training)[:600]
+    slave = Slave(greybox_fmu, "ood", u)
+    flag, score = slave.refs["out_of_domain"], slave.refs["domain_score"]
+    flags = []
+    for k in range(500):
+        slave.run(u[k : k + 1])
+        flags.append(slave.slave.getBoolean([flag])[0])
+    assert not any(flags)  # the inputs it was trained on
+    far = u[500:].copy()
+    far[:, INPUTS.index("load_force")] = 2e5  # far beyond the recorded load
+    slave.run(far)
+    assert slave.slave.getBoolean([flag])[0]
+    assert 0.0 <= slave.slave.getReal([score])[0] <= 1.0
+    slave.close()
+
+
+# ---------------------------------------------------------------------------- errors
+def test_wrong_step_is_refused_with_a_logged_reason_and_no_crash(
+    greybox_fmu: Path, validation: Recording, caplog: pytest.LogCaptureFixture
+) -> None:
+    u = input_rows(validation)[:2]
+    slave = Slave(greybox_fmu, "step", u)
+    with caplog.at_level(logging.ERROR, logger=LOGGER), pytest.raises(Exception, match="discard"):
+        slave.slave.doStep(0.0, 2 * float(slave.dt))
+    assert "trained at 0.001 s" in caplog.text
+    with pytest.raises(Exception, match="discard"):  # the instance stays refused
+        slave.slave.doStep(0.0, float(slave.dt))
+    slave.slave.getReal([slave.refs["ram_position"]])  # calls after the failure stay safe
+    slave.close()
+
+
+def test_tampered_model_file_refuses_instantiation(
+    greybox_fmu: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    tampered = tmp_path / "tampered.fmu"
+    member = f"resources/{MODEL_FOLDER}/stage_RAM.json"
+    with zipfile.ZipFile(greybox_fmu) as zin, zipfile.ZipFile(tampered, "w") as zout:
+        for item in zin.infolist():
+            data = zin.read(item)
+            if item.filename == member:
+                data = data.replace(b'"seed"', b'"seed" ', 1)
+            zout.writestr(item, data)
+    with caplog.at_level(logging.ERROR, logger=LOGGER), pytest.raises(Exception, match="instan"):
+        Slave(tampered, "tampered", np.zeros((1, 4)), logging_on=True)
+    assert "stage_RAM.json" in caplog.text and "hash" in caplog.text
+
+
+def test_missing_package_is_reported_not_crashed(greybox_fmu: Path, tmp_path: Path) -> None:
+    script = tmp_path / "run.py"
+    script.write_text(
+        "import sys\n"
+        "sys.modules['scipy'] = None  # as if scipy were not installed\n"
+        "from fmpy import extract, read_model_description\n"
+        "from fmpy.fmi2 import FMU2Slave\n"
+        f"fmu = {str(greybox_fmu)!r}\n"
+        "md = read_model_description(fmu)\n"
+        "slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(fmu), instanceName='x',\n"
+        "                  modelIdentifier=md.coSimulation.modelIdentifier)\n"
+        "try:\n"
+        "    slave.instantiate()\n"
+        "except Exception as exc:\n"
+        "    print('REFUSED', exc)\n"
+    )
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "REFUSED" in done.stdout
+    assert "scipy" in done.stderr and "pip install" in done.stderr
+
+
+def test_runtime_checks_name_the_python_and_how_to_mend() -> None:
+    with pytest.raises(RuntimeError, match=r"needs Python >= 99\.0"):
+        check_python({"requires_python": [99, 0]})
+    message = runtime_message(None, "ImportError: No module named 'scipy'")
+    assert "scipy" in message and sys.executable in message and "pip install" in message
+
+
+def test_export_refuses_a_modified_model(model_dir: Path, tmp_path: Path) -> None:
+    copy = tmp_path / "model"
+    shutil.copytree(model_dir, copy)
+    (copy / "stage_EHV.json").write_text(
+        json.dumps({**json.loads((copy / "stage_EHV.json").read_text()), "extra": 1})
+    )
+    result = CliRunner().invoke(main, ["export", str(copy), "--out", str(tmp_path / "x.fmu")])
+    assert result.exit_code == 1
+    assert "stage_EHV.json" in result.output and not (tmp_path / "x.fmu").exists()
+
+
+def test_export_command_writes_the_fmu(model_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "cli.fmu"
+    result = CliRunner().invoke(
+        main, ["export", str(model_dir), "--out", str(out), "--ood-threshold", "0.2"]
+    )
+    assert result.exit_code == 0, result.output
+    assert "wrote" in result.output and validate_fmu(str(out)) == []
+    with open_fmu(out) as archive:
+        assert archive.variable("ood_threshold").start == 0.2
+
+
+def test_loaded_model_matches_its_fmu_copy(model_dir: Path, greybox_fmu: Path) -> None:
+    model: GreyBoxModel = load_model(model_dir)
+    with zipfile.ZipFile(greybox_fmu) as archive:
+        manifest = json.loads(archive.read(f"resources/{MODEL_FOLDER}/{MANIFEST}"))
+    assert manifest["files"] == json.loads((model_dir / MANIFEST).read_text())["files"]
+    assert model.chain.stage_names == ["EHV", "RAM", "ITFV"]
