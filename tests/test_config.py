@@ -135,5 +135,5 @@ def test_unknown_fmu_variables_are_named(raw: dict, whitebox_fmu: Path) -> None:
             parse_config(broken, REFERENCE).check_against_fmu(archive)
         broken = copy.deepcopy(raw)
         broken["whitebox"]["parameters"] = {"bulk_modulu": 1e9}
-        with pytest.raises(ConfigError, match="whitebox.parameters.bulk_modulu"):
+        with pytest.raises(ConfigError, match=r"whitebox\.parameters\.bulk_modulu"):
             parse_config(broken, REFERENCE).check_against_fmu(archive)

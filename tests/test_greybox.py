@@ -21,7 +21,6 @@ from fmu_greybox.project_data import prepare, split_row
 from fmu_greybox.recording import save_recording
 from fmu_greybox.synth import FlightTestProfile, SynthRequest, synthesise
 from fmu_greybox.training import train_model
-from fmu_greybox.validation import validate_model
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "bench_configs" / "hydraulic_actuator.toml"
@@ -148,7 +147,7 @@ def test_model_folder_round_trip_and_tamper_detection(model, data, tmp_path: Pat
     content = bytearray(stage_file.read_bytes())
     content[len(content) // 2] ^= 0xFF
     stage_file.write_bytes(bytes(content))
-    with pytest.raises(ModelFormatError, match="stage_RAM.npz.*modified or corrupted"):
+    with pytest.raises(ModelFormatError, match=r"stage_RAM\.npz.*modified or corrupted"):
         load_model(folder)
     stage_file.unlink()
     with pytest.raises(ModelFormatError, match="missing"):
