@@ -613,3 +613,72 @@ def cosim(
         f"wrote {out} ({result.n_samples} steps of {len(result.names)} outputs in {engine}, "
         f"{time.perf_counter() - started:.2f} s)",
     )
+
+
+@main.command()
+@click.argument("config_path", metavar="CONFIG", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "--recording",
+    "recording_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Recording to diagnose (default: the project's [recording] path).",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("diagnosis"),
+    show_default=True,
+    help="Folder for diagnosis.json and report.html.",
+)
+@click.option(
+    "--workers",
+    type=click.IntRange(min=1),
+    default=2,
+    show_default=True,
+    help="Simulation worker processes.",
+)
+@click.option(
+    "--no-greybox", is_flag=True, help="Skip training the grey-box on top of the named terms."
+)
+@click.option("--json", "as_json", is_flag=True, help="Print diagnosis.json's verdict as JSON.")
+@click.pass_context
+def diagnose(
+    ctx: click.Context,
+    config_path: Path,
+    recording_path: Path | None,
+    out_dir: Path,
+    workers: int,
+    no_greybox: bool,
+    as_json: bool,
+) -> None:
+    """Locate where the white-box departs from a recording, name the physics it left out,
+    model it and show the fit improve.
+
+    \b
+    Example:
+      fmu-greybox synth --effect coulomb_friction=600 --duration 25 --out rec.csv
+      fmu-greybox diagnose bench_configs/hydraulic_actuator.toml --recording rec.csv --out diag/
+    """
+    from .config import load_config
+    from .diagnosis import Diagnosis, GreyBoxSettings, write_outputs
+    from .project_data import load_project_recording
+
+    quiet = ctx.obj["quiet"] or as_json
+    config = load_config(config_path)
+    recording = load_project_recording(config, recording_path)
+    diagnosis = Diagnosis(
+        config,
+        workers=workers,
+        greybox=None if no_greybox else GreyBoxSettings(),
+        progress=None if quiet else (lambda message: click.echo(f"... {message}", err=True)),
+    ).fit(recording)
+    payload = write_outputs(diagnosis, recording, out_dir)
+    if as_json:
+        keys = ("origin_stage", "findings", "fit", "verdict")
+        click.echo(json.dumps({k: payload[k] for k in keys}, default=float))
+        return
+    for line in payload["verdict"]:
+        click.echo(line)
+    _info(ctx, f"wrote {out_dir / 'diagnosis.json'} and {out_dir / 'report.html'} "
+               f"({payload['timings']['total']} s)")

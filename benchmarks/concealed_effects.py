@@ -1,0 +1,269 @@
+"""Concealed effects: does the diagnosis find what the truth model hid from the white-box?
+
+For every truth effect of the reference actuator at several magnitudes and noise levels, for
+pairs of effects and for no-effect controls, a recording is made with the truth FMU in closed
+loop (:func:`fmu_greybox.synth.synthesise`). The diagnosis gets only the white-box FMU, the
+project file ``bench_configs/hydraulic_actuator.toml`` and the recording.
+
+Scoring (this file knows the truth; the diagnosis does not):
+
+* expected origin: the first stage with a recorded signal (its target, or the ram velocity for
+  the RAM) that the effect moves by more than 0.83 times its sensor noise (RMS: the structure
+  that lifts a residual to 1.3 times the noise, the diagnosis' significance level), found by
+  running the truth FMU open-loop over the recorded inputs with and without the effect;
+  ``None`` for controls;
+* effect correct: the top finding's effect is (one of) the true effect(s), or it is a
+  ``parameter_mismatch`` whose physics label is; ``none`` for controls;
+* estimated vs true magnitude, converted to the truth model's parameter units;
+* held-out improvement: the relative change of the held-out RMSE, white-box + named terms
+  against white-box, averaged over the stages the effect moves.
+
+Usage::
+
+    .venv/bin/python benchmarks/concealed_effects.py [--quick] [--json] [--workers N]
+
+With ``--json`` the last line is one JSON object: ``origin_accuracy``, ``effect_accuracy``,
+``control_false_findings``, ``median_improvement`` and the cases.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from fmu_greybox.builtin import reference_fmus
+from fmu_greybox.config import load_config
+from fmu_greybox.diagnosis import Diagnosis
+from fmu_greybox.diagnosis.locate import SIGNIFICANT_STRUCTURE
+from fmu_greybox.fmu_archive import FmuArchive, open_fmu
+from fmu_greybox.fmu_instance import FmuInstance
+from fmu_greybox.simulate import run_open_loop
+from fmu_greybox.synth import INPUTS, SENSOR_NOISE, FlightTestProfile, SynthRequest, synthesise
+
+CONFIG = Path(__file__).resolve().parent.parent / "bench_configs" / "hydraulic_actuator.toml"
+#: The recorded signals of each stage of the reference actuator (benchmark knowledge).
+STAGE_SIGNALS = {
+    "EHV": ("spool_position",),
+    "RAM": ("ram_position", "ram_velocity"),
+    "ITFV": ("itfv_pressure",),
+}
+
+
+@dataclass(frozen=True)
+class Case:
+    """One recording to diagnose."""
+
+    effects: dict[str, float] = field(default_factory=dict)
+    noise: float = 1.0
+    seed: int = 0
+
+    @property
+    def label(self) -> str:
+        if not self.effects:
+            return "control"
+        return " + ".join(f"{k}={v:g}" for k, v in self.effects.items())
+
+
+#: Magnitudes per effect: small and large, in the truth model's units.
+MAGNITUDES: dict[str, tuple[float, ...]] = {
+    "gain_error": (0.03, 0.1),
+    "offset": (0.1, 0.3),
+    "deadband": (5e-6, 2e-5),
+    "coulomb_friction": (300.0, 900.0),
+    "stribeck_friction": (500.0, 1200.0),
+    "internal_leakage": (3e-13, 1.5e-12),
+    "compliance": (0.2, 0.4),
+    "supply_pressure_droop": (5e9, 2e10),
+    "time_delay": (0.002, 0.005),
+}
+PAIRS = (
+    {"coulomb_friction": 600.0, "offset": 0.2},
+    {"gain_error": 0.05, "time_delay": 0.003},
+    {"internal_leakage": 5e-13, "compliance": 0.3},
+)
+
+
+def cases(quick: bool) -> list[Case]:
+    """The suite (``quick``: one magnitude per effect, one pair, two controls)."""
+    found: list[Case] = []
+    seed = 100
+    for effect, values in MAGNITUDES.items():
+        for value in values[-1:] if quick else values:
+            seed += 1
+            found.append(Case({effect: value}, 1.0, seed))
+    if not quick:
+        for effect in ("gain_error", "coulomb_friction", "compliance", "supply_pressure_droop"):
+            seed += 1
+            found.append(Case({effect: MAGNITUDES[effect][-1]}, 3.0, seed))
+    for pair in PAIRS[:1] if quick else PAIRS:
+        seed += 1
+        found.append(Case(dict(pair), 1.0, seed))
+    controls = ((1.0, 1), (1.0, 2)) if quick else ((1.0, 1), (1.0, 2), (1.0, 3), (3.0, 4))
+    found += [Case({}, noise, s) for noise, s in controls]
+    return found
+
+
+def expected_origin(truth: FmuArchive, recording, case: Case, config) -> tuple[str | None, list]:
+    """First stage with a recorded signal the effect moves by more than 0.83 noise levels;
+    every stage it moves."""
+    if not case.effects:
+        return None, []
+    u = np.column_stack([recording[name] for name in INPUTS])
+    signals = [name for stage in config.stages for name in STAGE_SIGNALS[stage.name]]
+    runs = []
+    for effects in ({}, case.effects):
+        start = dict(zip(INPUTS, u[0], strict=True))
+        with FmuInstance(truth, INPUTS, signals, effects, start) as instance:
+            runs.append(run_open_loop(instance, u, recording.dt))
+    change = np.sqrt(np.mean((runs[1] - runs[0]) ** 2, axis=0))
+    sigma = np.array([SENSOR_NOISE[name] for name in signals]) * max(case.noise, 1e-3)
+    moved = [
+        stage.name
+        for stage in config.stages
+        if any(
+            change[signals.index(name)] > SIGNIFICANT_STRUCTURE * sigma[signals.index(name)]
+            for name in STAGE_SIGNALS[stage.name]
+        )
+    ]
+    return (moved[0] if moved else None), moved
+
+
+def effect_of(finding: dict) -> str:
+    """The physics a finding names (a parameter mismatch by its physics label)."""
+    if finding["effect"] == "parameter_mismatch":
+        return finding.get("physics") or "parameter_mismatch"
+    return finding["effect"]
+
+
+def in_truth_units(finding: dict, effect: str, whitebox: FmuArchive) -> float | None:
+    """A finding's magnitude in the truth model's units for ``effect``."""
+    value = finding["magnitude"]["value"]
+    if finding["effect"] == "parameter_mismatch":
+        nominal, estimate = finding["nominal"], finding["estimate"]
+        return {
+            "gain_error": estimate / nominal - 1.0,
+            "internal_leakage": estimate - nominal,
+            "compliance": 1.0 - estimate / nominal,
+        }.get(effect)
+    if effect == "deadband":  # half-width in mA of valve current -> m of spool travel
+        return value * whitebox.variable("valve_gain").start
+    return value
+
+
+def run_case(case: Case, paths: dict, config, workers: int, duration: float) -> dict:
+    """Record, diagnose and score one case."""
+    profile = FlightTestProfile(duration=duration)
+    request = SynthRequest(effects=case.effects, seed=case.seed, noise=case.noise, profile=profile)
+    with (
+        open_fmu(paths["HydraulicActuatorTruth"]) as truth,
+        open_fmu(paths["HydraulicActuator"]) as whitebox,
+    ):
+        recording = synthesise(truth, whitebox, request)
+        origin, moved = expected_origin(truth, recording, case, config)
+        started = time.perf_counter()
+        diagnosis = Diagnosis(config, workers=workers, greybox=None).fit(recording)
+        seconds = time.perf_counter() - started
+        findings = [f.to_dict() for f in diagnosis.findings_]
+        top = findings[0]
+        truth_effects = list(case.effects) or ["none"]
+        named = effect_of(top)
+        correct = named in truth_effects
+        estimate = in_truth_units(top, named, whitebox) if correct and case.effects else None
+    true_value = case.effects.get(named) if correct else None
+    affected = [diagnosis.fit_[s] for s in moved if s in diagnosis.fit_]
+    improvement = (
+        float(np.mean([row["named_improvement"] for row in affected])) if affected else None
+    )
+    return {
+        "case": case.label,
+        "noise": case.noise,
+        "seed": case.seed,
+        "control": not case.effects,
+        "expected_origin": origin,
+        "origin": diagnosis.origin_stage_,
+        "origin_correct": diagnosis.origin_stage_ == origin,
+        "top_finding": top["effect"]
+        if top["effect"] != "parameter_mismatch"
+        else f"parameter_mismatch:{top.get('parameter')}",
+        "top_physics": named,
+        "effect_correct": correct,
+        "findings": [effect_of(f) for f in findings],
+        "estimate": estimate,
+        "true": true_value,
+        "improvement": improvement,
+        "seconds": round(seconds, 1),
+    }
+
+
+def print_row(row: dict) -> None:
+    est = "-" if row["estimate"] is None else f"{row['estimate']:.3g}"
+    true = "-" if row["true"] is None else f"{row['true']:.3g}"
+    imp = "-" if row["improvement"] is None else f"{100 * row['improvement']:+.0f} %"
+    print(
+        f"{row['case']:48s} {row['noise']:5.1f} {row['expected_origin']!s:6s} "
+        f"{row['origin']!s:6s} {row['top_finding'][:34]:34s} "
+        f"{'yes' if row['effect_correct'] else 'NO':4s} {est:>10s} {true:>10s} {imp:>7s} "
+        f"{row['seconds']:6.1f}",
+        flush=True,
+    )
+
+
+def summary(rows: list[dict]) -> dict:
+    effect_rows = [r for r in rows if not r["control"]]
+    controls = [r for r in rows if r["control"]]
+    improvements = [r["improvement"] for r in effect_rows if r["improvement"] is not None]
+    return {
+        "origin_accuracy": float(np.mean([r["origin_correct"] for r in rows])),
+        "effect_accuracy": float(np.mean([r["effect_correct"] for r in effect_rows])),
+        "control_false_findings": sum(
+            sum(1 for f in r["findings"] if f != "none") for r in controls
+        ),
+        "median_improvement": statistics.median(improvements) if improvements else None,
+        "n_cases": len(rows),
+        "n_controls": len(controls),
+        "median_seconds": statistics.median(r["seconds"] for r in rows),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="A shorter suite.")
+    parser.add_argument("--json", action="store_true", help="End with one JSON line.")
+    parser.add_argument("--workers", type=int, default=2, help="Simulation workers.")
+    parser.add_argument(
+        "--duration", type=float, default=None, help="Recording length [s] (default 20, quick 12)."
+    )
+    args = parser.parse_args()
+    duration = args.duration or (12.0 if args.quick else 20.0)
+    config = load_config(CONFIG)
+    paths = reference_fmus()
+    print(
+        f"{'true effect':48s} {'noise':>5s} {'exp.':6s} {'origin':6s} {'top finding':34s} "
+        f"{'ok':4s} {'estimate':>10s} {'true':>10s} {'impr.':>7s} {'time':>6s}"
+    )
+    rows = []
+    for case in cases(args.quick):
+        row = run_case(case, paths, config, args.workers, duration)
+        rows.append(row)
+        print_row(row)
+    result = summary(rows)
+    print(
+        f"origin accuracy {100 * result['origin_accuracy']:.0f} %, effect accuracy "
+        f"{100 * result['effect_accuracy']:.0f} %, false findings on controls "
+        f"{result['control_false_findings']}, median held-out improvement "
+        f"{100 * (result['median_improvement'] or 0):+.0f} %"
+    )
+    if args.json:
+        print(json.dumps({**result, "duration": duration, "cases": rows}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,410 @@
+"""Fit hypotheses' magnitudes through the FMU: damped Gauss-Newton on noise-normalised residuals.
+
+The residual of a candidate (a set of hypotheses with magnitudes, on top of terms already
+accepted) is ``(recorded - simulated) / sigma`` over the training rows of every observed
+signal. Sensitivities come from perturbed simulations (forward differences); every batch of
+simulations of every candidate in an iteration runs at once on the :class:`~.runner.Simulator`'s
+workers. Steps are Gauss-Newton directions with backtracking (two step lengths tried in
+parallel) inside the hypotheses' admissible ranges.
+
+The covariance of the magnitudes is the larger of the Gauss-Newton one, ``s^2 (J^T J)^-1``
+inflated by the residual's integrated autocorrelation time (neighbouring samples of a
+model-error residual are not independent: the effective number of samples is ``N / tau``), and a
+block sandwich estimate that also widens when different stretches of the recording ask for
+different magnitudes (see :meth:`Calibrator.covariance`).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import filtfilt
+
+from .hypotheses import Hypothesis
+from .runner import Simulator
+from .terms import Term
+
+
+def autocorrelation_time(residual: np.ndarray, max_lag: int | None = None) -> float:
+    """Integrated autocorrelation time of a residual, averaged over its columns by energy.
+
+    ``tau = 1 + 2 sum_k rho_k``, summed while the autocorrelation stays above 0.05 (a white
+    residual gives 1; a slowly drifting one gives hundreds).
+
+    Parameters
+    ----------
+    residual : ndarray, shape (n,) or (n, m)
+    max_lag : int, optional
+        Largest lag considered (default ``n // 4``).
+
+    Returns
+    -------
+    float
+        ``tau >= 1``.
+    """
+    r = np.atleast_2d(np.asarray(residual, dtype=np.float64).T).T
+    n = r.shape[0]
+    if n < 8:
+        return 1.0
+    max_lag = max_lag or n // 4
+    size = 1 << math.ceil(math.log2(2 * n))
+    taus, weights = [], []
+    for x in r.T:
+        x = x - x.mean()
+        energy = float(np.dot(x, x))
+        if energy <= 0:
+            continue
+        spectrum = np.fft.rfft(x, size)
+        acf = np.fft.irfft(spectrum * np.conj(spectrum), size)[: max_lag + 1] / energy
+        below = np.flatnonzero(acf[1:] < 0.05)
+        stop = int(below[0]) if below.size else max_lag
+        taus.append(1.0 + 2.0 * float(np.sum(acf[1 : stop + 1])))
+        weights.append(energy)
+    if not taus:
+        return 1.0
+    return max(1.0, float(np.average(taus, weights=weights)))
+
+
+@dataclass
+class Candidate:
+    """Hypotheses with magnitudes, on top of fixed terms.
+
+    Attributes
+    ----------
+    hypotheses : list of Hypothesis
+        Fitted jointly.
+    theta : ndarray, shape (p,)
+        Their magnitudes, concatenated.
+    fixed : list of Term
+        Terms already accepted, applied unchanged.
+    cost : float
+        Sum of squared normalised residuals over the training rows simulated.
+    heldout : float
+        Mean squared normalised residual over the held-out rows (``nan`` unless simulated).
+    simulated : ndarray or None
+        The last simulation at ``theta``.
+    cov : ndarray or None, shape (p, p)
+        Covariance of ``theta`` (after :meth:`Calibrator.covariance`).
+    """
+
+    hypotheses: list[Hypothesis]
+    theta: np.ndarray
+    fixed: list[Term] = field(default_factory=list)
+    cost: float = math.inf
+    heldout: float = math.nan
+    simulated: np.ndarray | None = None
+    cov: np.ndarray | None = None
+    _step: float = 1.0
+    _done: bool = False
+
+    @property
+    def scale(self) -> np.ndarray:
+        return np.array([s for h in self.hypotheses for s in h.scale], dtype=np.float64)
+
+    @property
+    def lower(self) -> np.ndarray:
+        return np.array([s for h in self.hypotheses for s in h.lower], dtype=np.float64)
+
+    @property
+    def upper(self) -> np.ndarray:
+        return np.array([s for h in self.hypotheses for s in h.upper], dtype=np.float64)
+
+    def split(self, theta: np.ndarray | None = None) -> list[np.ndarray]:
+        """``theta`` cut into one array per hypothesis."""
+        theta = self.theta if theta is None else theta
+        if not self.hypotheses:
+            return []
+        cuts = np.cumsum([h.n_params for h in self.hypotheses])[:-1]
+        return np.split(np.asarray(theta, dtype=np.float64), cuts)
+
+    def terms(self, theta: np.ndarray | None = None) -> list[Term]:
+        """Fixed terms plus the hypotheses' terms at ``theta`` (default: the current one)."""
+        own = [
+            t for h, th in zip(self.hypotheses, self.split(theta), strict=True) for t in h.terms(th)
+        ]
+        return [*self.fixed, *own]
+
+    def clip(self, theta: np.ndarray) -> np.ndarray:
+        return np.clip(theta, self.lower, self.upper)
+
+    @property
+    def ci95(self) -> np.ndarray:
+        """``(p, 2)`` 95 % intervals from :attr:`cov` (``nan`` when unknown)."""
+        if self.cov is None:
+            return np.full((self.theta.size, 2), np.nan)
+        half = 1.96 * np.sqrt(np.maximum(np.diag(self.cov), 0.0))
+        return np.column_stack([self.theta - half, self.theta + half])
+
+
+class Calibrator:
+    """Evaluates and fits candidates over a prefix of the recording.
+
+    Parameters
+    ----------
+    simulator : Simulator
+    rows : int
+        Rows simulated (a prefix; the rows beyond the training part score the held-out fit).
+    smoothing : float
+        Time constant, in samples, of a zero-phase low-pass filter applied to the residual
+        before it is scored (0: none). Lightly damped modes make the raw misfit of a parameter
+        that tunes them (a stiffness, a mass) a narrow valley with ripples around it: once the
+        simulated ringing is out of phase with the recorded one, no local step helps. The
+        smoothed misfit keeps the slow, well-behaved part (e.g. the position a compliance
+        lets drift, the mean motion of a stick-slip) and has its minimum in the valley.
+    difference_step : float
+        Finite-difference step, in units of each magnitude's scale. A long step measures the
+        trend of the misfit rather than the ripples left on it (what a first, screening step
+        from "no effect" needs); a short one the local slope (what the last steps need).
+    """
+
+    def __init__(
+        self,
+        simulator: Simulator,
+        rows: int,
+        smoothing: float = 0.0,
+        difference_step: float = 0.5,
+    ) -> None:
+        self.simulator = simulator
+        self.experiment = simulator.experiment
+        self.rows = rows
+        self.fit_rows = min(rows, self.experiment.train_rows)
+        self.smoothing = smoothing
+        self.difference_step = difference_step
+
+    # ------------------------------------------------------------------ residuals
+    def residual(self, simulated: np.ndarray | None) -> np.ndarray | None:
+        """Training-row residual vector of a simulation (None if the FMU failed)."""
+        if simulated is None:
+            return None
+        r = self.experiment.residual(simulated[: self.fit_rows])
+        if not np.all(np.isfinite(r)):
+            return None
+        if self.smoothing > 0:
+            a = math.exp(-1.0 / self.smoothing)
+            r = filtfilt([1.0 - a], [1.0, -a], r, axis=0)
+        return r.ravel()
+
+    def heldout_cost(self, simulated: np.ndarray) -> float:
+        """Mean squared normalised residual over the held-out rows simulated."""
+        rest = simulated[self.fit_rows :]
+        if rest.shape[0] == 0:
+            return math.nan
+        return float(np.mean(self.experiment.residual(rest, self.fit_rows) ** 2))
+
+    def evaluate(self, candidates: Sequence[Candidate]) -> None:
+        """Simulate every candidate at its magnitudes and store cost and simulation."""
+        sims = self.simulator.run([c.terms() for c in candidates], self.rows)
+        for c, sim in zip(candidates, sims, strict=True):
+            self._store(c, c.theta, sim)
+
+    def _store(self, c: Candidate, theta: np.ndarray, sim: np.ndarray | None) -> bool:
+        r = self.residual(sim)
+        if r is None:
+            return False
+        c.theta = np.array(theta, dtype=np.float64)
+        c.cost = float(np.dot(r, r))
+        c.simulated = sim
+        c.heldout = self.heldout_cost(sim)
+        return True
+
+    # ------------------------------------------------------------------ sensitivities
+    def _steps(self, c: Candidate) -> np.ndarray:
+        """Signed finite-difference steps, inside the admissible range."""
+        scale = c.scale
+        h = self.difference_step * scale * np.maximum(1.0, 0.1 * np.abs(c.theta / scale))
+        forward = c.theta + h <= c.upper
+        return np.where(forward, h, -h)
+
+    def jacobians(self, candidates: Sequence[Candidate]) -> list[np.ndarray | None]:
+        """Forward-difference sensitivities ``d r / d theta`` of each candidate.
+
+        Returns
+        -------
+        list of (ndarray, shape (N, p), or None when a perturbed run failed)
+        """
+        tasks, owners = [], []
+        steps = [self._steps(c) for c in candidates]
+        for i, (c, h) in enumerate(zip(candidates, steps, strict=True)):
+            for k in range(c.theta.size):
+                theta = c.theta.copy()
+                theta[k] += h[k]
+                tasks.append(c.terms(theta))
+                owners.append((i, k))
+        sims = self.simulator.run(tasks, self.rows)
+        base = [self.residual(c.simulated) for c in candidates]
+        jac: list[np.ndarray | None] = [
+            np.empty((b.size, c.theta.size)) if b is not None else None
+            for c, b in zip(candidates, base, strict=True)
+        ]
+        for (i, k), sim in zip(owners, sims, strict=True):
+            r = self.residual(sim)
+            if jac[i] is None or r is None:
+                jac[i] = None
+                continue
+            jac[i][:, k] = (r - base[i]) / steps[i][k]
+        return jac
+
+    # ------------------------------------------------------------------ fitting
+    def fit(
+        self,
+        candidates: Sequence[Candidate],
+        max_iter: int = 6,
+        tol: float = 1e-3,
+        tries: int = 3,
+    ) -> None:
+        """Damped Gauss-Newton on every candidate at once, in place.
+
+        Each candidate must have been evaluated (:meth:`evaluate`). An iteration computes the
+        sensitivities, then tries the Gauss-Newton step at two lengths; the better one is kept
+        if it lowers the cost, otherwise the step length shrinks ninefold and the pair is tried
+        again, at most ``tries`` times. A candidate stops when its cost falls by less than
+        ``tol`` (relative), no step helps, or after ``max_iter`` iterations.
+        """
+        active = [c for c in candidates if math.isfinite(c.cost)]
+        for c in active:
+            c._done, c._step = False, 1.0
+        for _ in range(max_iter):
+            active = [c for c in active if not c._done]
+            if not active:
+                return
+            jacs = self.jacobians(active)
+            directions = []
+            for c, jac in zip(active, jacs, strict=True):
+                if jac is None:
+                    c._done = True
+                    continue
+                directions.append((c, self._direction(c, jac)))
+            self._line_search(directions, tol, tries)
+
+    def _direction(self, c: Candidate, jac: np.ndarray) -> np.ndarray:
+        """The Gauss-Newton step (in magnitude units), lightly regularised."""
+        r = self.residual(c.simulated)
+        scale = c.scale
+        js = jac * scale
+        a = js.T @ js
+        g = js.T @ r
+        ridge = 1e-9 * np.trace(a) / max(a.shape[0], 1) + 1e-300
+        try:
+            step = -np.linalg.solve(a + ridge * np.eye(a.shape[0]), g)
+        except np.linalg.LinAlgError:
+            step = np.zeros_like(g)
+        return step * scale
+
+    def _line_search(
+        self, directions: list[tuple[Candidate, np.ndarray]], tol: float, tries: int
+    ) -> None:
+        pending = [(c, d) for c, d in directions if np.any(d != 0)]
+        for c, d in directions:
+            if not np.any(d != 0):
+                c._done = True
+        for _ in range(tries):
+            if not pending:
+                return
+            tasks, trials = [], []
+            for c, d in pending:
+                for alpha in (c._step, c._step / 3.0):
+                    theta = c.clip(c.theta + alpha * d)
+                    tasks.append(c.terms(theta))
+                    trials.append((c, theta, alpha))
+            sims = self.simulator.run(tasks, self.rows)
+            best: dict[int, tuple[float, np.ndarray, float, np.ndarray]] = {}
+            for (c, theta, alpha), sim in zip(trials, sims, strict=True):
+                r = self.residual(sim)
+                if r is None:
+                    continue
+                cost = float(np.dot(r, r))
+                if cost < best.get(id(c), (math.inf,))[0]:
+                    best[id(c)] = (cost, theta, alpha, sim)
+            retry = []
+            for c, d in pending:
+                found = best.get(id(c))
+                if found is not None and found[0] < c.cost:
+                    cost, theta, alpha, sim = found
+                    gain = (c.cost - cost) / max(c.cost, 1e-300)
+                    self._store(c, theta, sim)
+                    c._step = min(1.0, 3.0 * alpha) if alpha == c._step else alpha
+                    c._done = gain < tol
+                else:
+                    c._step /= 9.0
+                    if c._step < 1e-3:
+                        c._done = True
+                    else:
+                        retry.append((c, d))
+            pending = retry
+        for c, _ in pending:
+            c._done = True
+
+    def covariance(
+        self, candidates: Sequence[Candidate], blocks: int = 20
+    ) -> list[np.ndarray | None]:
+        """Set each candidate's covariance from sensitivities at its magnitudes.
+
+        Two estimates are formed and the larger (by trace) is kept:
+
+        * Gauss-Newton, ``s^2 (J^T J)^-1`` times the residual's autocorrelation time;
+        * a block sandwich ``A^-1 (sum_b g_b g_b^T) A^-1`` over ``blocks`` contiguous blocks of
+          the training rows (``g_b``: a block's gradient, ``A = J^T J``): robust to
+          autocorrelation and to a hypothesis that fits some stretches better than others,
+          which model-structure error produces.
+
+        Returns
+        -------
+        list of (ndarray or None)
+            The sensitivities used (see :meth:`jacobians`).
+        """
+        jacs = self.jacobians(candidates)
+        for c, jac in zip(candidates, jacs, strict=True):
+            if jac is None:
+                continue
+            r = self.residual(c.simulated)
+            n, p = jac.shape
+            scale = c.scale
+            js = jac * scale
+            inv = np.linalg.pinv(js.T @ js)
+            m = self.fit_rows
+            tau = autocorrelation_time(r.reshape(m, -1))
+            gauss_newton = float(np.dot(r, r)) / max(n - p, 1) * tau * inv
+            width = r.size // m
+            cuts = np.linspace(0, m, blocks + 1).round().astype(int) * width
+            grads = np.array([js[a:b].T @ r[a:b] for a, b in itertools.pairwise(cuts)])
+            meat = grads.T @ grads * blocks / max(blocks - p, 1)
+            sandwich = inv @ meat @ inv
+            best = sandwich if np.trace(sandwich) > np.trace(gauss_newton) else gauss_newton
+            c.cov = best * np.outer(scale, scale)
+        return jacs
+
+    def polish(self, candidates: Sequence[Candidate], max_iter: int = 2, seed: int = 0) -> None:
+        """Finish magnitudes fitted on a low-passed residual on this calibrator's residual, and
+        set their covariance, widened by two systematic terms (added as variances):
+
+        * **score**: both residuals are consistent scores of a correct model; where their
+          estimates differ, a structural difference between the hypothesis and the real
+          physics weighs differently in the two;
+        * **input noise**: the recorded inputs drive the white-box with their sensor noise,
+          which biases the estimate (errors in variables). The shift of one Gauss-Newton step
+          when the inputs are re-noised at their estimated noise level measures it; for inputs
+          with genuine fast content (a controller's command) the estimate is an upper bound.
+
+        The candidates must have been evaluated by this calibrator.
+        """
+        before = [c.theta.copy() for c in candidates]
+        self.fit(candidates, max_iter=max_iter, tol=1e-4)
+        jacs = self.covariance(candidates)
+        experiment = self.experiment
+        rng = np.random.default_rng(seed)
+        noisy = experiment.renoised(rng)
+        for c, theta, jac in zip(candidates, before, jacs, strict=True):
+            if c.cov is None or jac is None:
+                continue
+            shift = np.zeros_like(c.theta)
+            sim = noisy.simulate(c.terms(), self.rows)
+            r_noisy = self.residual(sim)
+            if r_noisy is not None:
+                js = jac * c.scale
+                step = np.linalg.pinv(js) @ (r_noisy - self.residual(c.simulated))
+                shift = -step * c.scale
+            c.cov = c.cov + np.diag((c.theta - theta) ** 2 + shift**2)

@@ -1,0 +1,331 @@
+"""The diagnosis of a project on a recording: locate, name, model, show.
+
+:class:`Diagnosis` composes the steps, scikit-learn style (``fit`` returns ``self``, fitted
+attributes end in ``_``):
+
+1. simulate the white-box over the recorded inputs and measure its residuals
+   (:class:`~.locate.Locator`);
+2. if a stage departs from the recording beyond noise, generate the hypotheses the project's
+   roles allow (:func:`~.hypotheses.generate_hypotheses`) and keep the few the data support
+   (:class:`~.select.ForwardSelection`);
+3. fold the kept terms into the white-box (:func:`~.terms.simulate_with_terms`) and train the
+   grey-box correctors (:class:`~fmu_greybox.greybox.GreyBoxChain`) on what remains;
+4. compare white-box, white-box + named terms and grey-box on held-out rows.
+
+The held-out part is the project's (``split.train_fraction``), but at least the last 20 % of
+the recording, so that the selection's held-out test has data to judge on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from ..config import ProjectConfig
+from ..errors import ConfigError
+from ..fmu_archive import FmuArchive, open_fmu
+from ..greybox import GreyBoxChain
+from ..metrics import improvement, rmse
+from ..project_data import check_step, whitebox_path
+from ..recording import Recording
+from ..simulate import real_outputs
+from .findings import (
+    Finding,
+    named_findings,
+    none_finding,
+    stage_energy,
+    unexplained_finding,
+)
+from .hypotheses import DataScales, generate_hypotheses
+from .locate import Locator, regime_signals
+from .runner import Experiment, Simulator
+from .select import ForwardSelection
+from .signals import SignalMap
+from .terms import ViscousForce, simulate_with_terms
+
+#: Largest share of a recording used for training in a diagnosis.
+MAX_TRAIN_FRACTION = 0.8
+
+Progress = Callable[[str], None]
+
+
+@dataclasses.dataclass(frozen=True)
+class GreyBoxSettings:
+    """Corrector settings of the diagnosis' grey-box (smaller than a full ``train``).
+
+    The diagnosis trains the chain to show how much the correctors add to the named terms;
+    ``fmu-greybox train`` builds the production model with the project's own settings. Each
+    field caps the project's value.
+    """
+
+    inducing: int = 60
+    max_iter: int = 40
+    max_train_samples: int = 4000
+
+
+class Diagnosis:
+    """Locate, name, model and show what a white-box misses on a recording.
+
+    Parameters
+    ----------
+    config : ProjectConfig
+    workers : int
+        Simulation worker processes.
+    screen_rows : int
+        Rows of the screening window.
+    max_findings : int
+        Most named effects kept.
+    greybox : GreyBoxSettings or None
+        Settings of the grey-box trained on top of the named terms; ``None`` skips it.
+    progress : callable, optional
+        Called with a short message at each step.
+
+    Attributes
+    ----------
+    signals_ : SignalMap
+    experiment_ : Experiment
+    locator_ : Locator
+    selection_ : ForwardSelection or None
+        ``None`` when nothing departs beyond noise.
+    hypotheses_ : list of Hypothesis
+        The hypotheses generated (empty when nothing departs beyond noise).
+    simulations_ : int
+        Simulations run.
+    findings_ : list of Finding
+        Best first.
+    origin_stage_ : str or None
+    simulated_ : dict[str, ndarray]
+        ``whitebox`` and ``named`` predictions of the observed signals, shape (n, n_observed);
+        ``greybox`` / ``greybox_std`` of the stage targets on the held-out rows, shape
+        (n_heldout, Q).
+    fit_ : dict[str, dict[str, float]]
+        Stage -> ``wb_rmse``, ``named_rmse``, ``gb_rmse`` and improvements, on held-out rows.
+    timings_ : dict[str, float]
+        Seconds per step.
+    """
+
+    def __init__(
+        self,
+        config: ProjectConfig,
+        workers: int = 2,
+        screen_rows: int = 4000,
+        max_findings: int = 3,
+        greybox: GreyBoxSettings | None = GreyBoxSettings(),
+        progress: Progress | None = None,
+    ) -> None:
+        self.config = config
+        self.workers = workers
+        self.screen_rows = screen_rows
+        self.max_findings = max_findings
+        self.greybox = greybox
+        self.progress = progress or (lambda message: None)
+
+    # ------------------------------------------------------------------ fit
+    def fit(self, recording: Recording) -> Diagnosis:
+        """Diagnose the white-box on ``recording``.
+
+        Returns
+        -------
+        Diagnosis
+            ``self``.
+
+        Raises
+        ------
+        ConfigError
+            If no recorded signal corresponds to an FMU output (nothing to compare).
+        """
+        started = time.perf_counter()
+        self.timings_: dict[str, float] = {}
+        config = self.config
+        check_step(config, recording)
+        self.fmu_path_ = whitebox_path(config)
+        with open_fmu(self.fmu_path_) as archive:
+            config.check_against_fmu(archive)
+            targets = [config.signals[s.target].column for s in config.stages]
+            recording.require(targets, context=f"project {config.name}")
+            signals = SignalMap.from_project(config, archive, recording)
+            if not signals.observed:
+                raise ConfigError(
+                    "no recorded signal corresponds to an output of the white-box FMU; declare "
+                    "the recorded outputs under [signals] with their FMU 'variable'",
+                    field="signals",
+                    path=str(config.path) if config.path else None,
+                )
+            n = recording.n_samples
+            train = max(2, min(n - 2, int(min(config.train_fraction, MAX_TRAIN_FRACTION) * n)))
+            experiment = Experiment.from_project(config, archive, recording, signals, train)
+            self.progress("simulating the white-box")
+            wb = experiment.simulate([])
+            if wb is None:
+                raise ConfigError("the white-box FMU fails on this recording's inputs")
+            signals.assign_stages(wb, experiment.dt)
+            experiment.stages = signals.observed_stages
+            self.signals_, self.experiment_ = signals, experiment
+            self._locate(recording, wb)
+            self._tick("locate", started)
+            named = wb
+            self.selection_ = None
+            self.hypotheses_ = []
+            self.simulations_ = 1
+            if self.locator_.origin_ is not None:
+                named = self._name(archive, signals, experiment)
+            self._tick("name", started)
+        self.simulated_ = {"whitebox": wb, "named": named}
+        self.findings_ = self._verdicts(named)
+        self.origin_stage_ = (
+            None if self.locator_.origin_ is None else signals.stage_names[self.locator_.origin_]
+        )
+        self._show(recording)
+        self._tick("model", started)
+        self.timings_["total"] = round(time.perf_counter() - started, 2)
+        return self
+
+    def _tick(self, step: str, started: float) -> None:
+        done = sum(v for k, v in self.timings_.items())
+        self.timings_[step] = round(time.perf_counter() - started - done, 2)
+
+    # ------------------------------------------------------------------ steps
+    def _locate(self, recording: Recording, wb: np.ndarray) -> None:
+        self.progress("locating the residual")
+        columns = {c: recording[c] for c in recording.names}
+        regimes = regime_signals(self.signals_, columns, recording.dt)
+        self.locator_ = Locator().fit(self.experiment_, self.signals_, wb, regimes)
+
+    def _name(self, archive: FmuArchive, signals: SignalMap, experiment: Experiment) -> np.ndarray:
+        self.progress("generating hypotheses")
+        scales = data_scales(archive, signals, experiment, self.screen_rows)
+        self.hypotheses_ = generate_hypotheses(signals, archive, scales, experiment.parameters)
+        self.progress(f"testing {len(self.hypotheses_)} hypotheses")
+        with Simulator(experiment, self.workers) as simulator:
+            selection = ForwardSelection(
+                screen_rows=self.screen_rows, max_findings=self.max_findings
+            ).fit(simulator, self.hypotheses_)
+            selected = selection.selected_
+            prefixes = [selection.baseline_.simulated]
+            if selected.hypotheses:
+                pairs = list(zip(selected.hypotheses, selected.split(), strict=True))
+                partial = [
+                    [t for h, th in pairs[:i] for t in h.terms(th)] for i in range(1, len(pairs))
+                ]
+                prefixes += [*simulator.run(partial), selected.simulated]
+            self.simulations_ += simulator.runs
+        self.selection_ = selection
+        self.prefixes_ = prefixes
+        return selected.simulated if selected.hypotheses else prefixes[0]
+
+    def _verdicts(self, named: np.ndarray) -> list[Finding]:
+        stages = self.locator_.stages_
+        if self.locator_.origin_ is None:
+            return [none_finding(stages)]
+        experiment = self.experiment_
+        found: list[Finding] = []
+        if self.selection_ is not None and self.selection_.selected_.hypotheses:
+            found = named_findings(experiment, self.selection_.selected_, self.prefixes_, stages)
+        rest = experiment.residual(named[experiment.train_rows :], experiment.train_rows)
+        wb = self.simulated_["whitebox"]
+        for stage in stages:
+            cols = [j for j, s in enumerate(experiment.stages) if s == stage.index]
+            if not cols or not stage.significant:
+                continue
+            ratio = float(np.max(np.sqrt(np.mean(rest[:, cols] ** 2, axis=0))))
+            before = stage_energy(experiment, wb, stage.index)
+            remaining = stage_energy(experiment, named, stage.index) / before if before else 0.0
+            if not found or (ratio > 2.0 and remaining > 0.2):
+                j = cols[0]
+                sig = self.signals_.observed[j]
+                held = slice(experiment.train_rows, None)
+                rms = rmse(named[held, j], experiment.recorded[held, j])
+                found.append(unexplained_finding(stage, ratio, remaining, sig.unit, rms))
+                break
+        return found
+
+    def _show(self, recording: Recording) -> None:
+        """Grey-box on the named terms, and the held-out fit table."""
+        experiment = self.experiment_
+        targets = [j for j, s in enumerate(self.signals_.observed) if s.is_target]
+        names = self.signals_.stage_names
+        train = experiment.train_rows
+        self.fit_ = {}
+        recorded = experiment.recorded[:, targets]
+        wb = self.simulated_["whitebox"][:, targets]
+        named = self.simulated_["named"][:, targets]
+        gb, gb_std = named[train:], np.zeros_like(named[train:])
+        if self.greybox is not None:
+            self.progress("training the grey-box on the named model")
+            gb, gb_std = self._greybox(recording, named, recorded, train)
+        self.simulated_["greybox"], self.simulated_["greybox_std"] = gb, gb_std
+        for q, name in enumerate(names):
+            rec = recorded[train:, q]
+            row = {
+                "wb_rmse": rmse(wb[train:, q], rec),
+                "named_rmse": rmse(named[train:, q], rec),
+                "gb_rmse": rmse(gb[:, q], rec),
+                "noise": float(experiment.sigma[targets[q]]),
+                "unit": self.signals_.observed[targets[q]].unit,
+            }
+            row["named_improvement"] = improvement(row["wb_rmse"], row["named_rmse"])
+            row["gb_improvement"] = improvement(row["wb_rmse"], row["gb_rmse"])
+            self.fit_[name] = row
+
+    def _greybox(
+        self, recording: Recording, named: np.ndarray, recorded: np.ndarray, train: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        config = self.config
+        settings = self.greybox
+        gp = dataclasses.replace(
+            config.gp,
+            inducing=min(config.gp.inducing, settings.inducing),
+            max_iter=min(config.gp.max_iter, settings.max_iter),
+            max_train_samples=min(config.gp.max_train_samples, settings.max_train_samples),
+        )
+        chain = GreyBoxChain(dataclasses.replace(config, gp=gp))
+        exo = np.column_stack([recording[config.signals[s].column] for s in chain.exo_names])
+        chain.fit(exo[:train], named[:train], recorded[:train])
+        return chain.free_run(exo, named, recorded, train - 1)
+
+
+def data_scales(
+    archive: FmuArchive, signals: SignalMap, experiment: Experiment, rows: int
+) -> DataScales:
+    """Typical signal sizes: recorded inputs, and every FMU output simulated over a window.
+
+    Also finds, for every force input and velocity output, whether a positive input force
+    opposes positive velocity (a small viscous probe through the FMU).
+    """
+    rows = min(rows, experiment.n_samples)
+    outputs = real_outputs(archive)
+    u = experiment.u[:rows]
+
+    def run(terms: list) -> np.ndarray:
+        return simulate_with_terms(
+            archive,
+            experiment.inputs,
+            u,
+            experiment.dt,
+            outputs,
+            terms,
+            experiment.parameters,
+            start_time=experiment.start_time,
+        )
+
+    y = run([])
+    output_rms = {name: float(np.sqrt(np.mean(y[:, j] ** 2))) for j, name in enumerate(outputs)}
+    input_rms = {
+        name: float(np.sqrt(np.mean(experiment.u[:, j] ** 2)))
+        for j, name in enumerate(experiment.inputs)
+    }
+    sense: dict[tuple[str, str], float] = {}
+    for force in signals.inputs_with_role("force"):
+        for velocity in signals.outputs_with_role("velocity"):
+            j = outputs.index(velocity)
+            v_rms = output_rms.get(velocity, 0.0)
+            if v_rms <= 0:
+                continue
+            c = 0.05 * max(input_rms.get(force, 0.0), 1e-12) / v_rms
+            probe = run([ViscousForce(input=force, source=velocity, coefficient=c)])
+            change = float(np.dot(y[:, j], probe[:, j] - y[:, j]))
+            sense[(force, velocity)] = 1.0 if change <= 0 else -1.0
+    return DataScales(input_rms, output_rms, experiment.dt, sense)

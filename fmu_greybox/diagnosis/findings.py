@@ -1,0 +1,229 @@
+"""Findings: what the diagnosis says, one named effect (or verdict) at a time.
+
+A finding pairs a kept hypothesis with what it means for the system engineer: the stage where
+it shows first, its magnitude with units and a 95 % interval, the share of that stage's
+residual it explains, where (regimes, time windows) the residual it explains concentrates, and
+one sentence saying all that. Two verdicts complete the vocabulary: ``none`` (every stage
+matches within noise) and ``unexplained`` (structure remains that no hypothesis explains).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .calibrate import Candidate
+from .hypotheses import Hypothesis
+from .locate import SIGNIFICANT_STRUCTURE, Regime, StageResidual
+from .runner import Experiment
+
+#: A correction "changes" a stage when it moves one of its signals by this many noise levels
+#: (RMS): the structure that makes a residual significant.
+CHANGE_THRESHOLD = SIGNIFICANT_STRUCTURE
+
+
+@dataclass
+class Finding:
+    """One entry of ``diagnosis.json``'s ``findings``.
+
+    Attributes
+    ----------
+    stage : str or None
+        Stage where it shows first.
+    effect : str
+        Vocabulary identifier.
+    summary : str
+        One sentence.
+    magnitude : dict or None
+        ``value``, ``unit``, ``ci95`` ([low, high]) of the main magnitude.
+    explained_fraction : float or None
+        Share of the stage's residual energy it explains: of the white-box's for the first
+        finding kept, of what the earlier findings left for the others.
+    where : list of dict
+        Regimes and time windows where the stage's residual concentrates.
+    details : dict
+        Hypothesis key, every magnitude, the terms that model it, further facts.
+    """
+
+    stage: str | None
+    effect: str
+    summary: str
+    magnitude: dict | None = None
+    explained_fraction: float | None = None
+    where: list[dict] = field(default_factory=list)
+    details: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {
+            "stage": self.stage,
+            "effect": self.effect,
+            "summary": self.summary,
+            "magnitude": self.magnitude,
+            "explained_fraction": (
+                None if self.explained_fraction is None else round(self.explained_fraction, 4)
+            ),
+            "where": self.where,
+            **self.details,
+        }
+
+
+def where_from(stage: StageResidual | None, limit: int = 4) -> list[dict]:
+    """Regimes, main frequency band and windows where a stage's residual concentrates most
+    (of its signal furthest above noise)."""
+    if stage is None or not stage.signals:
+        return []
+    signal = max(stage.signals, key=lambda s: s.noise_ratio)
+    regimes = signal.regimes
+    concentrated = [
+        r for r in regimes if r.kind not in ("window", "band") and r.concentration >= 1.3
+    ]
+    concentrated.sort(key=lambda r: -r.concentration)
+    bands = sorted((r for r in regimes if r.kind == "band"), key=lambda r: -r.energy_share)[:1]
+    windows = [r for r in regimes if r.kind == "window"]
+    picked: list[Regime] = [*concentrated[:limit], *bands, *windows]
+    return [{"signal": signal.name, **r.to_dict()} for r in picked]
+
+
+def stage_changed(experiment: Experiment, before: np.ndarray, after: np.ndarray) -> int | None:
+    """First stage whose signals move by more than :data:`CHANGE_THRESHOLD` noise levels."""
+    change = np.sqrt(np.mean(((after - before) / experiment.sigma) ** 2, axis=0))
+    stages = np.array(experiment.stages)
+    moved = [int(s) for s in sorted(set(stages)) if np.any(change[stages == s] > CHANGE_THRESHOLD)]
+    return moved[0] if moved else None
+
+
+def stage_energy(experiment: Experiment, simulated: np.ndarray, stage: int) -> float:
+    """Sum of squared normalised residuals of a stage's signals over the whole recording."""
+    cols = [j for j, s in enumerate(experiment.stages) if s == stage]
+    r = experiment.residual(simulated)[:, cols]
+    return float(np.sum(r**2))
+
+
+def named_findings(
+    experiment: Experiment,
+    selected: Candidate,
+    prefixes: list[np.ndarray],
+    stages: list[StageResidual],
+) -> list[Finding]:
+    """Findings of the kept hypotheses, best first.
+
+    Parameters
+    ----------
+    experiment : Experiment
+    selected : Candidate
+        Kept hypotheses with joint magnitudes and covariance.
+    prefixes : list of ndarray
+        Simulations with the first ``i`` kept hypotheses, ``i = 0 .. m`` (0: white-box).
+    stages : list of StageResidual
+        The white-box residual statistics (for ``where``).
+
+    Returns
+    -------
+    list of Finding
+    """
+    names = [s.name for s in stages]
+    total = [float(np.sum(experiment.residual(p) ** 2)) for p in prefixes]
+    ci = selected.ci95
+    offsets = np.cumsum([0] + [h.n_params for h in selected.hypotheses])
+    found = []
+    for i, (h, theta) in enumerate(zip(selected.hypotheses, selected.split(), strict=True)):
+        before, after = prefixes[i], prefixes[i + 1]
+        stage = stage_changed(experiment, before, after)
+        stage = h.entry if stage is None else stage
+        left = stage_energy(experiment, before, stage)
+        explained = (left - stage_energy(experiment, after, stage)) / left if left > 0 else 0.0
+        k = offsets[i]
+        finding = _named(
+            h, theta, ci[k : k + h.n_params], names[stage], explained, stages[stage], i > 0
+        )
+        found.append(((total[i] - total[i + 1]) / total[0] if total[0] > 0 else 0.0, finding))
+    found.sort(key=lambda pair: -pair[0])
+    return [f for _, f in found]
+
+
+def _named(
+    h: Hypothesis,
+    theta: np.ndarray,
+    ci: np.ndarray,
+    stage: str,
+    explained: float,
+    residual: StageResidual,
+    after_others: bool,
+) -> Finding:
+    share = max(0.0, min(1.0, explained))
+    left = " left by the findings before it" if after_others else ""
+    summary = f"{h.phrase(theta)}; it explains {100 * share:.0f} % of the {stage} residual{left}."
+    magnitudes = {
+        name: {"value": float(v), "unit": unit, "ci95": _interval(c)}
+        for name, v, unit, c in zip(h.names, theta, h.units, ci, strict=True)
+    }
+    main = next(iter(magnitudes.values()))
+    return Finding(
+        stage=stage,
+        effect=h.effect,
+        summary=summary,
+        magnitude=main,
+        explained_fraction=share,
+        where=where_from(residual),
+        details={
+            "hypothesis": h.key,
+            "enters_at": h.location,
+            "magnitudes": magnitudes,
+            "terms": [t.to_dict() for t in h.terms(theta)],
+            **h.extra(theta),
+        },
+    )
+
+
+def _interval(c: np.ndarray) -> list[float] | None:
+    if not np.all(np.isfinite(c)):
+        return None
+    return [float(c[0]), float(c[1])]
+
+
+def none_finding(stages: list[StageResidual]) -> Finding:
+    """The verdict that every stage matches within noise."""
+    worst = max(stages, key=lambda s: s.noise_ratio)
+    return Finding(
+        stage=None,
+        effect="none",
+        summary=(
+            "Every stage matches the recording within sensor noise: the largest residual "
+            f"({worst.name}) is {worst.noise_ratio:.2f} times its noise level."
+        ),
+    )
+
+
+def unexplained_finding(
+    stage: StageResidual, noise_ratio: float, remaining: float, unit: str, rms: float
+) -> Finding:
+    """The verdict that structure remains in a stage that no hypothesis explains.
+
+    Parameters
+    ----------
+    stage : StageResidual
+        White-box statistics of the stage.
+    noise_ratio : float
+        Held-out RMS over noise after the named terms.
+    remaining : float
+        Share of the stage's white-box residual energy left after the named terms.
+    unit : str
+        Unit of the stage target.
+    rms : float
+        Held-out RMS of the stage target's residual after the named terms.
+    """
+    named = "the named terms" if remaining < 0.999 else "the white-box"
+    return Finding(
+        stage=stage.name,
+        effect="unexplained",
+        summary=(
+            f"Structure remains in the {stage.name} residual that no hypothesis explains: after "
+            f"{named} its RMS is {noise_ratio:.3g} times the sensor noise on held-out data "
+            f"({100 * remaining:.0f} % of the white-box residual energy remains)."
+        ),
+        magnitude={"value": rms, "unit": unit, "ci95": None},
+        explained_fraction=None if math.isnan(remaining) else max(0.0, 1.0 - remaining),
+        where=where_from(stage),
+    )

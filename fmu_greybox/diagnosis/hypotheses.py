@@ -1,0 +1,653 @@
+"""Physically named hypotheses: what the white-box may have left out or got wrong.
+
+Each hypothesis is a small strategy object with one or two magnitudes ``theta``: it turns them
+into correction terms (:mod:`.terms`) that enter where the physics enters (an FMU parameter, an
+FMU input, the sensors), so the white-box's own dynamics carry their effect to the outputs. It
+knows its magnitudes' typical size (``scale``), their admissible range and how to say what it
+found in a sentence.
+
+:func:`generate_hypotheses` builds the vocabulary for a project from signal roles and the FMU's
+declarations only: every tunable Real parameter; at command inputs (current or voltage) a gain
+error, an offset, a deadband and a delay, acting either at the input or only downstream of the
+stage the input drives; at force inputs a missing Coulomb, viscous or Stribeck force fed back
+from each velocity output; at pressure inputs a droop with each flow output; a delay of every
+sensor.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from ..fmu_archive import FmuArchive
+from .signals import SignalMap
+from .terms import (
+    CoulombForce,
+    FlowDroop,
+    InputDeadband,
+    InputDelay,
+    InputGain,
+    InputOffset,
+    ParameterChange,
+    SensorDelay,
+    StribeckForce,
+    Term,
+    ViscousForce,
+)
+
+#: Physics a parameter's name or description points to (first match wins).
+PHYSICS_KEYWORDS: tuple[tuple[str, str], ...] = (
+    (r"leak", "internal_leakage"),
+    (r"bulk.?modulus|compressib|entrained air|stiffness", "compliance"),
+    (r"natural.?frequency|time.?constant|damping ratio|bandwidth", "lag"),
+    (r"viscous|damping coefficient", "viscous_friction"),
+    (r"stribeck|breakaway", "stribeck_friction"),
+    (r"coulomb", "coulomb_friction"),
+    (r"dead.?band|dead.?zone|overlap", "deadband"),
+    (r"backlash|free.?play", "backlash"),
+    (r"delay|latency", "time_delay"),
+    (r"offset|bias", "offset"),
+    (r"gain|torque.?constant", "gain_error"),
+)
+
+
+def physics_label(name: str, description: str) -> str | None:
+    """The effect a parameter's name or description names, or ``None``.
+
+    Examples
+    --------
+    >>> physics_label("bulk_modulus", "Effective bulk modulus beta")
+    'compliance'
+    >>> physics_label("ram_mass", "Moving mass m")
+    """
+    text = f"{name.replace('_', ' ')} {description}".lower()
+    for pattern, label in PHYSICS_KEYWORDS:
+        if re.search(pattern, text):
+            return label
+    return None
+
+
+@dataclass
+class Hypothesis(ABC):
+    """Base class of the hypotheses.
+
+    Attributes
+    ----------
+    entry : int
+        Stage index from which on its terms act.
+    scale : tuple of float
+        Typical size of each magnitude (sets finite-difference steps and conditioning).
+    lower, upper : tuple of float
+        Admissible range of each magnitude.
+    """
+
+    entry: int = field(default=0, kw_only=True)
+    scale: tuple[float, ...] = field(default=(1.0,), kw_only=True)
+    lower: tuple[float, ...] = field(default=(-math.inf,), kw_only=True)
+    upper: tuple[float, ...] = field(default=(math.inf,), kw_only=True)
+
+    #: Vocabulary identifier (DESIGN.md section 5).
+    effect = ""
+    #: Names of the magnitudes.
+    names: ClassVar[tuple[str, ...]] = ("value",)
+
+    @property
+    def n_params(self) -> int:
+        """Number of magnitudes."""
+        return len(self.scale)
+
+    @property
+    @abstractmethod
+    def key(self) -> str:
+        """A unique, readable identifier, e.g. ``offset@valve_current``."""
+
+    @abstractmethod
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        """The correction terms for magnitudes ``theta``."""
+
+    @property
+    @abstractmethod
+    def units(self) -> tuple[str, ...]:
+        """Unit of each magnitude."""
+
+    @abstractmethod
+    def phrase(self, theta: np.ndarray) -> str:
+        """What was found, as the start of a sentence (no trailing period)."""
+
+    @property
+    def location(self) -> str:
+        """Where it enters, in words."""
+        return ""
+
+    def start(self) -> np.ndarray:
+        """Magnitudes of 'no effect' (clipped into the admissible range)."""
+        return np.clip(np.zeros(self.n_params), self.lower, self.upper)
+
+    def clip(self, theta: np.ndarray) -> np.ndarray:
+        """``theta`` clipped into the admissible range."""
+        return np.clip(theta, self.lower, self.upper)
+
+    def extra(self, theta: np.ndarray) -> dict:
+        """Further facts for ``diagnosis.json`` (e.g. a parameter's old and new value)."""
+        return {}
+
+
+def _fmt(value: float, unit: str = "") -> str:
+    """A number with 2-3 significant digits and its unit."""
+    text = f"{value:.3g}" if abs(value) >= 1e-3 and abs(value) < 1e5 else f"{value:.2e}"
+    return f"{text} {unit}".strip() if unit and unit != "1" else text
+
+
+# ---------------------------------------------------------------------------- parameters
+@dataclass
+class ParameterMismatch(Hypothesis):
+    """A tunable FMU parameter is mis-set; ``theta`` is its relative change."""
+
+    name: str = ""
+    nominal: float = 1.0
+    unit: str = ""
+    description: str = ""
+    effect = "parameter_mismatch"
+    names = ("relative_change",)
+
+    @property
+    def key(self) -> str:
+        return f"parameter_mismatch@{self.name}"
+
+    @property
+    def physics(self) -> str | None:
+        """The effect the parameter stands for, if its name or description says."""
+        return physics_label(self.name, self.description)
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return ("1",)
+
+    @property
+    def location(self) -> str:
+        return f"parameter {self.name}"
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [ParameterChange(name=self.name, value=self.nominal * (1.0 + float(theta[0])))]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        change = float(theta[0])
+        direction = "higher" if change > 0 else "lower"
+        value = self.nominal * (1.0 + change)
+        physics = f" ({self.physics.replace('_', ' ')})" if self.physics else ""
+        return (
+            f"Parameter {self.name}{physics} is about {abs(100 * change):.3g} % {direction} "
+            f"than set: {_fmt(value, self.unit)} instead of {_fmt(self.nominal, self.unit)}"
+        )
+
+    def extra(self, theta: np.ndarray) -> dict:
+        return {
+            "parameter": self.name,
+            "physics": self.physics,
+            "nominal": self.nominal,
+            "estimate": self.nominal * (1.0 + float(theta[0])),
+            "parameter_unit": self.unit,
+        }
+
+
+# ---------------------------------------------------------------------------- command inputs
+@dataclass
+class _CommandHypothesis(Hypothesis):
+    """An error of a command input, at the input or only downstream of the stage it drives."""
+
+    input: str = ""
+    unit: str = ""
+    downstream_of: str = ""
+
+    @property
+    def key(self) -> str:
+        suffix = f">{self.downstream_of}" if self.downstream_of else ""
+        return f"{self.effect}@{self.input}{suffix}"
+
+    @property
+    def location(self) -> str:
+        if self.downstream_of:
+            return f"input {self.input}, as seen downstream of stage {self.downstream_of}"
+        return f"input {self.input}"
+
+    def _path(self) -> str:
+        if self.downstream_of:
+            return f" between stage {self.downstream_of} and the stages after it"
+        return ""
+
+
+@dataclass
+class GainError(_CommandHypothesis):
+    """The command acts ``1 + g`` times as strongly as the white-box assumes."""
+
+    effect = "gain_error"
+    names = ("gain_error",)
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return ("1",)
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [InputGain(input=self.input, gain=float(theta[0]), entry=self.entry)]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        g = float(theta[0])
+        more = "stronger" if g > 0 else "weaker"
+        return f"The response to {self.input} is about {abs(100 * g):.3g} % {more}{self._path()}"
+
+
+@dataclass
+class Offset(_CommandHypothesis):
+    """A constant bias adds to the command."""
+
+    effect = "offset"
+    names = ("offset",)
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return (self.unit,)
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [InputOffset(input=self.input, offset=float(theta[0]), entry=self.entry)]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        return (
+            f"An offset (null bias) of about {_fmt(float(theta[0]), self.unit)} acts on "
+            f"{self.input}{self._path()}"
+        )
+
+
+@dataclass
+class Deadband(_CommandHypothesis):
+    """Commands within ``+/- width`` of zero have no effect."""
+
+    effect = "deadband"
+    names = ("half_width",)
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return (self.unit,)
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [InputDeadband(input=self.input, width=float(theta[0]), entry=self.entry)]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        return (
+            f"A deadband of about +/-{_fmt(float(theta[0]), self.unit)} of {self.input} is "
+            f"missing{self._path()}"
+        )
+
+
+@dataclass
+class CommandDelay(_CommandHypothesis):
+    """The command acts late."""
+
+    effect = "time_delay"
+    names = ("delay",)
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return ("s",)
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [InputDelay(input=self.input, delay=float(theta[0]), entry=self.entry)]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        return (
+            f"{self.input} acts about {1e3 * float(theta[0]):.3g} ms later than the white-box "
+            f"assumes{self._path()}"
+        )
+
+
+# ---------------------------------------------------------------------------- forces
+@dataclass
+class _ForceHypothesis(Hypothesis):
+    """A force missing at a force input, a function of a velocity output fed back."""
+
+    input: str = ""
+    velocity: str = ""
+    force_unit: str = ""
+    velocity_unit: str = ""
+    smoothing: float = 1e-3
+    #: +1 when a positive input force opposes positive velocity, -1 when it aids it.
+    opposes: float = 1.0
+
+    @property
+    def key(self) -> str:
+        return f"{self.effect}@{self.input}({self.velocity})"
+
+    @property
+    def location(self) -> str:
+        return f"input {self.input}, fed back from {self.velocity}"
+
+    def _sense(self, value: float) -> str:
+        return "opposing" if value * self.opposes >= 0 else "aiding"
+
+
+@dataclass
+class CoulombFriction(_ForceHypothesis):
+    """A constant-magnitude force against the direction of motion."""
+
+    effect = "coulomb_friction"
+    names = ("force",)
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return (self.force_unit,)
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [
+            CoulombForce(
+                input=self.input,
+                source=self.velocity,
+                force=float(theta[0]),
+                smoothing=self.smoothing,
+                entry=self.entry,
+            )
+        ]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        f = float(theta[0])
+        return (
+            f"A Coulomb-like friction force of about {_fmt(abs(f), self.force_unit)} "
+            f"{self._sense(f)} {self.velocity} is missing"
+        )
+
+
+@dataclass
+class ViscousFriction(_ForceHypothesis):
+    """A force proportional to velocity."""
+
+    effect = "viscous_friction"
+    names = ("coefficient",)
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return (f"{self.force_unit}/({self.velocity_unit})",)
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [
+            ViscousForce(
+                input=self.input,
+                source=self.velocity,
+                coefficient=float(theta[0]),
+                entry=self.entry,
+            )
+        ]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        c = float(theta[0])
+        return (
+            f"A viscous force of about {_fmt(abs(c), self.units[0])} {self._sense(c)} "
+            f"{self.velocity} is missing"
+        )
+
+
+@dataclass
+class StribeckFriction(_ForceHypothesis):
+    """A breakaway force that fades above a Stribeck velocity (two magnitudes)."""
+
+    effect = "stribeck_friction"
+    names = ("force", "stribeck_velocity")
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return (self.force_unit, self.velocity_unit)
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [
+            StribeckForce(
+                input=self.input,
+                source=self.velocity,
+                force=float(theta[0]),
+                velocity=max(float(theta[1]), 1e-12),
+                smoothing=self.smoothing,
+                entry=self.entry,
+            )
+        ]
+
+    def start(self) -> np.ndarray:
+        return self.clip(np.array([0.0, self.scale[1]]))
+
+    def phrase(self, theta: np.ndarray) -> str:
+        f = float(theta[0])
+        return (
+            f"A breakaway (Stribeck) friction force of about {_fmt(abs(f), self.force_unit)} "
+            f"{self._sense(f)} {self.velocity}, fading above "
+            f"{_fmt(float(theta[1]), self.velocity_unit)}, is missing"
+        )
+
+
+# ---------------------------------------------------------------------------- pressure
+@dataclass
+class SupplyDroop(Hypothesis):
+    """A pressure input droops in proportion to a flow output (a line resistance)."""
+
+    input: str = ""
+    flow: str = ""
+    pressure_unit: str = ""
+    flow_unit: str = ""
+    effect = "supply_pressure_droop"
+    names = ("resistance",)
+
+    @property
+    def key(self) -> str:
+        return f"{self.effect}@{self.input}({self.flow})"
+
+    @property
+    def location(self) -> str:
+        return f"input {self.input}, fed back from {self.flow}"
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return (f"{self.pressure_unit}/({self.flow_unit})",)
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [
+            FlowDroop(
+                input=self.input, source=self.flow, resistance=float(theta[0]), entry=self.entry
+            )
+        ]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        return (
+            f"{self.input} droops with {self.flow}: a line resistance of about "
+            f"{_fmt(float(theta[0]), self.units[0])}"
+        )
+
+
+# ---------------------------------------------------------------------------- sensors
+@dataclass
+class SensorLag(Hypothesis):
+    """Every observed sensor reports late (a pure delay)."""
+
+    outputs: tuple[str, ...] = ()
+    effect = "time_delay"
+    names = ("delay",)
+
+    @property
+    def key(self) -> str:
+        return "time_delay@sensors"
+
+    @property
+    def location(self) -> str:
+        return f"sensors of {', '.join(self.outputs)}"
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return ("s",)
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [SensorDelay(outputs=self.outputs, delay=float(theta[0]), entry=self.entry)]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        return f"The sensors report about {1e3 * float(theta[0]):.3g} ms late"
+
+
+# ---------------------------------------------------------------------------- vocabulary
+@dataclass(frozen=True)
+class DataScales:
+    """Typical sizes of the signals, which set every hypothesis' scale.
+
+    Attributes
+    ----------
+    input_rms : dict[str, float]
+        FMU input -> RMS of its recorded values.
+    output_rms : dict[str, float]
+        FMU output -> RMS of its white-box prediction.
+    dt : float
+        Sample time [s].
+    force_sense : dict[tuple[str, str], float]
+        (force input, velocity output) -> +1 when a positive input force opposes positive
+        velocity, -1 when it aids it.
+    """
+
+    input_rms: dict[str, float]
+    output_rms: dict[str, float]
+    dt: float
+    force_sense: dict[tuple[str, str], float] = field(default_factory=dict)
+
+
+def generate_hypotheses(
+    signals: SignalMap,
+    archive: FmuArchive,
+    scales: DataScales,
+    parameters: dict[str, float],
+) -> list[Hypothesis]:
+    """The hypotheses a project's roles and its FMU's declarations allow.
+
+    Parameters
+    ----------
+    signals : SignalMap
+    archive : FmuArchive
+    scales : DataScales
+    parameters : dict[str, float]
+        Project parameter values (override the FMU's start values as nominal values).
+
+    Returns
+    -------
+    list of Hypothesis
+    """
+    hypotheses: list[Hypothesis] = []
+    hypotheses += _parameter_hypotheses(archive, parameters)
+    hypotheses += _command_hypotheses(signals, scales)
+    hypotheses += _force_hypotheses(signals, scales)
+    hypotheses += _droop_hypotheses(signals, scales)
+    if signals.observed:
+        dt = scales.dt
+        hypotheses.append(
+            SensorLag(
+                outputs=tuple(signals.observed_variables),
+                scale=(2 * dt,),
+                lower=(0.0,),
+                upper=(50 * dt,),
+            )
+        )
+    return hypotheses
+
+
+def _parameter_hypotheses(archive: FmuArchive, parameters: dict[str, float]) -> list[Hypothesis]:
+    found = []
+    for var in archive.variables.values():
+        if var.causality != "parameter" or var.variability != "tunable" or var.type != "Real":
+            continue
+        nominal = parameters.get(var.name, var.start)
+        if nominal is None or nominal == 0.0 or not math.isfinite(nominal):
+            continue
+        found.append(
+            ParameterMismatch(
+                name=var.name,
+                nominal=float(nominal),
+                unit=var.unit,
+                description=var.description,
+                scale=(0.05,),
+                lower=(-0.9,),
+                upper=(9.0,),
+            )
+        )
+    return found
+
+
+def _command_hypotheses(signals: SignalMap, scales: DataScales) -> list[Hypothesis]:
+    found: list[Hypothesis] = []
+    n_stages = len(signals.stage_names)
+    dt = scales.dt
+    for name in signals.inputs_with_role("current", "voltage"):
+        rms = scales.input_rms.get(name, 0.0)
+        stage = signals.input_stage.get(name)
+        if rms <= 0 or stage is None:
+            continue
+        unit = signals.units.get(name, "")
+        entries = [(stage, "")]
+        if stage + 1 < n_stages:
+            entries.append((stage + 1, signals.stage_names[stage]))
+        for entry, after in entries:
+            common = {"input": name, "unit": unit, "downstream_of": after, "entry": entry}
+            found += [
+                GainError(**common, scale=(0.05,), lower=(-0.9,), upper=(9.0,)),
+                Offset(**common, scale=(0.02 * rms,)),
+                Deadband(**common, scale=(0.02 * rms,), lower=(0.0,), upper=(10 * rms,)),
+                CommandDelay(**common, scale=(2 * dt,), lower=(0.0,), upper=(50 * dt,)),
+            ]
+    return found
+
+
+def _force_hypotheses(signals: SignalMap, scales: DataScales) -> list[Hypothesis]:
+    found: list[Hypothesis] = []
+    for name in signals.inputs_with_role("force"):
+        force_rms = scales.input_rms.get(name, 0.0)
+        stage = signals.input_stage.get(name)
+        if stage is None:
+            continue
+        force = max(force_rms, 1e-12)
+        for velocity in signals.outputs_with_role("velocity"):
+            v_rms = scales.output_rms.get(velocity, 0.0)
+            if v_rms <= 0:
+                continue
+            common = {
+                "input": name,
+                "velocity": velocity,
+                "force_unit": signals.units.get(name, ""),
+                "velocity_unit": signals.units.get(velocity, ""),
+                "smoothing": 0.03 * v_rms,
+                "opposes": scales.force_sense.get((name, velocity), 1.0),
+            }
+            found += [
+                CoulombFriction(**common, scale=(0.05 * force,)),
+                ViscousFriction(**common, scale=(0.05 * force / v_rms,)),
+                StribeckFriction(
+                    **common,
+                    scale=(0.05 * force, 0.3 * v_rms),
+                    lower=(-math.inf, 0.05 * v_rms),
+                    upper=(math.inf, 5.0 * v_rms),
+                ),
+            ]
+    return found
+
+
+def _droop_hypotheses(signals: SignalMap, scales: DataScales) -> list[Hypothesis]:
+    found: list[Hypothesis] = []
+    for name in signals.inputs_with_role("pressure"):
+        p_rms = scales.input_rms.get(name, 0.0)
+        stage = signals.input_stage.get(name)
+        if p_rms <= 0 or stage is None:
+            continue
+        for flow in signals.outputs_with_role("flow"):
+            q_rms = scales.output_rms.get(flow, 0.0)
+            if q_rms <= 0:
+                continue
+            found.append(
+                SupplyDroop(
+                    input=name,
+                    flow=flow,
+                    pressure_unit=signals.units.get(name, ""),
+                    flow_unit=signals.units.get(flow, ""),
+                    scale=(0.01 * p_rms / q_rms,),
+                )
+            )
+    return found

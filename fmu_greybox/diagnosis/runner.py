@@ -1,0 +1,226 @@
+"""The recording as the diagnosis sees it, and the simulations it runs, in parallel.
+
+:class:`Experiment` holds the recorded inputs, the observed outputs and their noise levels.
+:class:`Simulator` runs the white-box with sets of correction terms over a prefix of the
+recording, in worker processes (each worker receives the extracted FMU and the arrays once).
+Workers are forked where the platform allows it (no re-import of the caller's main module);
+elsewhere they are spawned. A simulation whose FMU fails returns ``None``: the hypothesis
+that drove it there is rejected, not the diagnosis.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import multiprocessing
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..binding import bind_inputs
+from ..config import ProjectConfig
+from ..errors import FmuError
+from ..fmu_archive import FmuArchive
+from ..recording import Recording
+from .signals import SignalMap, noise_level
+from .terms import Term, simulate_with_terms
+
+
+@dataclass
+class Experiment:
+    """A recording arranged for simulation and comparison.
+
+    Attributes
+    ----------
+    archive : FmuArchive
+        The white-box FMU (already extracted).
+    inputs : list of str
+        FMU inputs, one per column of ``u``.
+    u : ndarray, shape (n, n_inputs)
+        Recorded (or fixed) inputs.
+    dt : float
+        Sample time [s].
+    start_time : float
+        Time of row 0 [s].
+    outputs : list of str
+        FMU outputs observed by recorded signals.
+    stages : list of int
+        Stage index of every observed output.
+    recorded : ndarray, shape (n, n_outputs)
+        The recorded signals.
+    sigma : ndarray, shape (n_outputs,)
+        Their sensor-noise standard deviations (residuals are divided by these).
+    parameters : dict[str, float]
+        Project parameter values.
+    train_rows : int
+        Rows ``0 .. train_rows - 1`` train; the rest is held out.
+    """
+
+    archive: FmuArchive
+    inputs: list[str]
+    u: np.ndarray
+    dt: float
+    start_time: float
+    outputs: list[str]
+    stages: list[int]
+    recorded: np.ndarray
+    sigma: np.ndarray
+    parameters: dict[str, float]
+    train_rows: int
+    _cache: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def from_project(
+        cls,
+        config: ProjectConfig,
+        archive: FmuArchive,
+        recording: Recording,
+        signals: SignalMap,
+        train_rows: int,
+    ) -> Experiment:
+        """Arrange a recording of a project: inputs bound as the project says, every observed
+        signal with its noise level (floored at 1e-6 of its RMS, for noise-free recordings).
+        """
+        binding = bind_inputs(archive, recording, config.input_mapping(), config.fixed_inputs)
+        recorded = np.column_stack([recording[s.column] for s in signals.observed])
+        sigma = np.array([noise_level(x) for x in recorded.T])
+        floor = 1e-6 * np.sqrt(np.mean(recorded**2, axis=0)) + 1e-300
+        return cls(
+            archive=archive,
+            inputs=binding.inputs,
+            u=binding.matrix(recording),
+            dt=recording.dt,
+            start_time=float(recording.time[0]),
+            outputs=signals.observed_variables,
+            stages=signals.observed_stages,
+            recorded=recorded,
+            sigma=np.maximum(sigma, floor),
+            parameters=dict(config.parameters),
+            train_rows=train_rows,
+        )
+
+    @property
+    def n_samples(self) -> int:
+        """Number of rows."""
+        return self.u.shape[0]
+
+    def renoised(self, rng: np.random.Generator) -> Experiment:
+        """A copy whose inputs carry extra white noise at each input's estimated noise level."""
+        sigma = np.array([noise_level(x) for x in self.u.T])
+        u = self.u + rng.standard_normal(self.u.shape) * sigma
+        return dataclasses.replace(self, u=u, _cache={})
+
+    def simulate(self, terms: Sequence[Term], rows: int | None = None) -> np.ndarray | None:
+        """Observed outputs over the first ``rows`` rows with ``terms`` applied.
+
+        Returns
+        -------
+        ndarray, shape (rows, n_outputs), or None if the FMU failed.
+        """
+        rows = self.n_samples if rows is None else rows
+        try:
+            return simulate_with_terms(
+                self.archive,
+                self.inputs,
+                self.u[:rows],
+                self.dt,
+                self.outputs,
+                terms,
+                self.parameters,
+                self.stages,
+                self.start_time,
+                cache=self._cache,
+            )
+        except FmuError:
+            return None
+
+    def residual(self, simulated: np.ndarray, start: int = 0) -> np.ndarray:
+        """Noise-normalised residual ``(recorded - simulated) / sigma``.
+
+        Parameters
+        ----------
+        simulated : ndarray, shape (rows, n_outputs)
+            Simulated rows ``start .. start + rows - 1``.
+        start : int
+            Row of the recording the first simulated row corresponds to.
+
+        Returns
+        -------
+        ndarray, shape (rows, n_outputs)
+        """
+        rows = simulated.shape[0]
+        return (self.recorded[start : start + rows] - simulated) / self.sigma
+
+
+_WORKER: dict[str, Experiment] = {}
+
+
+def _init_worker(experiment: Experiment) -> None:
+    _WORKER["experiment"] = experiment
+
+
+def _simulate_task(task: tuple[list[Term], int]) -> np.ndarray | None:
+    terms, rows = task
+    return _WORKER["experiment"].simulate(terms, rows)
+
+
+class Simulator:
+    """Runs batches of simulations of one experiment, in parallel when ``workers > 1``.
+
+    Parameters
+    ----------
+    experiment : Experiment
+    workers : int
+        Worker processes (1 runs in this process). Use as a context manager, or call
+        :meth:`close`.
+
+    Attributes
+    ----------
+    runs : int
+        Simulations run so far.
+    rows_simulated : int
+        Total rows simulated so far.
+    """
+
+    def __init__(self, experiment: Experiment, workers: int = 2) -> None:
+        self.experiment = experiment
+        self.workers = max(1, min(int(workers), os.cpu_count() or 1))
+        self.runs = 0
+        self.rows_simulated = 0
+        self._pool = None
+        if self.workers > 1:
+            methods = multiprocessing.get_all_start_methods()
+            context = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
+            self._pool = context.Pool(
+                self.workers, initializer=_init_worker, initargs=(experiment,)
+            )
+
+    def run(self, term_sets: Sequence[Sequence[Term]], rows: int | None = None) -> list:
+        """Simulate every set of terms over the first ``rows`` rows.
+
+        Returns
+        -------
+        list of (ndarray of shape (rows, n_outputs) or None)
+            In the order of ``term_sets``; ``None`` where the FMU failed.
+        """
+        rows = self.experiment.n_samples if rows is None else rows
+        tasks = [(list(terms), rows) for terms in term_sets]
+        self.runs += len(tasks)
+        self.rows_simulated += rows * len(tasks)
+        if self._pool is None or len(tasks) == 1:
+            return [self.experiment.simulate(terms, rows) for terms, rows in tasks]
+        return self._pool.map(_simulate_task, tasks, chunksize=1)
+
+    def close(self) -> None:
+        """Stop the worker processes (idempotent)."""
+        if self._pool is not None:
+            self._pool.close()
+            self._pool.join()
+            self._pool = None
+
+    def __enter__(self) -> Simulator:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

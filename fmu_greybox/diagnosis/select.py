@@ -1,0 +1,236 @@
+"""Keep the few hypotheses the data support: forward selection through the FMU.
+
+Each round, on top of the hypotheses already kept:
+
+1. **screen** every remaining hypothesis on a short leading window of the training rows: one
+   linearised (Gauss-Newton) step from "no effect", with sensitivities over a long difference
+   step (two scales), tried at two step lengths;
+2. **refine** the best few on a longer leading window (damped Gauss-Newton), then score them
+   on the raw residual over the whole recording;
+3. **accept** the one with the best information criterion if it is significant three times
+   over: the Bayesian information criterion, computed with the effective number of samples
+   ``N / tau`` (``tau``: the residual's autocorrelation time), falls by more than
+   ``bic_threshold``; the held-out rows, never used in fitting, improve by at least
+   ``min_heldout_gain``; and it removes at least ``min_explained`` of the residual energy
+   above the noise floor that is left (so that a later hypothesis is not kept for polishing
+   the shape of an earlier one);
+4. refit every kept hypothesis jointly over the whole training part.
+
+Magnitudes are fitted to the low-passed residual (see :class:`~.calibrate.Calibrator`): it keeps
+the fit out of the ripples that lightly damped modes and stick-slip put into the raw misfit.
+The decisions (information criterion, held-out gain, energy removed) use the raw residual, and
+the kept magnitudes are finished on it (:meth:`~.calibrate.Calibrator.polish`).
+
+Rounds stop when the training residual of every signal is within noise, when no hypothesis
+passes, or after ``max_findings`` rounds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .calibrate import Calibrator, Candidate, autocorrelation_time
+from .hypotheses import Hypothesis
+from .locate import SIGNIFICANT_RATIO
+from .runner import Simulator
+
+
+@dataclass
+class Round:
+    """What one selection round saw and decided.
+
+    Attributes
+    ----------
+    screened : list of (str, float)
+        Hypothesis key and its window cost relative to the round's starting cost, best first
+        (the top of the list only).
+    refined : list of dict
+        Per refined hypothesis: ``key``, ``theta``, ``train_ratio``, ``heldout_ratio``,
+        ``delta_bic``.
+    accepted : str or None
+        Key of the hypothesis kept.
+    """
+
+    screened: list[tuple[str, float]] = field(default_factory=list)
+    refined: list[dict] = field(default_factory=list)
+    accepted: str | None = None
+
+
+class ForwardSelection:
+    """Forward selection of hypotheses with held-out and information-criterion tests.
+
+    Parameters
+    ----------
+    screen_rows : int
+        Rows of the screening window (a prefix of the training part).
+    refine_rows : int
+        Rows of the refinement window.
+    refine_top : int
+        Hypotheses refined per round.
+    max_findings : int
+        Largest number of hypotheses kept.
+    bic_threshold : float
+        Least fall of the information criterion for acceptance.
+    min_heldout_gain : float
+        Least relative improvement of the held-out mean square for acceptance.
+    min_explained : float
+        Least share of the training residual energy above the noise floor left that a kept
+        hypothesis must remove.
+    noise_ratio : float
+        Selection stops when every signal's training RMS is within this many noise levels.
+    max_iter : int
+        Gauss-Newton iterations when refining.
+    smoothing : float
+        Low-pass time constant [samples] of the residual the magnitudes are fitted to.
+    polish_iter : int
+        Gauss-Newton iterations on the raw residual that finish the kept magnitudes.
+
+    Attributes
+    ----------
+    selected_ : Candidate
+        The kept hypotheses with their jointly fitted magnitudes and covariance, simulated over
+        the whole recording.
+    baseline_ : Candidate
+        The plain white-box, simulated over the whole recording.
+    rounds_ : list of Round
+    """
+
+    def __init__(
+        self,
+        screen_rows: int = 4000,
+        refine_rows: int = 10000,
+        refine_top: int = 3,
+        max_findings: int = 3,
+        bic_threshold: float = 10.0,
+        min_heldout_gain: float = 0.05,
+        min_explained: float = 0.2,
+        noise_ratio: float = SIGNIFICANT_RATIO,
+        max_iter: int = 5,
+        smoothing: float = 20.0,
+        polish_iter: int = 2,
+    ) -> None:
+        self.smoothing = smoothing
+        self.polish_iter = polish_iter
+        self.screen_rows = screen_rows
+        self.refine_rows = refine_rows
+        self.min_explained = min_explained
+        self.refine_top = refine_top
+        self.max_findings = max_findings
+        self.bic_threshold = bic_threshold
+        self.min_heldout_gain = min_heldout_gain
+        self.noise_ratio = noise_ratio
+        self.max_iter = max_iter
+
+    def fit(self, simulator: Simulator, hypotheses: list[Hypothesis]) -> ForwardSelection:
+        """Select among ``hypotheses``.
+
+        Returns
+        -------
+        ForwardSelection
+            ``self``.
+        """
+        experiment = simulator.experiment
+        n = experiment.n_samples
+        full = Calibrator(simulator, n)
+        window = Calibrator(
+            simulator, min(self.screen_rows, experiment.train_rows), self.smoothing, 2.0
+        )
+        longer = Calibrator(simulator, min(self.refine_rows, experiment.train_rows), self.smoothing)
+        joint_fit = Calibrator(simulator, n, self.smoothing)
+        current = Candidate([], np.zeros(0))
+        full.evaluate([current])
+        self.baseline_ = current
+        self.rounds_: list[Round] = []
+        remaining = list(hypotheses)
+        while len(current.hypotheses) < self.max_findings and not self._within_noise(full, current):
+            round_ = Round()
+            self.rounds_.append(round_)
+            top = self._screen(window, current, remaining, round_)
+            if not top:
+                break
+            best = self._refine(longer, full, current, top, round_)
+            if best is None:
+                break
+            round_.accepted = best.hypotheses[-1].key
+            remaining = [h for h in remaining if h.key != round_.accepted]
+            joint = Candidate(
+                [*current.hypotheses, *best.hypotheses], np.concatenate([current.theta, best.theta])
+            )
+            joint_fit.evaluate([joint])
+            joint_fit.fit([joint], max_iter=2 if len(joint.hypotheses) == 1 else 3)
+            full.evaluate([joint])
+            current = joint
+        if current.hypotheses:
+            full.polish([current], self.polish_iter)
+        self.selected_ = current
+        return self
+
+    # ------------------------------------------------------------------ steps
+    def _within_noise(self, calibrator: Calibrator, c: Candidate) -> bool:
+        rows = calibrator.fit_rows
+        r = calibrator.experiment.residual(c.simulated[:rows])
+        return bool(np.all(np.sqrt(np.mean(r**2, axis=0)) <= self.noise_ratio))
+
+    def _screen(
+        self,
+        window: Calibrator,
+        current: Candidate,
+        remaining: list[Hypothesis],
+        round_: Round,
+    ) -> list[Candidate]:
+        start = Candidate([], np.zeros(0), fixed=current.terms())
+        window.evaluate([start])
+        if not math.isfinite(start.cost):
+            return []
+        candidates = []
+        for h in remaining:
+            c = Candidate([h], h.start(), fixed=current.terms())
+            c.cost, c.simulated, c.heldout = start.cost, start.simulated, start.heldout
+            candidates.append(c)
+        window.fit(candidates, max_iter=1, tries=1)
+        candidates.sort(key=lambda c: c.cost)
+        round_.screened = [(c.hypotheses[0].key, c.cost / start.cost) for c in candidates[:10]]
+        better = [c for c in candidates if c.cost < 0.99 * start.cost]
+        return better[: self.refine_top]
+
+    def _refine(
+        self,
+        smoothed: Calibrator,
+        full: Calibrator,
+        current: Candidate,
+        top: list[Candidate],
+        round_: Round,
+    ) -> Candidate | None:
+        refined = [Candidate(c.hypotheses, c.theta, fixed=current.terms()) for c in top]
+        smoothed.evaluate(refined)
+        smoothed.fit(refined, max_iter=self.max_iter)
+        full.evaluate(refined)
+        rows = full.fit_rows
+        floor = float(rows * len(full.experiment.outputs))
+        needed = self.min_explained * max(current.cost - floor, 0.0)
+        base_r = full.experiment.residual(current.simulated[:rows])
+        n_eff = base_r.size / autocorrelation_time(base_r)
+        best, best_bic = None, -self.bic_threshold
+        for c in refined:
+            if not math.isfinite(c.cost):
+                continue
+            bic = n_eff * math.log(max(c.cost, 1e-300) / current.cost) + c.theta.size * math.log(
+                n_eff
+            )
+            held = c.heldout / current.heldout if current.heldout > 0 else 1.0
+            round_.refined.append(
+                {
+                    "key": c.hypotheses[0].key,
+                    "theta": c.theta.tolist(),
+                    "train_ratio": c.cost / current.cost,
+                    "heldout_ratio": held,
+                    "delta_bic": bic,
+                }
+            )
+            enough = current.cost - c.cost >= needed
+            if bic < best_bic and held <= 1.0 - self.min_heldout_gain and enough:
+                best, best_bic = c, bic
+        return best

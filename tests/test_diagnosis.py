@@ -1,0 +1,100 @@
+"""The diagnosis end to end: verdicts, the command, its files, and a second, unrelated FMU."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from fmu_greybox.builtin import model_fmus
+from fmu_greybox.cli import main
+from fmu_greybox.config import load_config
+from fmu_greybox.diagnosis import SCHEMA_VERSION, Diagnosis
+from fmu_greybox.fmu_archive import open_fmu
+from fmu_greybox.positioner_synth import synthesise_positioner
+from fmu_greybox.recording import save_recording
+from fmu_greybox.synth import FlightTestProfile, SynthRequest, synthesise
+
+CONFIGS = Path(__file__).resolve().parents[1] / "bench_configs"
+ACTUATOR = CONFIGS / "hydraulic_actuator.toml"
+
+
+def actuator_recording(whitebox_fmu, truth_fmu, effects: dict, seed: int, duration: float = 8.0):
+    profile = FlightTestProfile(duration=duration)
+    with open_fmu(truth_fmu) as truth, open_fmu(whitebox_fmu) as whitebox:
+        return synthesise(truth, whitebox, SynthRequest(effects, seed=seed, profile=profile))
+
+
+def test_noise_only_recording_gives_none(whitebox_fmu, truth_fmu) -> None:
+    recording = actuator_recording(whitebox_fmu, truth_fmu, {}, seed=21)
+    diagnosis = Diagnosis(load_config(ACTUATOR), greybox=None).fit(recording)
+    assert diagnosis.origin_stage_ is None
+    assert [f.effect for f in diagnosis.findings_] == ["none"]
+    assert "within sensor noise" in diagnosis.findings_[0].summary
+
+
+def test_structure_outside_the_vocabulary_is_unexplained(whitebox_fmu, truth_fmu) -> None:
+    recording = actuator_recording(whitebox_fmu, truth_fmu, {}, seed=22)
+    # a slow oscillation of the ram position sensor that no physical hypothesis produces
+    wobble = 2e-4 * np.sin(2 * np.pi * 0.37 * recording.time)
+    recording = recording.with_signals({"ram_position": recording["ram_position"] + wobble})
+    diagnosis = Diagnosis(load_config(ACTUATOR), greybox=None).fit(recording)
+    assert diagnosis.origin_stage_ == "RAM"
+    effects = [f.effect for f in diagnosis.findings_]
+    assert "unexplained" in effects
+    unexplained = diagnosis.findings_[effects.index("unexplained")]
+    assert unexplained.stage == "RAM"
+    assert "no hypothesis explains" in unexplained.summary
+
+
+def test_diagnose_command_writes_json_and_report(whitebox_fmu, truth_fmu, tmp_path) -> None:
+    recording = actuator_recording(
+        whitebox_fmu, truth_fmu, {"coulomb_friction": 700.0}, seed=23, duration=6.0
+    )
+    save_recording(recording, tmp_path / "rec.csv")
+    out = tmp_path / "diag"
+    result = CliRunner().invoke(
+        main,
+        ["diagnose", str(ACTUATOR), "--recording", str(tmp_path / "rec.csv"), "--out", str(out)],
+    )
+    assert result.exit_code == 0, result.output
+    assert "coulomb_friction" in result.output
+    payload = json.loads((out / "diagnosis.json").read_text())
+    assert payload["schema_version"] == SCHEMA_VERSION
+    assert payload["origin_stage"] == "RAM"
+    assert {"stage", "significant", "noise_ratio", "signals"} <= set(payload["stages"][1])
+    top = payload["findings"][0]
+    assert {"stage", "effect", "summary", "magnitude", "explained_fraction", "where"} <= set(top)
+    assert top["effect"] == "coulomb_friction" and top["stage"] == "RAM"
+    assert top["magnitude"]["unit"] == "N"
+    low, high = top["magnitude"]["ci95"]
+    assert low <= 700.0 <= high
+    assert 0.5 < top["explained_fraction"] <= 1.0
+    assert top["where"] and all("kind" in w for w in top["where"])
+    assert top["terms"][0]["kind"] == "CoulombForce"
+    for row in payload["fit"].values():
+        assert {"wb_rmse", "named_rmse", "gb_rmse"} <= set(row)
+    assert payload["fit"]["RAM"]["named_rmse"] < 0.5 * payload["fit"]["RAM"]["wb_rmse"]
+    html = (out / "report.html").read_text()
+    assert html.index("Verdict") < html.index("<img")
+    assert html.count("data:image/png;base64,") == 3
+
+
+def test_missing_friction_is_found_on_the_positioner() -> None:
+    paths = model_fmus("ElectroMechanicalPositioner")
+    with (
+        open_fmu(paths["ElectroMechanicalPositionerTruth"]) as truth,
+        open_fmu(paths["ElectroMechanicalPositioner"]) as whitebox,
+    ):
+        recording = synthesise_positioner(
+            truth, whitebox, {"coulomb_friction": 100.0}, seed=3, duration=8.0, noise=1.0
+        )
+    diagnosis = Diagnosis(load_config(CONFIGS / "positioner.toml"), greybox=None).fit(recording)
+    top = diagnosis.findings_[0]
+    assert top.effect == "coulomb_friction"
+    assert top.stage == diagnosis.origin_stage_
+    assert top.magnitude["value"] == pytest.approx(100.0, rel=0.1)
+    assert diagnosis.fit_["DRIVE"]["named_rmse"] < 0.5 * diagnosis.fit_["DRIVE"]["wb_rmse"]

@@ -1,0 +1,156 @@
+"""Correction terms and the runner that steps the white-box with them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fmu_greybox.diagnosis.terms import (
+    CoulombForce,
+    DelayLine,
+    FlowDroop,
+    InputDeadband,
+    InputDelay,
+    InputGain,
+    InputOffset,
+    ParameterChange,
+    SensorDelay,
+    StribeckForce,
+    ViscousForce,
+    simulate_with_terms,
+    term_from_dict,
+)
+from fmu_greybox.fmu_archive import open_fmu
+from fmu_greybox.fmu_instance import FmuInstance
+from fmu_greybox.simulate import run_open_loop
+
+INPUTS = ["valve_current", "supply_pressure", "load_force", "engage"]
+OUTPUTS = ["spool_position", "ram_position", "itfv_pressure", "ram_velocity"]
+DT = 1e-3
+
+
+@pytest.fixture(scope="module")
+def archive(whitebox_fmu):
+    with open_fmu(whitebox_fmu) as a:
+        yield a
+
+
+@pytest.fixture(scope="module")
+def inputs() -> np.ndarray:
+    t = np.arange(800) * DT
+    u = np.empty((t.size, 4))
+    u[:, 0] = 2.0 * np.sin(2 * np.pi * 3 * t) + 0.5
+    u[:, 1] = 20.7e6
+    u[:, 2] = 2000.0 * np.sin(2 * np.pi * 1.3 * t)
+    u[:, 3] = 1.0
+    return u
+
+
+def plain(archive, u: np.ndarray, parameters=None) -> np.ndarray:
+    start = dict(zip(INPUTS, u[0], strict=True))
+    with FmuInstance(archive, INPUTS, OUTPUTS, parameters, start) as instance:
+        return run_open_loop(instance, u, DT)
+
+
+def test_delay_line_interpolates_and_holds_the_first_value() -> None:
+    line = DelayLine(2.5, 1)
+    out = [line(np.array([float(k)]))[0] for k in range(8)]
+    assert out[:3] == [0.0, 0.0, 0.0]
+    assert out[3:] == pytest.approx([0.5, 1.5, 2.5, 3.5, 4.5])
+
+
+def test_no_terms_is_the_open_loop_run(archive, inputs) -> None:
+    y = simulate_with_terms(archive, INPUTS, inputs, DT, OUTPUTS)
+    np.testing.assert_array_equal(y, plain(archive, inputs))
+
+
+def test_static_input_terms_equal_modified_recordings(archive, inputs) -> None:
+    shifted = inputs.copy()
+    shifted[:, 0] = 1.1 * (inputs[:, 0] + 0.2)
+    shifted[:, 0] = np.sign(shifted[:, 0]) * np.maximum(np.abs(shifted[:, 0]) - 0.3, 0.0)
+    terms = [
+        InputOffset(input="valve_current", offset=0.2),
+        InputGain(input="valve_current", gain=0.1),
+        InputDeadband(input="valve_current", width=0.3),
+    ]
+    y = simulate_with_terms(archive, INPUTS, inputs, DT, OUTPUTS, terms)
+    np.testing.assert_allclose(y, plain(archive, shifted), rtol=0, atol=1e-12)
+
+
+def test_input_delay_shifts_the_command(archive, inputs) -> None:
+    delayed = inputs.copy()
+    delayed[3:, 0] = inputs[:-3, 0]
+    delayed[:3, 0] = inputs[0, 0]
+    y = simulate_with_terms(
+        archive, INPUTS, inputs, DT, OUTPUTS, [InputDelay(input="valve_current", delay=3 * DT)]
+    )
+    np.testing.assert_allclose(y, plain(archive, delayed), atol=1e-12)
+
+
+def test_parameter_change_equals_the_parameter_set(archive, inputs) -> None:
+    y = simulate_with_terms(
+        archive, INPUTS, inputs, DT, OUTPUTS, [ParameterChange(name="bulk_modulus", value=7e8)]
+    )
+    np.testing.assert_array_equal(y, plain(archive, inputs, {"bulk_modulus": 7e8}))
+
+
+def test_sensor_delay_shifts_every_sensed_output(archive, inputs) -> None:
+    base = plain(archive, inputs)
+    y = simulate_with_terms(
+        archive,
+        INPUTS,
+        inputs,
+        DT,
+        OUTPUTS,
+        [SensorDelay(outputs=("spool_position", "ram_position"), delay=4 * DT)],
+    )
+    np.testing.assert_allclose(y[4:, :2], base[:-4, :2], atol=1e-15)
+    np.testing.assert_array_equal(y[:, 2:], base[:, 2:])
+
+
+def test_a_term_entering_later_leaves_earlier_stages_alone(archive, inputs) -> None:
+    base = plain(archive, inputs)
+    term = InputGain(input="valve_current", gain=0.2, entry=1)
+    y = simulate_with_terms(archive, INPUTS, inputs, DT, OUTPUTS, [term], stages=[0, 1, 2, 1])
+    np.testing.assert_array_equal(y[:, 0], base[:, 0])
+    assert np.max(np.abs(y[:, 1] - base[:, 1])) > 1e-4
+
+
+def test_coulomb_force_opposes_motion_through_the_load_input(archive, inputs) -> None:
+    base = plain(archive, inputs)
+    term = CoulombForce(input="load_force", source="ram_velocity", force=3000.0, smoothing=1e-3)
+    y = simulate_with_terms(archive, INPUTS, inputs, DT, OUTPUTS, [term])
+    assert np.mean(np.abs(y[:, 3])) < np.mean(np.abs(base[:, 3]))
+
+
+def test_cache_returns_the_same_run(archive, inputs) -> None:
+    cache: dict = {}
+    term = [InputOffset(input="valve_current", offset=0.1)]
+    first = simulate_with_terms(archive, INPUTS, inputs, DT, OUTPUTS, term, cache=cache)
+    again = simulate_with_terms(archive, INPUTS, inputs, DT, OUTPUTS, term, cache=cache)
+    np.testing.assert_array_equal(first, again)
+    assert len(cache) == 1
+
+
+@pytest.mark.parametrize(
+    "term",
+    [
+        ParameterChange(name="bulk_modulus", value=7e8),
+        InputGain(input="u", gain=0.1, entry=1),
+        InputOffset(input="u", offset=-0.2),
+        InputDeadband(input="u", width=0.3),
+        InputDelay(input="u", delay=0.002),
+        CoulombForce(input="f", source="v", force=600.0, smoothing=1e-3),
+        ViscousForce(input="f", source="v", coefficient=50.0),
+        StribeckForce(input="f", source="v", force=900.0, velocity=0.01, smoothing=1e-3),
+        FlowDroop(input="p", source="q", resistance=1e10),
+        SensorDelay(outputs=("a", "b"), delay=0.003),
+    ],
+)
+def test_terms_round_trip_through_plain_data(term) -> None:
+    assert term_from_dict(term.to_dict()) == term
+
+
+def test_unknown_term_kind_is_refused() -> None:
+    with pytest.raises(ValueError, match="unknown term kind"):
+        term_from_dict({"kind": "Magic"})
