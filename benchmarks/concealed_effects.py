@@ -42,11 +42,19 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from fmu_greybox.builtin import reference_fmus
 from fmu_greybox.config import load_config
 from fmu_greybox.diagnosis import Diagnosis
+from fmu_greybox.diagnosis.findings import named_physics
 from fmu_greybox.diagnosis.locate import SIGNIFICANT_STRUCTURE
 from fmu_greybox.fmu_archive import FmuArchive, open_fmu
 from fmu_greybox.fmu_instance import FmuInstance
 from fmu_greybox.simulate import run_open_loop
-from fmu_greybox.synth import INPUTS, SENSOR_NOISE, FlightTestProfile, SynthRequest, synthesise
+from fmu_greybox.synth import (
+    INPUTS,
+    SENSOR_NOISE,
+    TYPICAL_MAGNITUDES,
+    FlightTestProfile,
+    SynthRequest,
+    synthesise,
+)
 
 CONFIG = Path(__file__).resolve().parent.parent / "bench_configs" / "hydraulic_actuator.toml"
 #: The recorded signals of each stage of the reference actuator (benchmark knowledge).
@@ -72,18 +80,7 @@ class Case:
         return " + ".join(f"{k}={v:g}" for k, v in self.effects.items())
 
 
-#: Magnitudes per effect: small and large, in the truth model's units.
-MAGNITUDES: dict[str, tuple[float, ...]] = {
-    "gain_error": (0.03, 0.1),
-    "offset": (0.1, 0.3),
-    "deadband": (5e-6, 2e-5),
-    "coulomb_friction": (300.0, 900.0),
-    "stribeck_friction": (500.0, 1200.0),
-    "internal_leakage": (3e-13, 1.5e-12),
-    "compliance": (0.2, 0.4),
-    "supply_pressure_droop": (5e9, 2e10),
-    "time_delay": (0.002, 0.005),
-}
+MAGNITUDES = TYPICAL_MAGNITUDES
 PAIRS = (
     {"coulomb_friction": 600.0, "offset": 0.2},
     {"gain_error": 0.05, "time_delay": 0.003},
@@ -136,13 +133,6 @@ def expected_origin(truth: FmuArchive, recording, case: Case, config) -> tuple[s
     return (moved[0] if moved else None), moved
 
 
-def effect_of(finding: dict) -> str:
-    """The physics a finding names (a parameter mismatch by its physics label)."""
-    if finding["effect"] == "parameter_mismatch":
-        return finding.get("physics") or "parameter_mismatch"
-    return finding["effect"]
-
-
 def in_truth_units(finding: dict, effect: str, whitebox: FmuArchive) -> float | None:
     """A finding's magnitude in the truth model's units for ``effect``."""
     value = finding["magnitude"]["value"]
@@ -174,7 +164,7 @@ def run_case(case: Case, paths: dict, config, workers: int, duration: float) -> 
         findings = [f.to_dict() for f in diagnosis.findings_]
         top = findings[0]
         truth_effects = list(case.effects) or ["none"]
-        named = effect_of(top)
+        named = named_physics(top)
         correct = named in truth_effects
         estimate = in_truth_units(top, named, whitebox) if correct and case.effects else None
     true_value = case.effects.get(named) if correct else None
@@ -195,7 +185,7 @@ def run_case(case: Case, paths: dict, config, workers: int, duration: float) -> 
         else f"parameter_mismatch:{top.get('parameter')}",
         "top_physics": named,
         "effect_correct": correct,
-        "findings": [effect_of(f) for f in findings],
+        "findings": [named_physics(f) for f in findings],
         "estimate": estimate,
         "true": true_value,
         "improvement": improvement,

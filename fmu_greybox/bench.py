@@ -18,6 +18,7 @@ fixed step) and returns every FMU output as a :class:`~fmu_greybox.recording.Rec
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import os
@@ -536,3 +537,93 @@ def _run_libcosim(
                 for n, v in zip(bool_names, values, strict=True):
                     columns[n][k] = float(v)
     return columns
+
+
+@dataclass(frozen=True)
+class BenchAgreement:
+    """A bench run of a grey-box FMU against the in-process master on the same inputs.
+
+    Attributes
+    ----------
+    engine : str
+    steps : int
+        Communication steps run.
+    seconds : float
+        Wall time of the bench run (all its FMUs).
+    max_relative_difference : dict[str, float]
+        Output (``name``, ``name_std``, ``name_wb``) -> largest absolute difference over the
+        run divided by the master's scale (its largest magnitude or range).
+    """
+
+    engine: str
+    steps: int
+    seconds: float
+    max_relative_difference: dict[str, float]
+
+    @property
+    def worst(self) -> float:
+        """The largest relative difference of any output."""
+        return max(self.max_relative_difference.values())
+
+
+def engine_inputs(recording: Recording, engine: str, inputs: list[str]) -> Recording:
+    """The recording as an engine feeds it to the grey-box (see the module docstring).
+
+    fmpy's SSP simulation feeds 0 to every connected input during the first step, so for
+    ``fmpy`` the first row of ``inputs`` is set to 0; libcosim feeds the recording as it is.
+    """
+    if engine != "fmpy":
+        return recording
+    signals = {name: np.array(values) for name, values in recording.signals.items()}
+    for name in inputs:
+        signals[name][0] = 0.0
+    return dataclasses.replace(recording, signals=signals)
+
+
+def compare_with_master(
+    model, recording: Recording, result: Recording, engine: str, seconds: float = float("nan")
+) -> BenchAgreement:
+    """Compare a bench run of a model's grey-box FMU with the in-process master.
+
+    Parameters
+    ----------
+    model : GreyBoxModel
+        The model the FMU was exported from.
+    recording : Recording
+        The recording the bench played back, from its first row.
+    result : Recording
+        :func:`run_bench`'s output; its ``greybox.<output>`` columns are compared.
+    engine : str
+        The engine that ran it.
+    seconds : float
+        Wall time of the run.
+
+    Returns
+    -------
+    BenchAgreement
+    """
+    from .fmu_archive import open_fmu
+    from .master import run_master
+    from .project_data import prepare
+
+    steps = result.n_samples
+    played = recording.slice_time(recording.time[0], recording.time[0] + steps * model.dt)
+    columns = [model.config.signals[n].column for n in model.chain.exo_names]
+    fed = engine_inputs(played, engine, [c for c in columns if c in played.signals])
+    with open_fmu(model.whitebox_fmu) as archive:
+        data = prepare(model.config, model.chain, archive, fed)
+    run = run_master(model, data, 0, memory_from="whitebox")
+    if run.rows.size != steps:
+        raise BenchError(
+            f"the bench ran {steps} steps, the master {run.rows.size}; the bench's step differs "
+            "from the model's"
+        )
+    differences = {}
+    for q, signal in enumerate(model.chain.target_signals):
+        name = model.config.signals[signal].variable
+        for suffix, ref in (("", run.mean[:, q]), ("_std", run.std[:, q]),
+                            ("_wb", run.whitebox[:, q])):
+            got = result[f"greybox.{name}{suffix}"]
+            scale = max(float(np.ptp(ref)), float(np.max(np.abs(ref))), np.finfo(float).tiny)
+            differences[name + suffix] = float(np.max(np.abs(got - ref))) / scale
+    return BenchAgreement(engine, steps, seconds, differences)

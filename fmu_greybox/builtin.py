@@ -12,7 +12,7 @@ import hashlib
 import os
 from pathlib import Path
 
-from .errors import FmuArchiveError, FmuBuildError
+from .errors import ConfigError, FmuArchiveError, FmuBuildError
 
 PREFIX = "builtin:"
 #: The reference actuator's models (white-box, truth).
@@ -46,6 +46,24 @@ def sources_root() -> Path:
             "folder"
         )
     return root
+
+
+def reference_project() -> Path:
+    """The reference actuator's project file, ``bench_configs/hydraulic_actuator.toml``.
+
+    Raises
+    ------
+    ConfigError
+        If the package was installed without its ``bench_configs/`` folder.
+    """
+    path = sources_root().parent / "bench_configs" / "hydraulic_actuator.toml"
+    if not path.is_file():
+        raise ConfigError(
+            "project file not found; install fmu-greybox from its repository with "
+            "'pip install -e .'",
+            path=str(path),
+        )
+    return path
 
 
 def cache_dir() -> Path:

@@ -11,7 +11,6 @@ import time
 from pathlib import Path
 
 import click
-import numpy as np
 
 from . import __version__
 from .errors import FmuGreyboxError
@@ -396,17 +395,38 @@ def validate(
     "effects",
     multiple=True,
     metavar="NAME=VALUE",
-    help="Concealed truth effect (default: coulomb_friction=800).",
+    help="Concealed truth effect (repeatable; default: one drawn by --seed).",
 )
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
 @click.option(
     "--duration",
-    type=click.FloatRange(min=1.0),
+    type=click.FloatRange(min=5.0),
     default=30.0,
     show_default=True,
-    help="Length of the synthetic recording [s].",
+    help="Length of the training recording [s].",
 )
-@click.option("--json", "as_json", is_flag=True, help="Print the result as one JSON line.")
+@click.option(
+    "--validation-duration",
+    type=click.FloatRange(min=4.2),
+    default=8.0,
+    show_default=True,
+    help="Length of the independent validation recording [s].",
+)
+@click.option(
+    "--inducing",
+    type=click.IntRange(min=4),
+    default=150,
+    show_default=True,
+    help="Inducing points per stage.",
+)
+@click.option(
+    "--max-iter",
+    type=click.IntRange(min=1),
+    default=100,
+    show_default=True,
+    help="Optimiser iterations per stage.",
+)
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON line.")
 @click.pass_context
 def demo(
     ctx: click.Context,
@@ -414,72 +434,52 @@ def demo(
     effects: tuple[str, ...],
     seed: int,
     duration: float,
+    validation_duration: float,
+    inducing: int,
+    max_iter: int,
     as_json: bool,
 ) -> None:
-    """The main job on the built-in default: reference actuator and a synthetic recording.
+    """The main job on the built-in default: reference actuator, synthetic recording.
 
-    Builds the reference FMUs, records the truth actuator in closed loop with a concealed
-    effect, simulates the white-box open-loop over the recorded inputs and reports how far
-    apart they are, output by output.
+    Builds the reference FMUs, records the truth actuator with a concealed effect, diagnoses
+    the recording, trains and validates the grey-box, exports it as an FMU, runs it on an SSP
+    bench in fmpy and libcosim, and writes OUT/report.html, OUT/diagnosis.json, OUT/summary.json
+    and OUT/greybox.fmu.
 
     \b
-    Example:
-      fmu-greybox demo --out out/
+    Examples:
+      fmu-greybox demo
+      fmu-greybox demo --effect internal_leakage=1e-12 --seed 4 --out leak/
     """
     from . import synth as synth_mod
-    from .builtin import reference_fmus
-    from .fmu_archive import open_fmu
-    from .recording import save_recording
-    from .simulate import simulate_recording
+    from .demo import DemoSettings, run_demo
+    from .main_report import verdict_lines, write_report
 
     quiet = ctx.obj["quiet"] or as_json
-    out_dir.mkdir(parents=True, exist_ok=True)
-    started = time.perf_counter()
-    paths = reference_fmus()
-    chosen = synth_mod.parse_effects(effects) if effects else {"coulomb_friction": 800.0}
-    request = synth_mod.SynthRequest(
-        effects=chosen, seed=seed, profile=synth_mod.FlightTestProfile(duration=duration)
+    settings = DemoSettings(
+        out_dir=out_dir,
+        effects=synth_mod.parse_effects(effects) if effects else None,
+        seed=seed,
+        duration=duration,
+        validation_duration=validation_duration,
+        inducing=inducing,
+        max_iter=max_iter,
     )
-    with (
-        open_fmu(paths["HydraulicActuatorTruth"]) as truth,
-        open_fmu(paths["HydraulicActuator"]) as whitebox,
-    ):
-        recording = synth_mod.synthesise(truth, whitebox, request, progress=not quiet)
-        simulated = simulate_recording(whitebox, recording, progress=not quiet)
-    save_recording(recording, out_dir / "recording.csv")
-    save_recording(simulated, out_dir / "whitebox.csv")
-    rows = []
-    for name in simulated.names:
-        residual = recording[name] - simulated[name]
-        spread = float(np.std(recording[name]))
-        rmse = float(np.sqrt(np.mean(residual**2)))
-        rows.append(
-            {
-                "output": name,
-                "unit": simulated.units.get(name, ""),
-                "wb_rmse": rmse,
-                "wb_nrmse": rmse / spread if spread > 0 else float("nan"),
-            }
-        )
-    summary = {
-        "effects": chosen,
-        "seed": seed,
-        "samples": recording.n_samples,
-        "outputs": rows,
-        "seconds": round(time.perf_counter() - started, 2),
-        "out": str(out_dir),
-    }
+    started = time.perf_counter()
+    result = run_demo(
+        settings,
+        log=None if quiet else (lambda message: click.echo(message, err=True)),
+        progress=not quiet,
+    )
+    outcome = write_report(result)
+    outcome["seconds"] = round(time.perf_counter() - started, 1)
     if as_json:
-        click.echo(json.dumps(summary))
+        click.echo(json.dumps(outcome, default=float))
         return
-    _info(ctx, f"recording: {out_dir / 'recording.csv'} (effects {chosen}, seed {seed})")
-    _info(ctx, f"white-box: {out_dir / 'whitebox.csv'}")
-    click.echo(f"{'output':16s} {'unit':8s} {'RMSE':>12s} {'RMSE/std':>9s}")
-    for row in rows:
-        click.echo(
-            f"{row['output']:16s} {row['unit']:8s} {row['wb_rmse']:12.4g} {row['wb_nrmse']:9.3f}"
-        )
-    _info(ctx, f"done in {summary['seconds']} s")
+    click.echo("")
+    for line in verdict_lines(result):
+        click.echo(line)
+    _info(ctx, f"report: {out_dir / 'report.html'} ({outcome['seconds']} s)")
 
 
 @main.command()

@@ -45,6 +45,22 @@ SENSOR_NOISE: dict[str, float] = {
 INPUTS = ("valve_current", "supply_pressure", "load_force", "engage")
 
 
+#: A small and a large magnitude of each truth effect of the reference actuator, in the truth
+#: model's units: small is near what a diagnosis can just see through sensor noise, large is a
+#: clear fault. The demo draws from this range; the concealed-effects benchmark uses both ends.
+TYPICAL_MAGNITUDES: dict[str, tuple[float, ...]] = {
+    "gain_error": (0.03, 0.1),
+    "offset": (0.1, 0.3),
+    "deadband": (5e-6, 2e-5),
+    "coulomb_friction": (300.0, 900.0),
+    "stribeck_friction": (500.0, 1200.0),
+    "internal_leakage": (3e-13, 1.5e-12),
+    "compliance": (0.2, 0.4),
+    "supply_pressure_droop": (5e9, 2e10),
+    "time_delay": (0.002, 0.005),
+}
+
+
 @dataclass(frozen=True)
 class FlightTestProfile:
     """The closed-loop test: controller, reference, load and supply settings.

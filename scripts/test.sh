@@ -6,6 +6,14 @@ python3 -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e ".[dev]"
 .venv/bin/ruff check fmu_greybox tests benchmarks
+# the report test renders the HTML report in headless Chromium, from the distribution's packages
+if ! command -v chromium >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; then
+  sudo_=""
+  [ "$(id -u)" -eq 0 ] || sudo_="sudo -n"
+  { $sudo_ apt-get update -qq && DEBIAN_FRONTEND=noninteractive \
+      $sudo_ apt-get install -y -qq --no-install-recommends chromium >/dev/null; } \
+    || echo "could not install chromium; the report rendering test will fail in CI" >&2
+fi
 status=0
 .venv/bin/python -m pytest -q "$@" || status=$?
 if [ "$status" -eq 5 ]; then

@@ -1,4 +1,4 @@
-"""The ``fmu-greybox`` command line: build, synth, simulate, demo; exit codes and messages."""
+"""The ``fmu-greybox`` command line: build, synth, simulate; exit codes and messages."""
 
 from __future__ import annotations
 
@@ -226,19 +226,3 @@ def test_subprocess_user_error_and_debug_traceback(env: dict[str, str], tmp_path
     assert "Traceback (most recent call last)" in debug.stderr
     assert "fmu_greybox.errors.ConfigError" in debug.stderr
     assert not (tmp_path / "x.csv").exists()
-
-
-def test_demo_prints_one_json_line(env: dict[str, str], tmp_path: Path) -> None:
-    result = cli(env, "demo", "--out", tmp_path / "demo", "--duration", 3, "--json")
-    assert result.exit_code == 0, result.output
-    lines = result.stdout.splitlines()
-    assert len(lines) == 1
-    summary = json.loads(lines[0])
-    assert summary["effects"] == {"coulomb_friction": 800.0} and summary["samples"] == 3001
-    rows = {row["output"]: row for row in summary["outputs"]}
-    assert set(rows) >= {"spool_position", "ram_position", "itfv_pressure"}
-    for row in rows.values():
-        assert row["wb_rmse"] >= 0.0 and row["unit"]
-    assert rows["ram_position"]["unit"] == "m" and rows["ram_position"]["wb_rmse"] > 1e-4
-    for name in ("recording.csv", "whitebox.csv"):
-        assert load_recording(tmp_path / "demo" / name).n_samples == 3001

@@ -69,6 +69,14 @@ class Finding:
         }
 
 
+def named_physics(finding: dict) -> str:
+    """The physics a finding (as in ``diagnosis.json``) names: its effect, or for a
+    ``parameter_mismatch`` its physics label."""
+    if finding["effect"] == "parameter_mismatch":
+        return finding.get("physics") or "parameter_mismatch"
+    return finding["effect"]
+
+
 def where_from(stage: StageResidual | None, limit: int = 4) -> list[dict]:
     """Regimes, main frequency band and windows where a stage's residual concentrates most
     (of its signal furthest above noise)."""

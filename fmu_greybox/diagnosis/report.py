@@ -8,8 +8,6 @@ findings, the before/after table and the evidence plots.
 
 from __future__ import annotations
 
-import base64
-import html
 import json
 from pathlib import Path
 
@@ -17,7 +15,7 @@ import numpy as np
 
 from .. import __version__
 from ..atomic import atomic_write
-from ..plots import png_bytes
+from ..html_page import escape, figure, fmt, page, percent, table, verdict
 from .figures import regime_figure, residual_figure, trace_figure
 
 SCHEMA_VERSION = 1
@@ -101,86 +99,90 @@ def write_outputs(diagnosis, recording, out_dir: str | Path) -> dict:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     payload = diagnosis_payload(diagnosis, recording)
-    with atomic_write(out / "diagnosis.json") as f:
-        json.dump(_plain(payload), f, indent=2, allow_nan=False)
-        f.write("\n")
+    write_json(payload, out / "diagnosis.json")
     with atomic_write(out / "report.html") as f:
         f.write(report_html(diagnosis, payload))
     return payload
 
 
+def write_json(payload: dict, path: str | Path) -> None:
+    """Write a payload as JSON atomically (numpy scalars as numbers, non-finite as null)."""
+    with atomic_write(Path(path)) as f:
+        json.dump(_plain(payload), f, indent=2, allow_nan=False)
+        f.write("\n")
+
+
 def report_html(diagnosis, payload: dict) -> str:
-    """The self-contained HTML report."""
-    esc = html.escape
-    figures = [
-        ("Residual versus time", residual_figure(diagnosis)),
-        ("Residual by regime and frequency band", regime_figure(diagnosis)),
-        ("Before and after on held-out data", trace_figure(diagnosis)),
-    ]
-    parts = [
-        "<!DOCTYPE html><html><head><meta charset='utf-8'>",
-        f"<title>Diagnosis of {esc(payload['project'])}</title>",
-        "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;}"
-        "table{border-collapse:collapse;margin:1em 0;}td,th{border:1px solid #bbb;"
-        "padding:4px 8px;text-align:left;font-size:90%;}.verdict{background:#f4f4f4;"
-        "padding:1em;border-left:4px solid #555;}img{max-width:100%;}</style></head><body>",
-        f"<h1>Diagnosis of {esc(payload['project'])}</h1>",
-        "<div class='verdict'><h2>Verdict</h2>",
-        *(f"<p>{esc(line)}</p>" for line in payload["verdict"]),
-        "</div>",
-        "<h2>Findings</h2><table><tr><th>#</th><th>stage</th><th>effect</th><th>magnitude</th>"
-        "<th>95 % interval</th><th>explained</th><th>summary</th></tr>",
-    ]
+    """The self-contained HTML report of a diagnosis."""
+    title = f"Diagnosis of {payload['project']}"
+    return page(title, [verdict(payload["verdict"]), *diagnosis_sections(diagnosis, payload)])
+
+
+def diagnosis_sections(diagnosis, payload: dict) -> list[str]:
+    """HTML sections of a diagnosis: findings, held-out fit, stage residuals, evidence plots.
+
+    Parameters
+    ----------
+    diagnosis : Diagnosis
+        A fitted diagnosis.
+    payload : dict
+        Its :func:`diagnosis_payload`.
+    """
+    findings = []
     for i, f in enumerate(payload["findings"], 1):
         mag = f.get("magnitude") or {}
-        value = f"{mag['value']:.4g} {mag.get('unit', '')}" if "value" in mag else ""
         ci = mag.get("ci95")
-        interval = f"[{ci[0]:.4g}, {ci[1]:.4g}]" if ci else ""
-        explained = f.get("explained_fraction")
-        share = f"{100 * explained:.0f} %" if explained is not None else ""
-        parts.append(
-            f"<tr><td>{i}</td><td>{esc(str(f['stage']))}</td><td>{esc(f['effect'])}</td>"
-            f"<td>{esc(value)}</td><td>{esc(interval)}</td><td>{share}</td>"
-            f"<td>{esc(f['summary'])}</td></tr>"
-        )
-    parts.append("</table>")
-    parts.append(
-        "<h2>Fit on held-out data</h2><table><tr><th>stage</th><th>unit</th><th>noise</th>"
-        "<th>white-box RMSE</th><th>+ named terms</th><th>grey-box</th></tr>"
-    )
-    for name, row in payload["fit"].items():
-        parts.append(
-            f"<tr><td>{esc(name)}</td><td>{esc(row['unit'])}</td><td>{row['noise']:.3g}</td>"
-            f"<td>{row['wb_rmse']:.3g}</td>"
-            f"<td>{row['named_rmse']:.3g} ({100 * row['named_improvement']:+.0f} %)</td>"
-            f"<td>{row['gb_rmse']:.3g} ({100 * row['gb_improvement']:+.0f} %)</td></tr>"
-        )
-    parts.append("</table>")
-    parts.append(
-        "<h2>Residual per stage (white-box)</h2><table><tr><th>stage</th><th>signal</th>"
-        "<th>RMS</th><th>RMS / noise</th><th>nRMS</th><th>inherited</th></tr>"
-    )
-    for stage in payload["stages"]:
-        for sig in stage["signals"]:
-            parts.append(
-                f"<tr><td>{esc(stage['stage'])}</td><td>{esc(sig['signal'])}</td>"
-                f"<td>{sig['rms']:.3g} {esc(sig['unit'])}</td><td>{sig['noise_ratio']:.3g}</td>"
-                f"<td>{sig['nrms']:.3g}</td>"
-                f"<td>{100 * stage['inherited_fraction']:.0f} %</td></tr>"
+        findings.append(
+            (
+                i,
+                f["stage"],
+                f["effect"],
+                fmt(mag.get("value"), 4, mag.get("unit", "")),
+                f"[{ci[0]:.4g}, {ci[1]:.4g}]" if ci else "",
+                "" if f.get("explained_fraction") is None
+                else f"{100 * f['explained_fraction']:.0f} %",
+                f["summary"],
             )
-    parts.append("</table>")
-    for title, fig in figures:
-        data = base64.b64encode(png_bytes(fig)).decode("ascii")
-        parts.append(
-            f"<h2>{esc(title)}</h2><img alt='{esc(title)}' src='data:image/png;base64,{data}'>"
         )
-    parts.append(
-        f"<p><small>{esc(payload['tool'])}; recording {esc(payload['recording']['source'])} "
-        f"(sha256 {payload['recording']['sha256'][:12]}); FMU {esc(payload['fmu'])}; "
+    fit = [
+        (
+            name,
+            row["unit"],
+            fmt(row["noise"]),
+            fmt(row["wb_rmse"]),
+            f"{fmt(row['named_rmse'])} ({percent(row['named_improvement'])})",
+            f"{fmt(row['gb_rmse'])} ({percent(row['gb_improvement'])})",
+        )
+        for name, row in payload["fit"].items()
+    ]
+    residuals = [
+        (
+            stage["stage"],
+            sig["signal"],
+            fmt(sig["rms"], 3, sig["unit"]),
+            fmt(sig["noise_ratio"]),
+            fmt(sig["nrms"]),
+            f"{100 * stage['inherited_fraction']:.0f} %",
+        )
+        for stage in payload["stages"]
+        for sig in stage["signals"]
+    ]
+    return [
+        "<h2>Findings</h2>",
+        table(("#", "stage", "effect", "magnitude", "95 % interval", "explained", "summary"),
+              findings),
+        "<h2>Diagnosis fit on held-out rows</h2>",
+        table(("stage", "unit", "noise", "white-box RMSE", "+ named terms", "grey-box"), fit),
+        "<h2>Residual per stage (white-box)</h2>",
+        table(("stage", "signal", "RMS", "RMS / noise", "nRMS", "inherited"), residuals),
+        figure("Residual versus time", residual_figure(diagnosis)),
+        figure("Residual by regime and frequency band", regime_figure(diagnosis)),
+        figure("Before and after on held-out data", trace_figure(diagnosis)),
+        f"<p><small>{escape(payload['tool'])}; recording {escape(payload['recording']['source'])}"
+        f" (sha256 {payload['recording']['sha256'][:12]}); FMU {escape(payload['fmu'])}; "
         f"{payload['simulations']} simulations in {payload['timings'].get('total', 0)} s."
-        "</small></p></body></html>"
-    )
-    return "\n".join(parts)
+        "</small></p>",
+    ]
 
 
 def _plain(value):
