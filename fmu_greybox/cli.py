@@ -7,6 +7,7 @@ Tracebacks are shown only with ``--debug``.
 from __future__ import annotations
 
 import json
+import logging
 import time
 from pathlib import Path
 
@@ -57,19 +58,31 @@ def _info(ctx: click.Context, message: str) -> None:
 @click.version_option(__version__, prog_name="fmu-greybox")
 @click.option("--debug", is_flag=True, help="Show tracebacks of errors.")
 @click.option("-q", "--quiet", is_flag=True, help="Print only results and errors.")
+@click.option(
+    "-v", "--verbose", is_flag=True, help="Also print the FMUs' and the tool's log messages."
+)
 @click.pass_context
-def main(ctx: click.Context, debug: bool, quiet: bool) -> None:
+def main(ctx: click.Context, debug: bool, quiet: bool, verbose: bool) -> None:
     """Grey-box enhancement of white-box FMUs with sparse-GP correctors.
+
+    Exit codes: 0 success, 1 an error in the input (the message says which file, column or
+    variable and how to mend it), 2 a usage error.
 
     \b
     Examples:
+      fmu-greybox demo                       # the main job on the built-in default
       fmu-greybox fmu build --out fmus/
       fmu-greybox synth --effect coulomb_friction=800 --seed 3 --out rec.csv
-      fmu-greybox simulate builtin:HydraulicActuator rec.csv --out wb.csv
-      fmu-greybox demo --out out/
+      fmu-greybox diagnose bench_configs/hydraulic_actuator.toml --recording rec.csv
+      fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv --out model/
+      fmu-greybox export model/ --out greybox.fmu --ssp bench.ssp --recording rec.csv
+      fmu-greybox cosim bench.ssp --engine libcosim --out results.csv
     """
     ctx.ensure_object(dict)
     ctx.obj.update(debug=debug, quiet=quiet)
+    if verbose or debug:
+        logging.basicConfig(format="%(levelname)s %(name)s: %(message)s")
+        logging.getLogger("fmu_greybox").setLevel(logging.DEBUG if debug else logging.INFO)
 
 
 @main.group()

@@ -77,6 +77,13 @@ def verdict_lines(result: DemoResult) -> list[str]:
         f"Grey-box against white-box on an independent {result.settings.validation_duration:g} s "
         f"recording (RMSE change, negative = better): {changes}."
     )
+    worse = [stage for stage, row in table_.items() if row["improvement"] > 0.01]
+    if worse:
+        lines.append(
+            f"The grey-box correctors do worse than the white-box on {', '.join(worse)} in free "
+            "run on that recording: do not use them there; the named terms above are the "
+            "better correction (the exported FMU carries the correctors only)."
+        )
     for a in result.bench:
         lines.append(
             f"Exported FMU on the SSP bench in {a.engine}: {a.steps} steps, largest difference "
