@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import sys
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -609,9 +610,11 @@ class _Reader:
             return default
         value = table[key]
         if kind is float and isinstance(value, int) and not isinstance(value, bool):
+            if abs(value) > _LARGEST_FLOAT:
+                self.fail(prefix + key, f"must be a finite number, not {_shown(value)}")
             value = float(value)
         if not isinstance(value, kind) or (isinstance(value, bool) and kind is not bool):
-            self.fail(prefix + key, f"must be {_kind_name(kind)}, not {value!r}")
+            self.fail(prefix + key, f"must be {_kind_name(kind)}, not {_shown(value)}")
         if kind is float and not math.isfinite(value):
             self.fail(prefix + key, f"must be a finite number, not {value!r}")
         if kind is str and not value.strip():
@@ -621,7 +624,9 @@ class _Reader:
     def strings(self, table: Mapping[str, Any], key: str, prefix: str) -> list[str]:
         value = table.get(key, [])
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-            self.fail(prefix + key, f'must be a list of names, e.g. ["a", "b"], not {value!r}')
+            self.fail(
+                prefix + key, f'must be a list of names, e.g. ["a", "b"], not {_shown(value)}'
+            )
         return list(value)
 
     def numbers(self, table: Mapping[str, Any], key: str, prefix: str) -> dict[str, float]:
@@ -633,6 +638,16 @@ class _Reader:
     def positive(self, field_name: str, value: float) -> None:
         if value <= 0:
             self.fail(field_name, f"{value} must be positive")
+
+
+#: Largest integer a float field accepts (TOML integers have no size limit in tomllib).
+_LARGEST_FLOAT = int(sys.float_info.max)
+
+
+def _shown(value: Any, limit: int = 60) -> str:
+    """``repr(value)``, cut to ``limit`` characters for an error message."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _kind_name(kind: type) -> str:

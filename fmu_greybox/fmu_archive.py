@@ -2,8 +2,9 @@
 
 An FMU is a zip file from a supplier, a tool or a colleague: treat it as untrusted. Before any
 byte is written to disk the archive is checked for paths escaping the extraction folder,
-absolute paths, links, absurd sizes and a missing ``modelDescription.xml``; then the model must
-be an FMI 2.0 co-simulation FMU with a binary for this platform.
+absolute paths, links, encryption, compression methods FMI does not allow, absurd declared sizes
+(per member, in total, and as a compression ratio) and a missing ``modelDescription.xml``; then
+the model must be an FMI 2.0 co-simulation FMU with a binary for this platform.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import shutil
 import stat
 import tempfile
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
@@ -22,10 +24,14 @@ from .errors import FmuArchiveError
 
 #: Largest total uncompressed size accepted [bytes].
 MAX_UNCOMPRESSED_BYTES = 2 * 1024**3
+#: Largest uncompressed size accepted for one member [bytes].
+MAX_MEMBER_BYTES = 1024**3
 #: Largest number of members accepted.
 MAX_MEMBERS = 100_000
 #: Largest compression ratio accepted for a member (zip bombs have ratios of 1000s).
 MAX_COMPRESSION_RATIO = 1000.0
+#: Compression methods the FMI standard allows in an FMU: stored and deflate.
+FMI_COMPRESSION = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflate"}
 
 
 @dataclass(frozen=True)
@@ -163,9 +169,15 @@ def open_fmu(path: str | Path) -> FmuArchive:
     ------
     FmuArchiveError
         If the file is missing, not a zip archive, hostile (a path escaping the folder, a link,
-        an absurd size), not FMI 2.0 co-simulation, or lacks a binary for this platform.
+        an absurd declared size or compression ratio), encrypted or compressed in a way FMI does
+        not allow, damaged, not FMI 2.0 co-simulation, or lacks a binary for this platform.
     """
     path = Path(path)
+    if path.is_dir():
+        raise FmuArchiveError(
+            f"{path}: a folder, not an FMU file; give the .fmu archive (an extracted FMU can "
+            "be zipped back into one)"
+        )
     if not path.is_file():
         raise FmuArchiveError(f"{path}: no such FMU file; check the path")
     if not zipfile.is_zipfile(path):
@@ -192,21 +204,57 @@ def _extract_checked(path: Path, unzip_dir: Path) -> None:
             names = {m.filename for m in members}
             if "modelDescription.xml" not in names:
                 raise FmuArchiveError(
-                    f"{path}: no modelDescription.xml at the archive root; not an FMU"
+                    f"{path}: no modelDescription.xml at the archive root; not an FMU. Export the "
+                    "model as an FMU, or zip an extracted FMU from inside its folder"
                 )
-            zf.extractall(unzip_dir)
+            for member in members:
+                _extract_member(path, zf, member, unzip_dir)
     except zipfile.BadZipFile as exc:
         raise FmuArchiveError(f"{path}: corrupt zip archive ({exc}); re-export the FMU") from exc
 
 
+def _extract_member(path: Path, zf: zipfile.ZipFile, member: zipfile.ZipInfo, into: Path) -> None:
+    """Extract one checked member; a damaged stream or a full disk names the member.
+
+    The bytes written never exceed the member's declared size (checked against the limits
+    beforehand): :mod:`zipfile` stops at it and then checks the CRC.
+    """
+    try:
+        zf.extract(member, into)
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError) as exc:
+        if isinstance(exc, OSError) and exc.errno is not None:
+            mend = f"check the free space and permissions of {into.parent}"
+        else:
+            mend = "the archive is damaged; re-export the FMU"
+        raise FmuArchiveError(
+            f"{path}: member {member.filename!r} cannot be extracted ({exc}); {mend}"
+        ) from exc
+
+
 def _check_members(path: Path, members: list[zipfile.ZipInfo]) -> None:
-    """Refuse members that would escape the folder, links and absurd sizes."""
+    """Refuse members that would escape the folder, links, encrypted or oddly compressed
+    members and absurd declared sizes, naming the member and the limit."""
     if len(members) > MAX_MEMBERS:
-        raise FmuArchiveError(f"{path}: {len(members)} members is more than an FMU needs")
+        raise FmuArchiveError(
+            f"{path}: {len(members)} members is more than an FMU needs (limit {MAX_MEMBERS}); "
+            "refused as corrupt or hostile"
+        )
     total = 0
+    seen: set[str] = set()
     for member in members:
         name = member.filename
+        if name in seen:
+            raise FmuArchiveError(
+                f"{path}: member {name!r} appears twice; tools disagree on which copy counts, "
+                "so the archive was refused. Re-export the FMU"
+            )
+        seen.add(name)
         pure = PurePosixPath(name)
+        if not pure.parts:
+            raise FmuArchiveError(
+                f"{path}: a member has the empty name {name!r}; the archive is malformed or "
+                "hostile and was not extracted. Re-export the FMU"
+            )
         if "\\" in name or pure.is_absolute() or ":" in name or ".." in pure.parts:
             raise FmuArchiveError(
                 f"{path}: member {name!r} would be written outside the extraction folder; "
@@ -214,18 +262,44 @@ def _check_members(path: Path, members: list[zipfile.ZipInfo]) -> None:
             )
         mode = member.external_attr >> 16
         if stat.S_ISLNK(mode):
-            raise FmuArchiveError(f"{path}: member {name!r} is a symbolic link; refused")
-        total += member.file_size
-        if member.compress_size and member.file_size / member.compress_size > MAX_COMPRESSION_RATIO:
             raise FmuArchiveError(
-                f"{path}: member {name!r} expands {member.file_size / member.compress_size:.0f}"
-                " times; refused as a likely zip bomb"
+                f"{path}: member {name!r} is a symbolic link; refused, as an FMU holds plain "
+                "files only. Re-export the FMU"
             )
+        if member.flag_bits & 0x1:
+            raise FmuArchiveError(
+                f"{path}: member {name!r} is encrypted; an FMU must be readable without a "
+                "password. Re-export it without encryption"
+            )
+        if member.compress_type not in FMI_COMPRESSION:
+            raise FmuArchiveError(
+                f"{path}: member {name!r} uses zip compression method {member.compress_type}; "
+                f"the FMI standard allows only {' and '.join(FMI_COMPRESSION.values())}. "
+                "Re-export the FMU"
+            )
+        if member.file_size > MAX_MEMBER_BYTES:
+            raise FmuArchiveError(
+                f"{path}: member {name!r} declares {_gib(member.file_size)} uncompressed, over "
+                f"the {_gib(MAX_MEMBER_BYTES)} limit per member; refused before extraction as "
+                "corrupt or hostile"
+            )
+        ratio = member.file_size / max(member.compress_size, 1)
+        if ratio > MAX_COMPRESSION_RATIO:
+            raise FmuArchiveError(
+                f"{path}: member {name!r} expands {ratio:.0f} times; refused as a likely zip "
+                f"bomb (the limit is {MAX_COMPRESSION_RATIO:.0f} times)"
+            )
+        total += member.file_size
     if total > MAX_UNCOMPRESSED_BYTES:
         raise FmuArchiveError(
-            f"{path}: uncompressed size {total / 1e9:.1f} GB exceeds the "
-            f"{MAX_UNCOMPRESSED_BYTES / 1e9:.1f} GB limit; refused"
+            f"{path}: uncompressed size {_gib(total)} (all members) exceeds the "
+            f"{_gib(MAX_UNCOMPRESSED_BYTES)} limit; refused before extraction"
         )
+
+
+def _gib(size: int) -> str:
+    """A byte count in GiB for a message, e.g. ``"2.0 GiB"``."""
+    return f"{size / 1024**3:.1f} GiB"
 
 
 def _read_description(path: Path, unzip_dir: Path) -> object:
@@ -233,7 +307,10 @@ def _read_description(path: Path, unzip_dir: Path) -> object:
     try:
         description = read_model_description(str(unzip_dir / "modelDescription.xml"))
     except Exception as exc:  # fmpy raises bare Exceptions for schema problems
-        raise FmuArchiveError(f"{path}: unreadable modelDescription.xml: {exc}") from exc
+        raise FmuArchiveError(
+            f"{path}: unreadable modelDescription.xml: {exc}. It must be valid FMI 2.0 XML; "
+            "re-export the FMU"
+        ) from exc
     if description.fmiVersion != "2.0":
         raise FmuArchiveError(
             f"{path}: FMI version {description.fmiVersion}; fmu-greybox runs FMI 2.0 FMUs. "

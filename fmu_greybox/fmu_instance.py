@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ctypes
 import itertools
+import os
 import weakref
 from collections import deque
 from collections.abc import Mapping, Sequence
@@ -18,6 +19,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from fmpy import calloc as fmpy_calloc
 from fmpy import free as fmpy_free
+from fmpy import platform as fmpy_platform
 from fmpy.fmi2 import (
     FMU2Slave,
     fmi2CallbackAllocateMemoryTYPE,
@@ -28,7 +30,7 @@ from fmpy.fmi2 import (
     printLogMessage,
 )
 
-from .errors import FmuError
+from .errors import FmuArchiveError, FmuError
 from .fmu_archive import FmuArchive
 
 _STATUS = ("fmi2OK", "fmi2Warning", "fmi2Discard", "fmi2Error", "fmi2Fatal", "fmi2Pending")
@@ -89,6 +91,32 @@ def _callbacks(log: _LogBuffer) -> fmi2CallbackFunctions:
     return callbacks
 
 
+def _load_slave(archive: FmuArchive, instance_name: str) -> FMU2Slave:
+    """fmpy's slave of ``archive``, its shared library loaded.
+
+    Raises
+    ------
+    FmuArchiveError
+        If the binary cannot be loaded (not a shared library for this platform, a missing
+        dependency) or lacks FMI 2.0 functions.
+    """
+    cwd = os.getcwd()
+    try:
+        return FMU2Slave(
+            guid=archive.guid,
+            modelIdentifier=archive.model_identifier,
+            unzipDirectory=str(archive.unzip_dir),
+            instanceName=instance_name,
+        )
+    except Exception as exc:  # fmpy raises bare Exceptions; ctypes AttributeError for symbols
+        raise FmuArchiveError(
+            f"{archive.path}: its binary for {fmpy_platform} cannot be loaded ({exc}); rebuild "
+            f"or re-export the FMU for {fmpy_platform} with the FMI 2.0 co-simulation functions"
+        ) from exc
+    finally:
+        os.chdir(cwd)  # fmpy enters the binary's folder to load it and stays there on failure
+
+
 class FmuInstance:
     """One instance of a co-simulation FMU, initialised and ready to step.
 
@@ -123,20 +151,19 @@ class FmuInstance:
         self.archive = archive
         self.time = float(start_time)
         self._log = _LogBuffer()
-        self._slave = FMU2Slave(
-            guid=archive.guid,
-            modelIdentifier=archive.model_identifier,
-            unzipDirectory=str(archive.unzip_dir),
-            instanceName=instance_name,
-        )
+        self._slave = _load_slave(archive, instance_name)
         fn = self._slave._functions
         self._set_real = fn["fmi2SetReal"]
         self._get_real = fn["fmi2GetReal"]
         self._do_step = fn["fmi2DoStep"]
         self._callbacks = _callbacks(self._log)
         self._instantiate()
-        self._initialise(start_time, {**(parameters or {}), **(start_values or {})})
-        self.bind(inputs, outputs)
+        try:
+            self._initialise(start_time, {**(parameters or {}), **(start_values or {})})
+            self.bind(inputs, outputs)
+        except BaseException:
+            self.close()
+            raise
 
     # ------------------------------------------------------------------ set-up
     def _instantiate(self) -> None:

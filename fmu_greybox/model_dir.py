@@ -9,16 +9,20 @@ Layout::
       stage_<NAME>.json    corrector metadata
 
 Every file's SHA-256 is recorded in ``model.json`` and checked on load, so a truncated or
-tampered file is refused with a clear error. The folder is written atomically: a failed run
-leaves any earlier model intact.
+tampered file is refused with a clear error; ``model.json`` also records the SHA-256 of its own
+content (``manifest_sha256``, over canonical JSON without that key), so an edit of the manifest
+itself is refused too. Arrays are read with ``allow_pickle=False``: nothing in the folder is ever
+executed. The folder is written atomically: a failed run leaves any earlier model intact.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import math
 import shutil
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,13 +32,16 @@ import numpy as np
 from . import __version__
 from .atomic import atomic_dir, atomic_write
 from .config import ProjectConfig, parse_config
-from .errors import ModelFormatError
+from .errors import ConfigError, ModelFormatError
 from .gp import SparseGPR
 from .greybox import GreyBoxChain
 
 FORMAT_VERSION = 1
 MANIFEST = "model.json"
 WHITEBOX = "whitebox.fmu"
+#: Key of ``model.json`` holding the SHA-256 of the rest of its content.
+MANIFEST_HASH = "manifest_sha256"
+_RETRAIN = "Retrain the model or restore the folder from a copy"
 
 
 @dataclass
@@ -76,6 +83,24 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+def manifest_digest(manifest: Mapping[str, Any]) -> str:
+    """SHA-256 of a manifest's content without its own hash, as canonical JSON.
+
+    Parameters
+    ----------
+    manifest : mapping
+        The parsed ``model.json``.
+
+    Returns
+    -------
+    str
+        Hex digest; independent of key order and whitespace.
+    """
+    body = {key: value for key, value in manifest.items() if key != MANIFEST_HASH}
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
+    return hashlib.sha256(text.encode("ascii")).hexdigest()
+
+
 def save_model(model: GreyBoxModel, out_dir: str | Path) -> Path:
     """Write the model folder atomically.
 
@@ -115,6 +140,7 @@ def save_model(model: GreyBoxModel, out_dir: str | Path) -> Path:
             "whitebox_sha256": file_sha256(tmp / WHITEBOX),
             "files": {name: file_sha256(tmp / name) for name in files},
         }
+        manifest[MANIFEST_HASH] = manifest_digest(manifest)
         with atomic_write(tmp / MANIFEST, "w") as f:
             json.dump(manifest, f, indent=2, sort_keys=True)
     return out_dir
@@ -126,7 +152,8 @@ def read_manifest(model_dir: str | Path) -> dict[str, Any]:
     Raises
     ------
     ModelFormatError
-        Missing folder or manifest, unknown version, missing file or hash mismatch.
+        Missing folder or manifest, unknown version, an edited or malformed manifest, a file it
+        does not list, a missing file or a hash mismatch; the message names the file.
     """
     model_dir = Path(model_dir)
     path = model_dir / MANIFEST
@@ -137,14 +164,26 @@ def read_manifest(model_dir: str | Path) -> dict[str, Any]:
     try:
         manifest = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ModelFormatError(f"{path}: corrupt manifest ({exc}); retrain the model") from exc
+        raise ModelFormatError(f"{path}: corrupt manifest ({exc}); {_RETRAIN}") from exc
+    if not isinstance(manifest, dict):
+        raise ModelFormatError(
+            f"{path}: holds a JSON {type(manifest).__name__}, not the object 'fmu-greybox train' "
+            f"writes; {_RETRAIN}"
+        )
     version = manifest.get("format_version")
     if version != FORMAT_VERSION:
         raise ModelFormatError(
             f"{path}: format version {version!r}; this tool reads version "
             f"{FORMAT_VERSION}. Retrain the model with this version"
         )
-    for name, expected in manifest.get("files", {}).items():
+    recorded = manifest.get(MANIFEST_HASH)
+    if recorded is not None and recorded != manifest_digest(manifest):
+        raise ModelFormatError(
+            f"{path}: content does not match the hash it recorded at training; the manifest "
+            f"was edited or corrupted. {_RETRAIN}"
+        )
+    _check_manifest(path, manifest)
+    for name, expected in manifest["files"].items():
         file = model_dir / name
         if not file.is_file():
             raise ModelFormatError(
@@ -158,6 +197,51 @@ def read_manifest(model_dir: str | Path) -> dict[str, Any]:
                 "restore the model folder"
             )
     return manifest
+
+
+def _check_manifest(path: Path, manifest: dict[str, Any]) -> None:
+    """The fields :func:`load_model` reads exist with the right types; files are all hashed."""
+
+    def bad(field_name: str, what: str) -> ModelFormatError:
+        return ModelFormatError(
+            f"{path}: field {field_name!r} {what}; the manifest was edited or corrupted. {_RETRAIN}"
+        )
+
+    for key, kind in (("project", dict), ("training", dict), ("target_mode", str)):
+        if not isinstance(manifest.get(key), kind):
+            raise bad(key, f"is missing or not a {kind.__name__}")
+    dt = manifest.get("dt")
+    number = isinstance(dt, int | float) and not isinstance(dt, bool)
+    if not (number and math.isfinite(dt) and dt > 0):
+        raise bad("dt", "is missing or not a positive number of seconds")
+    files = manifest.get("files")
+    if not isinstance(files, dict) or not all(
+        _plain_name(n) and isinstance(h, str) for n, h in files.items()
+    ):
+        raise bad("files", "is missing or not a table of file name -> SHA-256 in this folder")
+    stages = manifest.get("stages")
+    if not isinstance(stages, list) or not stages:
+        raise bad("stages", "is missing or not a list of stages")
+    needed = [WHITEBOX]
+    for i, stage in enumerate(stages):
+        where = f"stages[{i}]"
+        if not isinstance(stage, dict) or not all(
+            isinstance(stage.get(k), str) for k in ("name", "stem")
+        ):
+            raise bad(where, "is not a stage with a name and a file stem")
+        if not _plain_name(stage["stem"]):
+            raise bad(f"{where}.stem", "is not a file name in this folder")
+        if not isinstance(stage.get("active"), bool):
+            raise bad(f"{where}.active", "is missing or not true/false")
+        needed += [f"{stage['stem']}.npz", f"{stage['stem']}.json"]
+    unlisted = [name for name in needed if name not in files]
+    if unlisted:
+        raise bad("files", f"lists no hash for {', '.join(unlisted)}")
+
+
+def _plain_name(name: Any) -> bool:
+    """Whether ``name`` is a file name inside the folder (no folder part, not hidden)."""
+    return isinstance(name, str) and bool(name) and Path(name).name == name and name[0] != "."
 
 
 def load_model(model_dir: str | Path) -> GreyBoxModel:
@@ -176,13 +260,22 @@ def load_model(model_dir: str | Path) -> GreyBoxModel:
         config = parse_config(raw, None)
     except Exception as exc:
         raise ModelFormatError(f"{model_dir}: stored project is invalid: {exc}") from exc
-    chain = GreyBoxChain(config, manifest["target_mode"])
-    chain.correctors_ = [SparseGPR.load(model_dir / s["stem"]) for s in manifest["stages"]]
-    chain.active_ = np.array([s["active"] for s in manifest["stages"]], dtype=bool)
-    chain.feature_bounds_ = [
-        np.array([s["feature_low"], s["feature_high"]], dtype=np.float64)
-        for s in manifest["stages"]
-    ]
+    stages = manifest["stages"]
+    try:
+        chain = GreyBoxChain(config, manifest["target_mode"])
+        if [s["name"] for s in stages] != chain.stage_names:
+            raise ValueError(
+                f"stages {[s['name'] for s in stages]} differ from the project's "
+                f"{chain.stage_names}"
+            )
+        bounds = [_feature_bounds(s, len(chain.feature_names(i))) for i, s in enumerate(stages)]
+    except (ConfigError, KeyError, TypeError, ValueError) as exc:
+        raise ModelFormatError(
+            f"{model_dir / MANIFEST}: the stages do not fit the stored project ({exc}); {_RETRAIN}"
+        ) from exc
+    chain.correctors_ = [_load_corrector(model_dir / s["stem"]) for s in stages]
+    chain.active_ = np.array([s["active"] for s in stages], dtype=bool)
+    chain.feature_bounds_ = bounds
     return GreyBoxModel(
         config=config,
         chain=chain,
@@ -190,3 +283,27 @@ def load_model(model_dir: str | Path) -> GreyBoxModel:
         dt=float(manifest["dt"]),
         training=manifest["training"],
     )
+
+
+def _feature_bounds(stage: Mapping[str, Any], n_features: int) -> np.ndarray:
+    """A stage's recorded feature range as shape (2, n_features), checked finite and ordered."""
+    low = np.asarray(stage["feature_low"], dtype=np.float64)
+    high = np.asarray(stage["feature_high"], dtype=np.float64)
+    if low.shape != (n_features,) or high.shape != (n_features,):
+        raise ValueError(
+            f"stage {stage['name']!r} has feature bounds of shapes {low.shape} and {high.shape}, "
+            f"expected ({n_features},) each"
+        )
+    if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(low <= high)):
+        raise ValueError(f"stage {stage['name']!r} has non-finite or inverted feature bounds")
+    return np.array([low, high])
+
+
+def _load_corrector(stem: Path) -> SparseGPR:
+    """A stage's corrector; settings or fit facts its loader cannot use name the file."""
+    try:
+        return SparseGPR.load(stem)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ModelFormatError(
+            f"{stem}.json: settings or fit facts unusable ({type(exc).__name__}: {exc}); {_RETRAIN}"
+        ) from exc
