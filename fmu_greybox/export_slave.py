@@ -302,6 +302,9 @@ class DomainMonitor:
     corrector's own metric: it also flags combinations of inputs, each within its range, that
     the training never visited. The FMU reports the smallest score over the stages whose
     correctors run (training may switch off a stage that does not improve on the white-box).
+    It costs one reduction per step: the correlations are the kernel rows the correctors
+    evaluated for their predictions, divided by their signal variance
+    (:meth:`~fmu_greybox.greybox.GreyBoxChain.kernel_maxima`).
 
     Parameters
     ----------
@@ -310,35 +313,22 @@ class DomainMonitor:
     """
 
     def __init__(self, chain: GreyBoxChain) -> None:
-        # the stages whose correctors run (the chain passes the others' white-box through)
-        active = [q for q in range(len(chain.stages)) if chain.active_[q]]
-        correctors = [chain.correctors_[q] for q in active]
-        # the chain leaves each stage's features of the last enabled step in these buffers
-        self._features = [chain._features[q] for q in active]
-        # all stages at once: features concatenated, inducing points block-diagonal, so that a
-        # step costs a few array operations whatever the number of stages
-        sizes = [c.inducing_points_.shape for c in correctors]  # (M_q, D_q)
-        self._weight = np.concatenate([1.0 / c.lengthscales_ for c in correctors] or [[]])
-        self._z = np.zeros((sum(m for m, _ in sizes), sum(d for _, d in sizes)))
-        row = col = 0
-        for c, (m, d) in zip(correctors, sizes, strict=True):
-            self._z[row : row + m, col : col + d] = c.inducing_points_ / c.lengthscales_
-            row, col = row + m, col + d
-        self._half_zz = 0.5 * np.einsum("md,md->m", self._z, self._z)
-        self._rows = np.cumsum([0] + [m for m, _ in sizes[:-1]])
-        self._cols = np.cumsum([0] + [d for _, d in sizes[:-1]])
-        self._x = np.empty(col)
+        self._chain = chain
+        # the stages whose correctors run (the chain passes the others' white-box through),
+        # each with 1/s²: the largest entry of the kernel row the chain computed this step,
+        # divided by the signal variance, is the correlation with the nearest inducing point
+        self._stages = [
+            (q, 1.0 / chain.correctors_[q].posterior_.signal_variance)
+            for q in range(len(chain.stages))
+            if chain.active_[q]
+        ]
 
     def score(self) -> float:
         """Smallest stage score of the step just taken with correction enabled."""
-        if not self._features:
+        if not self._stages:
             return 1.0
-        xs = np.concatenate(self._features, out=self._x)
-        xs *= self._weight
-        half_d2 = self._half_zz - self._z @ xs
-        nearest = np.minimum.reduceat(half_d2, self._rows)
-        nearest += 0.5 * np.add.reduceat(xs * xs, self._cols)
-        return min(1.0, math.exp(-float(nearest.max())))
+        maxima = self._chain.kernel_maxima()
+        return min(1.0, *[maxima[q] * inverse for q, inverse in self._stages])
 
 
 # ---------------------------------------------------------------------------- the slave
@@ -445,11 +435,9 @@ class GreyBoxSlave(Fmi2Slave):
         q = len(self.model.chain.stages)
         self._n_in = n_in
         self._out_slice = slice(n_in, n_in + n_wb + 2 * q + 1)
-        self._outputs = np.empty(n_wb + 2 * q + 1)
-        self._std = slice(n_wb, n_wb + q)
-        self._wb = slice(n_wb + q, n_wb + 2 * q)
         self._stage_output = iface.stage_output
-        self._exo_index = iface.exo_index
+        self._stage_positions = tuple(int(i) for i in iface.stage_output)
+        self._exo_index = tuple(int(i) for i in iface.exo_index)
         self._exo = np.empty(iface.exo_index.size)
         self._threshold_vr = iface.reference(THRESHOLD)
         self._settable_reals = frozenset([*range(n_in), self._threshold_vr])
@@ -496,7 +484,7 @@ class GreyBoxSlave(Fmi2Slave):
         state = run.state
         self.model.chain.step(state, exo, y_wb, enabled)
         score = self._monitor.score() if enabled else 1.0
-        outside = enabled and bool(state.outside.any())
+        outside = enabled and 1.0 in state.outside.tolist()
         self._publish(wb, y_wb, state, score, outside)
         self._time = current_time + step_size
         return True
@@ -511,16 +499,15 @@ class GreyBoxSlave(Fmi2Slave):
     def get_real(self, vrs: list[int]) -> list[float]:
         if self._initialising:
             self._prepare()
-        reals = self._reals
-        return [reals[vr] for vr in vrs]
+        return list(map(self._reals.__getitem__, vrs))
 
     @guarded("fmi2SetReal")
     def set_real(self, vrs: list[int], values: list[float]) -> None:
-        settable = self._settable_reals
+        if not self._settable_reals.issuperset(vrs):
+            vr = next(vr for vr in vrs if vr not in self._settable_reals)
+            raise ValueError(f"value reference {vr} is not a Real input or tunable parameter")
         reals = self._reals
         for vr, value in zip(vrs, values, strict=True):
-            if vr not in settable:
-                raise ValueError(f"value reference {vr} is not a Real input or tunable parameter")
             reals[vr] = value
 
     @guarded("fmi2GetBoolean", lambda vrs: [False] * len(vrs))
@@ -577,14 +564,15 @@ class GreyBoxSlave(Fmi2Slave):
     def _publish(
         self, wb: np.ndarray, y_wb: np.ndarray, state: ChainState, score: float, outside: bool
     ) -> None:
-        out = self._outputs
-        n_wb = wb.size
-        out[:n_wb] = wb
-        out[self._stage_output] = state.out_mean
-        np.sqrt(state.out_var, out=out[self._std])
-        out[self._wb] = y_wb
-        out[-1] = score
-        self._reals[self._out_slice] = out.tolist()
+        # white-box outputs with the stage outputs corrected, standard deviations, raw
+        # white-box stage outputs, score: built as Python floats, the form _reals holds
+        values = wb.tolist()
+        for position, value in zip(self._stage_positions, state.out_mean.tolist(), strict=True):
+            values[position] = value
+        values += np.sqrt(state.out_var).tolist()
+        values += y_wb.tolist()
+        values.append(score)
+        self._reals[self._out_slice] = values
         self._bools[self._flag] = outside or score < self._reals[self._threshold_vr]
 
     # ------------------------------------------------------------------ state

@@ -15,7 +15,7 @@ import numpy as np
 
 from .config import ProjectConfig
 from .errors import ConfigError
-from .gp import SparseGPR
+from .gp import Posterior, SparseGPR
 from .stage import TARGET_MODES, StageLayout
 
 ProgressCallback = Callable[[str, int, float], None]
@@ -143,6 +143,11 @@ class GreyBoxChain:
         self.feature_bounds_: list[np.ndarray] = []
         self.active_ = np.ones(len(self.stages), dtype=bool)
         self._features = [np.empty(s.n_features) for s in self.stages]
+        # kernel rows of the correctors, see _kernel_row
+        self._kernel_owner: list[Posterior | None] = [None] * len(self.stages)
+        self._kernel_buffer = np.zeros(0)
+        self._kernel_starts = np.zeros(0, dtype=int)
+        self._kernel_rows: list[np.ndarray] = []
 
     # ------------------------------------------------------------------ names
     @property
@@ -271,42 +276,76 @@ class GreyBoxChain:
         ChainState
             ``state``, whose ``out_mean`` / ``out_var`` hold this row's outputs.
         """
-        for stage, corrector in zip(self.stages, self.correctors_, strict=True):
+        # the co-simulation hot path: small vectors as Python floats, one pass of numpy
+        # conversions in and out, numpy only for the correctors' length-M work
+        exo = exo_prev.tolist()
+        wb = y_wb.tolist()
+        prev_wb = state.wb.tolist()
+        prev_mean = state.out_mean.tolist()
+        out_mean = prev_mean.copy()
+        out_var = state.out_var.tolist()
+        active = self.active_.tolist() if enabled else [False] * len(self.stages)
+        for stage, memory, memory_var in zip(
+            self.stages, state.memory, state.memory_var, strict=True
+        ):
             q = stage.stage_index
-            memory, memory_var = state.memory[q], state.memory_var[q]
-            state.prev_wb[q] = state.wb[q]
-            state.wb[q] = y_wb[q]
-            state.prev_mean[q] = state.out_mean[q]
-            if enabled and self.active_[q]:
+            y = wb[q]
+            if active[q]:
+                features = stage.assemble(exo, y, out_mean, prev_mean, wb, prev_wb, memory.tolist())
+                low, high = self.feature_bounds_[q].tolist()
+                features, state.outside[q] = _clip(features, low, high)
                 x = self._features[q]
-                stage.assemble(
-                    x,
-                    exo_prev,
-                    y_wb[q],
-                    state.out_mean,
-                    memory,
-                    state.prev_mean,
-                    state.wb,
-                    state.prev_wb,
-                )
-                low, high = self.feature_bounds_[q]
-                state.outside[q] = float(np.any(x < low) or np.any(x > high))
-                np.clip(x, low, high, out=x)
-                mu, var_gp, grad = corrector.predict_one_grad(x)
+                x[:] = features
+                posterior = self.correctors_[q].posterior_
+                mu, var_gp, grad = posterior.predict_one_grad(x, self._kernel_row(q, posterior))
                 out, var, level = stage.combine(
-                    mu, var_gp, grad, y_wb[q], state.out_var, memory, memory_var
+                    mu, var_gp, grad.tolist(), y, out_var, memory.tolist(), memory_var.tolist()
                 )
             else:
-                out, var = float(y_wb[q]), 0.0
-                level = stage.level(np.float64(out), np.float64(y_wb[q]))
-            state.out_mean[q] = out
-            state.out_var[q] = var
+                out, var = y, 0.0
+                level = stage.level(out, y)
+            out_mean[q] = out
+            out_var[q] = var
             if memory.size > 1:
-                memory[1:] = memory[:-1].copy()
-                memory_var[1:] = memory_var[:-1].copy()
+                memory[1:] = memory[:-1]  # numpy copies overlapping ranges correctly
+                memory_var[1:] = memory_var[:-1]
             memory[0] = level
             memory_var[0] = var
+        state.prev_wb[:] = prev_wb
+        state.wb[:] = wb
+        state.prev_mean[:] = prev_mean
+        state.out_mean[:] = out_mean
+        state.out_var[:] = out_var
         return state
+
+    def _kernel_row(self, q: int, posterior: Posterior) -> np.ndarray:
+        """Stage ``q``'s buffer for its corrector's kernel row, shape (M_q,).
+
+        The rows of all stages are views of one buffer (for :meth:`kernel_maxima`), laid out
+        again for every stage when a stage's posterior is not the one its row was made for
+        (the first step, or new correctors).
+        """
+        if self._kernel_owner[q] is not posterior:
+            self._kernel_owner = [c.posterior_ for c in self.correctors_]
+            sizes = [p.n_inducing for p in self._kernel_owner]
+            self._kernel_buffer = np.zeros(sum(sizes))
+            self._kernel_starts = np.cumsum([0, *sizes[:-1]])
+            self._kernel_rows = np.split(self._kernel_buffer, self._kernel_starts[1:])
+        return self._kernel_rows[q]
+
+    def kernel_maxima(self) -> list[float]:
+        """Per stage, the largest entry of its corrector's kernel row ``K(Z, x)`` at the
+        (clipped) features of the last step the corrector ran (standardised units, so that
+        divided by the signal variance it is the correlation with the nearest inducing
+        point); 0.0 for a stage whose corrector has not run since the correctors were set.
+
+        Returns
+        -------
+        list of float, length Q
+        """
+        if len(self._kernel_starts) != len(self.stages):
+            return [0.0] * len(self.stages)
+        return np.maximum.reduceat(self._kernel_buffer, self._kernel_starts).tolist()
 
     def check_free_run(
         self, exo: np.ndarray, y_wb: np.ndarray, outputs: np.ndarray, tail: float = 0.2
@@ -377,6 +416,16 @@ class GreyBoxChain:
             mean[i] = state.out_mean
             var[i] = state.out_var
         return mean, np.sqrt(var)
+
+
+def _clip(x: list[float], low: list[float], high: list[float]) -> tuple[list[float], float]:
+    """``x`` clipped to ``[low, high]``, and 1.0 if any value was outside, else 0.0.
+
+    ``max``/``min`` return their first argument on ties and for NaN, so an unclipped value
+    (NaN included) is the same object and the list compares equal.
+    """
+    clipped = list(map(min, map(max, x, low), high))
+    return clipped, 0.0 if clipped == x else 1.0
 
 
 def _widened_range(X: np.ndarray) -> np.ndarray:

@@ -24,7 +24,7 @@ forcing); a free run feeds back the predictions.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -56,6 +56,15 @@ class StageLayout:
     exo_index: np.ndarray
     stage_index: int
     feed_index: np.ndarray
+    # the same positions as tuples of ints, for the per-step path on Python floats
+    _exo: tuple[int, ...] = field(init=False, repr=False, compare=False)
+    _feeds: tuple[int, ...] = field(init=False, repr=False, compare=False)
+    _first_memory: int = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self._exo = tuple(int(i) for i in self.exo_index)
+        self._feeds = tuple(int(i) for i in self.feed_index)
+        self._first_memory = self.n_features - self.lags
 
     @property
     def name(self) -> str:
@@ -151,45 +160,45 @@ class StageLayout:
         return np.ascontiguousarray(X), t
 
     # ------------------------------------------------------------------ one step
+    # Python floats and lists, not numpy: with a handful of features, each numpy call would
+    # cost more than the arithmetic it does (this runs once per stage and communication step)
     def assemble(
         self,
-        x: np.ndarray,
-        exo_prev: np.ndarray,
+        exo_prev: list[float],
         y_wb: float,
-        out_mean: np.ndarray,
-        memory: np.ndarray,
-        prev_mean: np.ndarray,
-        wb: np.ndarray,
-        prev_wb: np.ndarray,
-    ) -> None:
-        """Fill the feature vector ``x`` (shape (D,)) in place for one step.
+        out_mean: list[float],
+        prev_mean: list[float],
+        wb: list[float],
+        prev_wb: list[float],
+        memory: list[float],
+    ) -> list[float]:
+        """The feature vector of one step, length D.
 
-        ``out_mean``/``wb`` hold this step's stage outputs and white-box predictions (earlier
-        stages already updated), ``prev_mean``/``prev_wb`` those of the previous step.
+        ``exo_prev`` holds the chain's exogenous inputs of the previous row, ``out_mean``/``wb``
+        this step's stage outputs and white-box predictions (earlier stages already updated),
+        ``prev_mean``/``prev_wb`` those of the previous step, ``memory`` the stage's previous
+        levels (most recent first).
         """
-        n_exo = self.exo_index.size
-        n_feed = self.feed_index.size
-        x[:n_exo] = exo_prev[self.exo_index]
-        x[n_exo] = y_wb
-        pos = n_exo + 1
-        x[pos : pos + n_feed] = out_mean[self.feed_index]
-        pos += n_feed
+        x = [exo_prev[i] for i in self._exo]
+        x.append(y_wb)
+        feeds = self._feeds
+        x += [out_mean[f] for f in feeds]
         if self.config.feed_rates:
-            feeds = self.feed_index
-            d_out = out_mean[feeds] - prev_mean[feeds]
-            x[pos : pos + n_feed] = d_out
-            x[pos + n_feed : pos + 2 * n_feed] = d_out - (wb[feeds] - prev_wb[feeds])
-        x[self.memory_slice] = memory
+            d_out = [out_mean[f] - prev_mean[f] for f in feeds]
+            x += d_out
+            x += [d - (wb[f] - prev_wb[f]) for d, f in zip(d_out, feeds, strict=True)]
+        x += memory
+        return x
 
     def combine(
         self,
         mu: float,
         var_gp: float,
-        grad: np.ndarray,
+        grad: list[float],
         y_wb: float,
-        out_var: np.ndarray,
-        memory: np.ndarray,
-        memory_var: np.ndarray,
+        out_var: list[float],
+        memory: list[float],
+        memory_var: list[float],
     ) -> tuple[float, float, float]:
         """Turn the corrector's prediction into the stage output and its variance.
 
@@ -203,13 +212,13 @@ class StageLayout:
         ----------
         mu, var_gp : float
             Corrector mean and latent variance at the features.
-        grad : ndarray, shape (D,)
+        grad : list of float, length D
             Gradient of the corrector mean with respect to the features.
         y_wb : float
             White-box prediction of the stage output.
-        out_var : ndarray, shape (n_stages,)
+        out_var : list of float, length n_stages
             Variances of the stage outputs computed so far this step.
-        memory, memory_var : ndarray, shape (L,)
+        memory, memory_var : list of float, length L
             The stage's previous levels (most recent first) and their variances.
 
         Returns
@@ -217,15 +226,20 @@ class StageLayout:
         output, variance, level : float
             The stage output, its variance, and the level to push into the memory.
         """
-        n_exo = self.exo_index.size
-        n_feed = self.feed_index.size
-        g_feed = grad[n_exo + 1 : n_exo + 1 + n_feed]
-        g_mem = grad[self.memory_slice].copy()
+        feeds = self._feeds
+        first_feed = len(self._exo) + 1
+        from_feeds = 0.0
+        for g, f in zip(grad[first_feed : first_feed + len(feeds)], feeds, strict=True):
+            from_feeds += g * g * out_var[f]
+        g_mem = grad[self._first_memory :]
         if self.target_mode == "increment":
             level = memory[0] + mu
             g_mem[0] += 1.0
         else:
             level = mu
-        var = var_gp + float(g_feed**2 @ out_var[self.feed_index]) + float(g_mem**2 @ memory_var)
+        from_memory = 0.0
+        for g, v in zip(g_mem, memory_var, strict=True):
+            from_memory += g * g * v
+        var = var_gp + from_feeds + from_memory
         output = level if self.target_mode == "output" else y_wb + level
         return output, var, level
