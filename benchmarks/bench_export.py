@@ -183,10 +183,9 @@ def in_process(fmu: Path, u: np.ndarray, parts: Parts | None = None) -> Clock:
         slave.set_real(inputs, list(u[0]))
         slave.exit_initialization_mode()
         if parts is not None:
-            whitebox, chain, monitor = slave._run.whitebox, slave.model.chain, slave._monitor
+            whitebox, plan = slave._run.whitebox, slave._plan
             whitebox.step = parts.wrap("white-box step", whitebox.step)
-            chain.step = parts.wrap("chain step", chain.step)
-            monitor.score = parts.wrap("domain score", monitor.score)
+            plan.step = parts.wrap("chain step", plan.step)
         rows = u.tolist()
         with Clock() as clock:
             for k, row in enumerate(rows):

@@ -20,7 +20,7 @@ Variables (value references in this order, see :func:`greybox_interface`):
 * the white-box's Real outputs, same names; a stage's output carries the corrected value;
 * per stage output ``<name>_std`` (predictive standard deviation) and ``<name>_wb`` (raw
   white-box);
-* ``domain_score`` (0..1, see :class:`DomainMonitor`) and the Boolean ``out_of_domain``: some
+* ``domain_score`` (0..1, see :mod:`fmu_greybox.chain_step`) and the Boolean ``out_of_domain``: some
   stage's features left their (widened) training range, where the chain clips them, or
   ``domain_score`` fell below ``ood_threshold``;
 * the tunable parameters ``ood_threshold`` and ``correction_enabled`` (Boolean).
@@ -52,17 +52,17 @@ from pythonfmu import (
 from pythonfmu.enums import Fmi2Status
 
 from . import __version__
+from .chain_step import ChainState
 from .errors import ExportError, ModelFormatError
 from .fmu_archive import FmuArchive, open_fmu
 from .fmu_entry import RUNTIME_FILE, guarded, refuse_step, report
 from .fmu_instance import FmuInstance
-from .greybox import ChainState, GreyBoxChain
 from .model_dir import MANIFEST, GreyBoxModel, file_sha256, load_model
 
 #: Folder in the FMU's resources holding the copy of the model folder.
 MODEL_FOLDER = "greybox_model"
 #: Version of the serialised FMU state.
-STATE_VERSION = 1
+STATE_VERSION = 2
 #: Default ``ood_threshold``: out of domain when the features are farther than about 2.1
 #: length-scales from every inducing point of some stage (kernel correlation below 0.1).
 DEFAULT_OOD_THRESHOLD = 0.1
@@ -288,50 +288,6 @@ def greybox_interface(
     )
 
 
-# ---------------------------------------------------------------------------- out of domain
-class DomainMonitor:
-    """How close each stage's corrector features are to the data it was trained on.
-
-    For stage ``q`` with features ``x`` (the corrector's inputs this step, after the chain
-    clipped them to their widened training range), inducing points
-    ``z_m`` and ARD length-scales ``ℓ``, the score is the squared-exponential correlation with
-    the nearest inducing point, ``max_m exp(−½ |(x − z_m)/ℓ|²)``: 1 on an inducing point, about
-    0.6 one length-scale away, 0.1 at 2.1 length-scales, where the corrector's mean has fallen
-    back towards its prior mean and its variance towards the prior variance. Inducing points are
-    spread over the training sequence, so this is the distance to the training inputs in the
-    corrector's own metric: it also flags combinations of inputs, each within its range, that
-    the training never visited. The FMU reports the smallest score over the stages whose
-    correctors run (training may switch off a stage that does not improve on the white-box).
-    It costs one reduction per step: the correlations are the kernel rows the correctors
-    evaluated for their predictions, divided by their signal variance
-    (:meth:`~fmu_greybox.greybox.GreyBoxChain.kernel_maxima`).
-
-    Parameters
-    ----------
-    chain : GreyBoxChain
-        A fitted chain.
-    """
-
-    def __init__(self, chain: GreyBoxChain) -> None:
-        self._chain = chain
-        # the stages whose correctors run (the chain passes the others' white-box through),
-        # each with 1/s²: the largest entry of the kernel row the chain computed this step,
-        # divided by the signal variance, is the correlation with the nearest inducing point
-        self._stages = [
-            (q, 1.0 / chain.correctors_[q].posterior_.signal_variance)
-            for q in range(len(chain.stages))
-            if chain.active_[q]
-        ]
-
-    def score(self) -> float:
-        """Smallest stage score of the step just taken with correction enabled."""
-        if not self._stages:
-            return 1.0
-        maxima = self._chain.kernel_maxima()
-        return min(1.0, *[maxima[q] * inverse for q, inverse in self._stages])
-
-
-# ---------------------------------------------------------------------------- the slave
 @dataclass
 class _Run:
     """What exists once the FMU is initialised."""
@@ -393,7 +349,7 @@ class GreyBoxSlave(Fmi2Slave):
         self._run: _Run | None = None
         self._time = 0.0
         self._initialising = False
-        self._monitor = DomainMonitor(self.model.chain)
+        self._plan = self.model.chain.plan()
         self._layout()
         exported = settings.get("exported_with", "")
         if exported and exported != __version__:
@@ -482,9 +438,8 @@ class GreyBoxSlave(Fmi2Slave):
         exo[:] = [u[i] for i in self._exo_index]
         enabled = self._bools[self._enabled]
         state = run.state
-        self.model.chain.step(state, exo, y_wb, enabled)
-        score = self._monitor.score() if enabled else 1.0
-        outside = enabled and 1.0 in state.outside.tolist()
+        score = self._plan.step(state, exo, y_wb, enabled)
+        outside = 1.0 in state.outside.tolist()
         self._publish(wb, y_wb, state, score, outside)
         self._time = current_time + step_size
         return True

@@ -9,86 +9,19 @@ free run used for validation, and the exported FMU.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
+from .chain_step import ChainPlan, ChainState
 from .config import ProjectConfig
 from .errors import ConfigError
-from .gp import Posterior, SparseGPR
+from .gp import SparseGPR
 from .stage import TARGET_MODES, StageLayout
 
 ProgressCallback = Callable[[str, int, float], None]
 
 #: Features are clipped to their training range widened by this share of the range.
 RANGE_MARGIN = 0.05
-
-
-@dataclass
-class ChainState:
-    """Everything the chain remembers between steps (its autoregressive memory).
-
-    Attributes
-    ----------
-    memory : list of ndarray, each shape (L_q,)
-        Per stage, its previous levels, most recent first.
-    memory_var : list of ndarray, each shape (L_q,)
-        Their variances.
-    out_mean, out_var : ndarray, shape (Q,)
-        Stage outputs and variances of the last step.
-    wb : ndarray, shape (Q,)
-        White-box predictions of the last step.
-    prev_mean, prev_wb : ndarray, shape (Q,)
-        Stage outputs and white-box predictions of the step before.
-    outside : ndarray, shape (Q,)
-        1.0 where a stage's features left their training range in the last step (they were
-        clipped to it), else 0.0.
-    """
-
-    memory: list[np.ndarray]
-    memory_var: list[np.ndarray]
-    out_mean: np.ndarray
-    out_var: np.ndarray
-    wb: np.ndarray
-    prev_mean: np.ndarray
-    prev_wb: np.ndarray
-    outside: np.ndarray
-
-    def _blocks(self) -> list[np.ndarray]:
-        return [
-            *self.memory,
-            *self.memory_var,
-            self.out_mean,
-            self.out_var,
-            self.wb,
-            self.prev_mean,
-            self.prev_wb,
-            self.outside,
-        ]
-
-    def copy(self) -> ChainState:
-        """An independent copy (for saving and restoring state)."""
-        return ChainState(
-            memory=[m.copy() for m in self.memory],
-            memory_var=[m.copy() for m in self.memory_var],
-            out_mean=self.out_mean.copy(),
-            out_var=self.out_var.copy(),
-            wb=self.wb.copy(),
-            prev_mean=self.prev_mean.copy(),
-            prev_wb=self.prev_wb.copy(),
-            outside=self.outside.copy(),
-        )
-
-    def to_array(self) -> np.ndarray:
-        """Flatten into one float64 vector (for FMU state serialisation)."""
-        return np.concatenate(self._blocks())
-
-    def load_array(self, flat: np.ndarray) -> None:
-        """Restore from :meth:`to_array` output, in place."""
-        pos = 0
-        for block in self._blocks():
-            block[:] = flat[pos : pos + block.size]
-            pos += block.size
 
 
 class GreyBoxChain:
@@ -142,12 +75,6 @@ class GreyBoxChain:
         self.correctors_: list[SparseGPR] = []
         self.feature_bounds_: list[np.ndarray] = []
         self.active_ = np.ones(len(self.stages), dtype=bool)
-        self._features = [np.empty(s.n_features) for s in self.stages]
-        # kernel rows of the correctors, see _kernel_row
-        self._kernel_owner: list[Posterior | None] = [None] * len(self.stages)
-        self._kernel_buffer = np.zeros(0)
-        self._kernel_starts = np.zeros(0, dtype=int)
-        self._kernel_rows: list[np.ndarray] = []
 
     # ------------------------------------------------------------------ names
     @property
@@ -228,7 +155,7 @@ class GreyBoxChain:
         ----------
         outputs, y_wb : ndarray, shape (h, Q)
             Known stage outputs and white-box predictions of the last ``h`` rows, oldest
-            first, ``h <= history`` (fewer rows are repeated backwards from the oldest).
+            first, ``h <= history`` (a stage whose memory is longer cycles through them).
 
         Returns
         -------
@@ -236,116 +163,27 @@ class GreyBoxChain:
         """
         outputs = np.atleast_2d(outputs)
         y_wb = np.atleast_2d(y_wb)
-        memory, memory_var = [], []
-        for stage in self.stages:
+        state = ChainState([stage.lags for stage in self.stages])
+        for stage, memory in zip(self.stages, state.memory, strict=True):
             level = stage.level(outputs[:, stage.stage_index], y_wb[:, stage.stage_index])[::-1]
-            taken = np.resize(level, stage.lags) if level.size < stage.lags else level[: stage.lags]
-            memory.append(np.array(taken, dtype=np.float64))
-            memory_var.append(np.zeros(stage.lags))
+            memory[:] = np.resize(level, stage.lags)  # the most recent first, cycled if short
         before = -2 if outputs.shape[0] > 1 else -1
-        return ChainState(
-            memory=memory,
-            memory_var=memory_var,
-            out_mean=np.array(outputs[-1], dtype=np.float64),
-            out_var=np.zeros(len(self.stages)),
-            wb=np.array(y_wb[-1], dtype=np.float64),
-            prev_mean=np.array(outputs[before], dtype=np.float64),
-            prev_wb=np.array(y_wb[before], dtype=np.float64),
-            outside=np.zeros(len(self.stages)),
-        )
-
-    def step(
-        self, state: ChainState, exo_prev: np.ndarray, y_wb: np.ndarray, enabled: bool = True
-    ) -> ChainState:
-        """Advance the chain by one row, in place.
-
-        Parameters
-        ----------
-        state : ChainState
-            Memory; updated in place.
-        exo_prev : ndarray, shape (n_exo,)
-            Exogenous inputs of the previous row.
-        y_wb : ndarray, shape (Q,)
-            White-box predictions of this row.
-        enabled : bool
-            ``False`` passes the white-box through (for A/B runs) while keeping the memory
-            consistent with it.
-
-        Returns
-        -------
-        ChainState
-            ``state``, whose ``out_mean`` / ``out_var`` hold this row's outputs.
-        """
-        # the co-simulation hot path: small vectors as Python floats, one pass of numpy
-        # conversions in and out, numpy only for the correctors' length-M work
-        exo = exo_prev.tolist()
-        wb = y_wb.tolist()
-        prev_wb = state.wb.tolist()
-        prev_mean = state.out_mean.tolist()
-        out_mean = prev_mean.copy()
-        out_var = state.out_var.tolist()
-        active = self.active_.tolist() if enabled else [False] * len(self.stages)
-        for stage, memory, memory_var in zip(
-            self.stages, state.memory, state.memory_var, strict=True
-        ):
-            q = stage.stage_index
-            y = wb[q]
-            if active[q]:
-                features = stage.assemble(exo, y, out_mean, prev_mean, wb, prev_wb, memory.tolist())
-                low, high = self.feature_bounds_[q].tolist()
-                features, state.outside[q] = _clip(features, low, high)
-                x = self._features[q]
-                x[:] = features
-                posterior = self.correctors_[q].posterior_
-                mu, var_gp, grad = posterior.predict_one_grad(x, self._kernel_row(q, posterior))
-                out, var, level = stage.combine(
-                    mu, var_gp, grad.tolist(), y, out_var, memory.tolist(), memory_var.tolist()
-                )
-            else:
-                out, var = y, 0.0
-                level = stage.level(out, y)
-            out_mean[q] = out
-            out_var[q] = var
-            if memory.size > 1:
-                memory[1:] = memory[:-1]  # numpy copies overlapping ranges correctly
-                memory_var[1:] = memory_var[:-1]
-            memory[0] = level
-            memory_var[0] = var
-        state.prev_wb[:] = prev_wb
-        state.wb[:] = wb
-        state.prev_mean[:] = prev_mean
-        state.out_mean[:] = out_mean
-        state.out_var[:] = out_var
+        state.out_mean[:] = outputs[-1]
+        state.wb[:] = y_wb[-1]
+        state.prev_mean[:] = outputs[before]
+        state.prev_wb[:] = y_wb[before]
         return state
 
-    def _kernel_row(self, q: int, posterior: Posterior) -> np.ndarray:
-        """Stage ``q``'s buffer for its corrector's kernel row, shape (M_q,).
+    def plan(self) -> ChainPlan:
+        """The compiled step of the chain as it stands (correctors, ranges, active stages).
 
-        The rows of all stages are views of one buffer (for :meth:`kernel_maxima`), laid out
-        again for every stage when a stage's posterior is not the one its row was made for
-        (the first step, or new correctors).
-        """
-        if self._kernel_owner[q] is not posterior:
-            self._kernel_owner = [c.posterior_ for c in self.correctors_]
-            sizes = [p.n_inducing for p in self._kernel_owner]
-            self._kernel_buffer = np.zeros(sum(sizes))
-            self._kernel_starts = np.cumsum([0, *sizes[:-1]])
-            self._kernel_rows = np.split(self._kernel_buffer, self._kernel_starts[1:])
-        return self._kernel_rows[q]
-
-    def kernel_maxima(self) -> list[float]:
-        """Per stage, the largest entry of its corrector's kernel row ``K(Z, x)`` at the
-        (clipped) features of the last step the corrector ran (standardised units, so that
-        divided by the signal variance it is the correlation with the nearest inducing
-        point); 0.0 for a stage whose corrector has not run since the correctors were set.
+        Make a new plan after changing any of them; one plan serves any number of states.
 
         Returns
         -------
-        list of float, length Q
+        ChainPlan
         """
-        if len(self._kernel_starts) != len(self.stages):
-            return [0.0] * len(self.stages)
-        return np.maximum.reduceat(self._kernel_buffer, self._kernel_starts).tolist()
+        return ChainPlan(self)
 
     def check_free_run(
         self, exo: np.ndarray, y_wb: np.ndarray, outputs: np.ndarray, tail: float = 0.2
@@ -409,23 +247,16 @@ class GreyBoxChain:
         first = max(0, start - self.history + 1)
         state = self.start(outputs[first : start + 1], y_wb[first : start + 1])
         n = exo.shape[0]
+        exo = np.ascontiguousarray(exo, dtype=np.float64)
+        y_wb = np.ascontiguousarray(y_wb, dtype=np.float64)
         mean = np.empty((n - start - 1, len(self.stages)))
         var = np.empty_like(mean)
+        plan = self.plan()
         for i, j in enumerate(range(start + 1, n)):
-            self.step(state, exo[j - 1], y_wb[j])
+            plan.step(state, exo[j - 1], y_wb[j])
             mean[i] = state.out_mean
             var[i] = state.out_var
         return mean, np.sqrt(var)
-
-
-def _clip(x: list[float], low: list[float], high: list[float]) -> tuple[list[float], float]:
-    """``x`` clipped to ``[low, high]``, and 1.0 if any value was outside, else 0.0.
-
-    ``max``/``min`` return their first argument on ties and for NaN, so an unclipped value
-    (NaN included) is the same object and the list compares equal.
-    """
-    clipped = list(map(min, map(max, x, low), high))
-    return clipped, 0.0 if clipped == x else 1.0
 
 
 def _widened_range(X: np.ndarray) -> np.ndarray:

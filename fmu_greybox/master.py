@@ -99,6 +99,8 @@ def run_master(
         ) as fmu,
     ):
         wb[0] = fmu.read_outputs()
+        plan = chain.plan()
+        exo = np.ascontiguousarray(data.exo, dtype=np.float64)
         state = None
         for j in tqdm(range(1, n), disable=not progress, desc="free run", unit="step", leave=False):
             wb[j] = fmu.step(u[j - 1], dt)
@@ -107,7 +109,7 @@ def run_master(
                 known = data.outputs if memory_from == "recorded" else wb
                 state = chain.start(known[first : start + 1], wb[first : start + 1])
             if state is not None:
-                chain.step(state, data.exo[j - 1], wb[j])
+                plan.step(state, exo[j - 1], wb[j])
                 mean[j - start - 1] = state.out_mean
                 var[j - start - 1] = state.out_var
     rows = np.arange(start + 1, n)

@@ -20,17 +20,30 @@ What the corrector learns (``target``):
 
 Training replaces the memory and the earlier stages' outputs by recorded values (teacher
 forcing); a free run feeds back the predictions.
+
+Every feature is a fixed linear combination of the stage's *sources*, one vector per row:
+
+    exogenous inputs of row j-1 (n_exo) | white-box outputs of row j (Q) | stage outputs of
+    row j (Q) | stage outputs of row j-1 (Q) | white-box outputs of row j-1 (Q) | the stage's
+    memory, levels of rows j-1 ... j-L (L)
+
+:meth:`StageLayout.feature_map` is that combination as a matrix; training applies it to
+recorded sources (:meth:`StageLayout.teacher_forced`), the compiled chain step to the chain's
+state (:mod:`fmu_greybox.chain_plan`), so the two cannot disagree on what a feature is.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from .config import TARGET_MODES, StageConfig
 
-__all__ = ["TARGET_MODES", "StageLayout"]
+__all__ = ["SHARED_BLOCKS", "TARGET_MODES", "StageLayout"]
+
+#: The per-stage blocks of the sources shared by all stages, in order (each Q long).
+SHARED_BLOCKS = ("wb", "out", "prev_out", "prev_wb")
 
 
 @dataclass
@@ -56,15 +69,6 @@ class StageLayout:
     exo_index: np.ndarray
     stage_index: int
     feed_index: np.ndarray
-    # the same positions as tuples of ints, for the per-step path on Python floats
-    _exo: tuple[int, ...] = field(init=False, repr=False, compare=False)
-    _feeds: tuple[int, ...] = field(init=False, repr=False, compare=False)
-    _first_memory: int = field(init=False, repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        self._exo = tuple(int(i) for i in self.exo_index)
-        self._feeds = tuple(int(i) for i in self.feed_index)
-        self._first_memory = self.n_features - self.lags
 
     @property
     def name(self) -> str:
@@ -112,6 +116,46 @@ class StageLayout:
         """Memory values from outputs: residuals, or the outputs themselves (mode ``output``)."""
         return y if self.target_mode == "output" else y - y_wb
 
+    # ------------------------------------------------------------------ features
+    def feature_map(self, n_exo: int, n_stages: int) -> np.ndarray:
+        """The features as a linear map of the sources (see the module notes).
+
+        Parameters
+        ----------
+        n_exo : int
+            Length of the chain's exogenous vector.
+        n_stages : int
+            Q.
+
+        Returns
+        -------
+        ndarray, shape (D, n_exo + 4 Q + L)
+        """
+        block = {name: n_exo + i * n_stages for i, name in enumerate(SHARED_BLOCKS)}
+        memory = n_exo + len(SHARED_BLOCKS) * n_stages
+        rows: list[dict[int, float]] = [{int(i): 1.0} for i in self.exo_index]
+        rows.append({block["wb"] + self.stage_index: 1.0})
+        feeds = [int(f) for f in self.feed_index]
+        rows += [{block["out"] + f: 1.0} for f in feeds]
+        if self.config.feed_rates:
+            # the step change of each feeding stage's output, then of its residual
+            rows += [{block["out"] + f: 1.0, block["prev_out"] + f: -1.0} for f in feeds]
+            rows += [
+                {
+                    block["out"] + f: 1.0,
+                    block["prev_out"] + f: -1.0,
+                    block["wb"] + f: -1.0,
+                    block["prev_wb"] + f: 1.0,
+                }
+                for f in feeds
+            ]
+        rows += [{memory + lag: 1.0} for lag in range(self.lags)]
+        A = np.zeros((len(rows), memory + self.lags))
+        for i, row in enumerate(rows):
+            for column, weight in row.items():
+                A[i, column] = weight
+        return A
+
     # ------------------------------------------------------------------ datasets
     def teacher_forced(
         self,
@@ -141,105 +185,13 @@ class StageLayout:
         q = self.stage_index
         level = self.level(outputs[:, q], y_wb[:, q])
         rows = np.arange(L, outputs.shape[0])
-        feeds = self.feed_index
-        columns = [
-            exo[rows - 1][:, self.exo_index],
-            y_wb[rows, q][:, None],
-            outputs[rows][:, feeds],
-        ]
-        if self.config.feed_rates:
-            d_out = outputs[rows][:, feeds] - outputs[rows - 1][:, feeds]
-            d_wb = y_wb[rows][:, feeds] - y_wb[rows - 1][:, feeds]
-            columns += [d_out, d_out - d_wb]
-        columns += [level[rows - lag][:, None] for lag in range(1, L + 1)]
-        X = np.hstack(columns)
+        sources = np.hstack(
+            [exo[rows - 1], y_wb[rows], outputs[rows], outputs[rows - 1], y_wb[rows - 1]]
+            + [level[rows - lag][:, None] for lag in range(1, L + 1)]
+        )
+        X = sources @ self.feature_map(exo.shape[1], outputs.shape[1]).T
         if self.target_mode == "increment":
             t = level[rows] - level[rows - 1]
         else:
             t = level[rows]
         return np.ascontiguousarray(X), t
-
-    # ------------------------------------------------------------------ one step
-    # Python floats and lists, not numpy: with a handful of features, each numpy call would
-    # cost more than the arithmetic it does (this runs once per stage and communication step)
-    def assemble(
-        self,
-        exo_prev: list[float],
-        y_wb: float,
-        out_mean: list[float],
-        prev_mean: list[float],
-        wb: list[float],
-        prev_wb: list[float],
-        memory: list[float],
-    ) -> list[float]:
-        """The feature vector of one step, length D.
-
-        ``exo_prev`` holds the chain's exogenous inputs of the previous row, ``out_mean``/``wb``
-        this step's stage outputs and white-box predictions (earlier stages already updated),
-        ``prev_mean``/``prev_wb`` those of the previous step, ``memory`` the stage's previous
-        levels (most recent first).
-        """
-        x = [exo_prev[i] for i in self._exo]
-        x.append(y_wb)
-        feeds = self._feeds
-        x += [out_mean[f] for f in feeds]
-        if self.config.feed_rates:
-            d_out = [out_mean[f] - prev_mean[f] for f in feeds]
-            x += d_out
-            x += [d - (wb[f] - prev_wb[f]) for d, f in zip(d_out, feeds, strict=True)]
-        x += memory
-        return x
-
-    def combine(
-        self,
-        mu: float,
-        var_gp: float,
-        grad: list[float],
-        y_wb: float,
-        out_var: list[float],
-        memory: list[float],
-        memory_var: list[float],
-    ) -> tuple[float, float, float]:
-        """Turn the corrector's prediction into the stage output and its variance.
-
-        Variance propagation is first order (the delta method): the corrector's own latent
-        variance plus, for every uncertain input ``i`` (earlier stages' outputs and the stage's
-        memory), ``(d output / d input_i)^2 * var_i``; covariances between inputs are ignored,
-        and rate features are taken as exact (their uncertainty is that of the outputs they
-        are differences of, already counted through those outputs).
-
-        Parameters
-        ----------
-        mu, var_gp : float
-            Corrector mean and latent variance at the features.
-        grad : list of float, length D
-            Gradient of the corrector mean with respect to the features.
-        y_wb : float
-            White-box prediction of the stage output.
-        out_var : list of float, length n_stages
-            Variances of the stage outputs computed so far this step.
-        memory, memory_var : list of float, length L
-            The stage's previous levels (most recent first) and their variances.
-
-        Returns
-        -------
-        output, variance, level : float
-            The stage output, its variance, and the level to push into the memory.
-        """
-        feeds = self._feeds
-        first_feed = len(self._exo) + 1
-        from_feeds = 0.0
-        for g, f in zip(grad[first_feed : first_feed + len(feeds)], feeds, strict=True):
-            from_feeds += g * g * out_var[f]
-        g_mem = grad[self._first_memory :]
-        if self.target_mode == "increment":
-            level = memory[0] + mu
-            g_mem[0] += 1.0
-        else:
-            level = mu
-        from_memory = 0.0
-        for g, v in zip(g_mem, memory_var, strict=True):
-            from_memory += g * g * v
-        var = var_gp + from_feeds + from_memory
-        output = level if self.target_mode == "output" else y_wb + level
-        return output, var, level

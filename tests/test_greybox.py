@@ -97,28 +97,30 @@ def test_steps_equal_a_batch_prediction_of_the_same_features(model, data) -> Non
 
 def test_chain_state_round_trip(model, data) -> None:
     chain = model.chain
+    plan = chain.plan()
     state = chain.start(data.outputs[:2], data.y_wb[:2])
     for j in range(2, 20):
-        chain.step(state, data.exo[j - 1], data.y_wb[j])
+        plan.step(state, data.exo[j - 1], data.y_wb[j])
     saved = state.to_array()
     copy = state.copy()
     for j in range(20, 40):
-        chain.step(state, data.exo[j - 1], data.y_wb[j])
+        plan.step(state, data.exo[j - 1], data.y_wb[j])
     after_first = state.out_mean.copy()
     state.load_array(saved)
     np.testing.assert_array_equal(state.to_array(), copy.to_array())
     for j in range(20, 40):
-        chain.step(state, data.exo[j - 1], data.y_wb[j])
+        plan.step(state, data.exo[j - 1], data.y_wb[j])
     np.testing.assert_array_equal(state.out_mean, after_first)
 
 
 def test_features_outside_the_training_range_are_clipped_and_flagged(model, data) -> None:
     chain = model.chain
+    plan = chain.plan()
     state = chain.start(data.outputs[:2], data.y_wb[:2])
-    chain.step(state, data.exo[1], data.y_wb[2])
+    plan.step(state, data.exo[1], data.y_wb[2])
     assert not state.outside.any()
     far = data.exo[1] * 100.0
-    chain.step(state, far, data.y_wb[3])
+    plan.step(state, far, data.y_wb[3])
     assert state.outside[0] == 1.0
     assert np.all(np.isfinite(state.out_mean))
 
@@ -126,7 +128,8 @@ def test_features_outside_the_training_range_are_clipped_and_flagged(model, data
 def test_correction_off_passes_the_white_box_through(model, data) -> None:
     chain = model.chain
     state = chain.start(data.outputs[:2], data.y_wb[:2])
-    chain.step(state, data.exo[1], data.y_wb[2], enabled=False)
+    score = chain.plan().step(state, data.exo[1], data.y_wb[2], enabled=False)
+    assert score == 1.0
     np.testing.assert_array_equal(state.out_mean, data.y_wb[2])
     np.testing.assert_array_equal(state.out_var, 0.0)
 

@@ -31,17 +31,16 @@ extended-precision evaluation of the two-solve form the errors of both forms wer
 The textbook shortcuts — ``kᵀα`` with ``α = L⁻ᵀγ``, and ``kᵀ(Kuu⁻¹ − Σ)k`` with an explicit
 M×M matrix or its explicit triangular factor — lose digits to cancellation as Kuu's
 condition number grows (equally spaced inducing points on a slow trajectory are close
-together: 6× the mean error above for ``kᵀα``), and their matrix-vector products (BLAS
-``trmv``/``gemv``/``symv``) are multi-threaded in OpenBLAS from M ≈ 100 on, so a call may
-have to wake a worker thread (a median of 8 ms per call was measured on a loaded 2-CPU
-machine at M = 200); ``trsv`` never threads. ``α`` serves only the mean's gradient.
+together: 6× the mean error above for ``kᵀα``). ``α`` serves only the mean's gradient.
 
-The kernel row is one thin matrix-vector product with the precomputed ``[Z/ℓ, log s² −
-½|Z/ℓ|², 1]`` (M, D+2) and the point ``[x_s, 1, −½|x_s|²]``, followed by one in-place
-``exp``; input standardisation and length-scales are folded into one affine map of x, and
-outputs are mapped back to original units by two scalars. BLAS routines are called through
-scipy's wrappers with positional arguments (a microsecond per call less than keywords and
-``scipy.linalg`` functions).
+The single-point path is compiled (``fmu_greybox/native/chainstep.c``, shared with the
+chain's step): one pass over the inducing points for the kernel row (and the gradient's
+moments), one column-oriented forward substitution with H, two dots. Everything that does
+not depend on x is laid out once in :attr:`Posterior.packed`: input standardisation and
+length-scales folded into one affine map of x, ``log s² − ½|Z/ℓ|²`` as one offset per
+inducing point, H column-major, two scalars back to original units. No BLAS call, so no
+OpenBLAS worker thread to wake (a multi-threaded matrix-vector product took a median of
+8 ms per call on a loaded 2-CPU machine at M = 200).
 """
 
 from __future__ import annotations
@@ -52,9 +51,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import cho_solve, solve_triangular
-from scipy.linalg.blas import daxpy, ddot, dgemv, dtrsv
 
-from fmu_greybox.gp.linalg import jittered_cholesky
+from fmu_greybox import _chainstep
+from fmu_greybox.gp.linalg import aligned_zeros, jittered_cholesky
 
 FloatArray = NDArray[np.float64]
 
@@ -117,37 +116,30 @@ class Posterior:
     _input_offset: FloatArray = field(init=False, repr=False)
     _z_scaled: FloatArray = field(init=False, repr=False)
     _z_offset: FloatArray = field(init=False, repr=False)
-    _kernel_map: FloatArray = field(init=False, repr=False)
     _chol_uu_f: FloatArray = field(init=False, repr=False)
     _chol_b_f: FloatArray = field(init=False, repr=False)
-    _point_factor: FloatArray = field(init=False, repr=False)
-    _point_weights: FloatArray = field(init=False, repr=False)
-    _grad_map: FloatArray = field(init=False, repr=False)
-    _grad_scale: FloatArray = field(init=False, repr=False)
+    packed: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         weight = 1.0 / (self.x_scale * self.lengthscales)  # (D,)
         z_scaled = np.ascontiguousarray(self.inducing_points / self.lengthscales)  # (M, D)
         z_offset = math.log(self.signal_variance) - 0.5 * np.einsum("md,md->m", z_scaled, z_scaled)
-        ones = np.ones((z_scaled.shape[0], 1))
+        offset = self.x_mean * weight
         alpha = solve_triangular(
             self.chol_uu, self.mean_weights, lower=True, trans="T", check_finite=False
         )
         factor, point_weights = point_factor(self.chol_uu, self.chol_b, self.mean_weights)
+        scalars = np.array([self.y_scale, self.y_mean, self.signal_variance, self.noise_variance])
         derived = {
             "_input_weight": weight,
-            "_input_offset": self.x_mean * weight,
+            "_input_offset": offset,
             "_z_scaled": z_scaled,
             "_z_offset": z_offset,
-            # e = [Z/ℓ, log s² − ½|Z/ℓ|², 1] @ [x_s, 1, −½|x_s|²] is log K(Z, x)
-            "_kernel_map": np.asfortranarray(np.hstack([z_scaled, z_offset[:, None], ones])),
             "_chol_uu_f": np.asfortranarray(self.chol_uu),
             "_chol_b_f": np.asfortranarray(self.chol_b),
-            "_point_factor": factor,
-            "_point_weights": point_weights,
-            # [α ∘ Z/ℓ, α]ᵀ k = [Σ α k z/ℓ, αᵀk], the moments of the mean's gradient
-            "_grad_map": np.asfortranarray(np.hstack([alpha[:, None] * z_scaled, alpha[:, None]])),
-            "_grad_scale": weight * self.y_scale,
+            "packed": pack_posterior(
+                factor, [weight, offset, z_scaled.ravel(), z_offset, alpha, point_weights, scalars]
+            ),
         }
         for name, value in derived.items():
             object.__setattr__(self, name, value)
@@ -201,80 +193,86 @@ class Posterior:
     def predict_one(self, x: FloatArray, full_noise: bool = False) -> tuple[float, float]:
         """Predictive mean and variance at one point, in original units.
 
-        The co-simulation hot path (see the module notes): one thin matrix-vector product
-        and an ``exp`` for the kernel row, one triangular solve, two dots; no loop over
-        inducing points, no BLAS thread hand-offs.
+        The co-simulation hot path (see the module notes): compiled, no allocation beyond
+        the two returned floats.
 
         Parameters
         ----------
-        x : ndarray, shape (D,)
+        x : ndarray, shape (D,), float64, C-contiguous
         full_noise : bool
-            Add the noise variance.
 
         Returns
         -------
         mean, var : float
         """
-        k, _ = self._kernel_row(x, None)
-        mean, var = self._latent_moments(k, 1)
-        if full_noise:
-            var += self.noise_variance
-        return mean * self.y_scale + self.y_mean, var * (self.y_scale * self.y_scale)
+        return _chainstep.predict(
+            self.packed, self.n_inducing, self.input_dim, x, None, full_noise
+        )
 
-    def predict_one_grad(
-        self, x: FloatArray, kernel: FloatArray | None = None
-    ) -> tuple[float, float, FloatArray]:
+    def predict_one_grad(self, x: FloatArray) -> tuple[float, float, FloatArray]:
         """Latent mean and variance at one point, and the gradient of the mean.
 
-        For first-order propagation of input uncertainty through the corrector chain.
+        The quantities the chain propagates its variance with (first order).
 
         Parameters
         ----------
-        x : ndarray, shape (D,)
-        kernel : ndarray, shape (M,), optional
-            C-contiguous float64 buffer that receives the kernel row ``K(Z, x)`` (standardised
-            units, so that ``kernel / signal_variance`` is the correlation with each inducing
-            point).
+        x : ndarray, shape (D,), float64, C-contiguous
 
         Returns
         -------
         mean, var : float
-            Original units; ``var`` is the latent variance (no noise).
+            Original units; ``var`` is the latent variance.
         grad : ndarray, shape (D,)
             ∂mean/∂x, original units.
         """
-        k, xs = self._kernel_row(x, kernel)
-        # mean = αᵀk and ∂k_m/∂x_s = k_m (z_m/ℓ − x_s): ∂mean/∂x_s = Σ α k z/ℓ − (αᵀk) x_s
-        moments = dgemv(1.0, self._grad_map, k, 0.0, None, 0, 1, 0, 1, 1)  # (D+1,)
-        d = xs.shape[0]
-        grad = daxpy(xs, moments[:d], d, -moments[d])  # in place: Σ α k z/ℓ − (αᵀk) x_s
-        grad *= self._grad_scale
-        mean, var = self._latent_moments(k, 0)
-        return mean * self.y_scale + self.y_mean, var * (self.y_scale * self.y_scale), grad
+        grad = np.empty(self.input_dim)
+        mean, var = _chainstep.predict(
+            self.packed, self.n_inducing, self.input_dim, x, grad, False
+        )
+        return mean, var, grad
 
-    def _kernel_row(self, x: FloatArray, out: FloatArray | None) -> tuple[FloatArray, FloatArray]:
-        """Kernel row k = K(Z, x) (M,), into ``out`` if given, and the scaled point x_s (D,)."""
-        d = x.shape[0]
-        point = np.empty(d + 2)  # [x_s, 1, −½|x_s|²]
-        xs = point[:d]
-        np.multiply(x, self._input_weight, out=xs)
-        xs -= self._input_offset
-        point[d] = 1.0
-        point[d + 1] = -0.5 * ddot(xs, xs)
-        # dgemv(alpha, a, x, beta, y, offx, incx, offy, incy, trans, overwrite_y): positional
-        # arguments save a microsecond per call
-        if out is None:
-            e = dgemv(1.0, self._kernel_map, point)
-        else:
-            e = dgemv(1.0, self._kernel_map, point, 0.0, out, 0, 1, 0, 1, 0, 1)
-        return np.exp(e, out=e), xs
 
-    def _latent_moments(self, k: FloatArray, overwrite: int) -> tuple[float, float]:
-        """Standardised latent mean βᵀg and variance s² − |g|², g = H⁻¹k (k kept unless
-        ``overwrite``)."""
-        # dtrsv(a, x, incx, offx, lower, trans, diag, overwrite_x)
-        g = dtrsv(self._point_factor, k, 1, 0, 1, 0, 0, overwrite)
-        return ddot(self._point_weights, g), max(self.signal_variance - ddot(g, g), 0.0)
+def packed_factor(factor: FloatArray) -> FloatArray:
+    """H by columns as ``chainstep.c`` reads it: column j from row 8⌊j/8⌋ to LD − 1.
+
+    Parameters
+    ----------
+    factor : ndarray, shape (M, M)
+        Lower triangular.
+
+    Returns
+    -------
+    ndarray, shape (Σ_j (LD − 8⌊j/8⌋),)
+        LD = M rounded up to a multiple of 8; rows from M on are zero, so every column
+        starts on a cache line when the first one does.
+    """
+    m = factor.shape[0]
+    ld = -(-m // 8) * 8
+    padded = np.zeros((ld, m))
+    padded[:m] = factor
+    return np.concatenate([padded[j // 8 * 8 :, j] for j in range(m)])
+
+
+def pack_posterior(factor: FloatArray, vectors: list[FloatArray]) -> FloatArray:
+    """The layout ``fmu_greybox/native/chainstep.c`` reads (its header comment).
+
+    Parameters
+    ----------
+    factor : ndarray, shape (M, M)
+        H, lower triangular.
+    vectors : list of ndarray
+        weight (D), offset (D), Z/ℓ row-major (M·D), log s² − ½|Z/ℓ|² (M), α (M), β (M),
+        and the scalars y_scale, y_mean, s², σ² (4), in this order.
+
+    Returns
+    -------
+    ndarray
+        :func:`packed_factor`, then the vectors, starting on a cache-line boundary.
+    """
+    parts = [packed_factor(factor), *vectors]
+    packed = aligned_zeros(sum(part.size for part in parts))
+    np.concatenate(parts, out=packed)
+    return packed
 
 
 def point_factor(

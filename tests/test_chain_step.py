@@ -1,0 +1,209 @@
+"""The compiled chain step against a reference written here in numpy, and its buffer checks."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fmu_greybox import _chainstep
+from fmu_greybox.chain_step import ChainState
+from fmu_greybox.config import parse_config
+from fmu_greybox.gp import SparseGPR
+from fmu_greybox.gp.predictive import packed_factor
+from fmu_greybox.greybox import GreyBoxChain
+
+REFERENCE = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"
+
+
+def signals(n: int = 600, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Smooth exogenous inputs (n, 3), white-box (n, 3) and recorded outputs (n, 3) of a
+    three-stage chain whose recorded outputs depend on the white-box, the inputs and the
+    earlier stages (columns as the reference project's stages and exogenous names)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 1e-3
+    phases = rng.uniform(0, 6, 3)
+    exo = np.column_stack(
+        [np.sin(2 * np.pi * f * t + p) for f, p in zip((3.0, 0.7, 1.9), phases, strict=True)]
+    )
+    wb = np.column_stack([np.sin(2 * np.pi * 2.3 * t), np.cos(2 * np.pi * 1.1 * t), np.sin(5 * t)])
+    out = wb.copy()
+    out[:, 0] += 0.2 * np.tanh(exo[:, 0])
+    out[:, 1] += 0.3 * out[:, 0] ** 2 + 0.1 * exo[:, 1]
+    out[:, 2] += 0.2 * out[:, 1] * out[:, 0] - 0.1 * exo[:, 2]
+    return exo, wb, out + 1e-3 * rng.standard_normal(out.shape)
+
+
+def fitted_chain(mode: str, feed_rates: bool, lags: int) -> tuple[GreyBoxChain, tuple]:
+    raw = tomllib.loads(REFERENCE.read_text())
+    raw["gp"].update(inducing=23, max_iter=15, target=mode)  # 23: not a multiple of 4 or 8
+    for stage in raw["stages"]:
+        stage.update(lags=lags, feed_rates=feed_rates)
+    chain = GreyBoxChain(parse_config(raw, REFERENCE))
+    exo, wb, out = signals()
+    chain.fit(exo[:400], wb[:400], out[:400])
+    return chain, (exo, wb, out)
+
+
+def numpy_step(chain: GreyBoxChain, values: np.ndarray, exo_prev, y_wb, enabled=True):
+    """One chain step from the documented equations: features A s, clipping, the GP mean and
+    latent variance by batch prediction, its gradient by central differences, first-order
+    variance propagation. Returns the new state vector and the domain score."""
+    q_count, n_exo = len(chain.stages), len(chain.exo_names)
+    state = ChainState([s.lags for s in chain.stages], values.copy())
+    state.prev_mean[:] = state.out_mean
+    state.prev_wb[:] = state.wb
+    state.wb[:] = y_wb
+    score = 1.0
+    for q, stage in enumerate(chain.stages):
+        memory, memory_var = state.memory[q], state.memory_var[q]
+        y = state.wb[q]
+        shared = state.values[: 4 * q_count]
+        if enabled and chain.active_[q]:
+            A = stage.feature_map(n_exo, q_count)
+            x = A @ np.concatenate([exo_prev, shared, memory])
+            low, high = chain.feature_bounds_[q]
+            clipped = np.clip(x, low, high)
+            state.outside[q] = float(np.any(clipped != x))
+            posterior = chain.correctors_[q].posterior_
+            (mu,), (var,) = posterior.predict(clipped[None, :])
+            step = 1e-6 * np.maximum(np.abs(clipped), 1.0)
+            plus = clipped + np.diag(step)
+            minus = clipped - np.diag(step)
+            grad = (posterior.predict(plus)[0] - posterior.predict(minus)[0]) / (2 * step)
+            sensitivity = grad @ A
+            memory_columns = slice(n_exo + 4 * q_count, None)
+            memory_sensitivity = sensitivity[memory_columns].copy()
+            if stage.target_mode == "increment":
+                memory_sensitivity[0] += 1.0
+            out_sensitivity = sensitivity[n_exo + q_count : n_exo + 2 * q_count]
+            var = (
+                var
+                + np.sum(out_sensitivity**2 * state.out_var)
+                + np.sum(memory_sensitivity**2 * memory_var)
+            )
+            level = memory[0] + mu if stage.target_mode == "increment" else mu
+            state.out_mean[q] = level if stage.target_mode == "output" else y + level
+            standardised = (clipped - posterior.x_mean) / posterior.x_scale
+            distance = (standardised - posterior.inducing_points) / posterior.lengthscales
+            kernel = np.exp(-0.5 * np.sum(distance**2, axis=1))
+            score = min(score, kernel.max())
+        else:
+            var, level = 0.0, (y if stage.target_mode == "output" else 0.0)
+            state.out_mean[q] = y
+            state.outside[q] = 0.0
+        state.out_var[q] = var
+        memory[1:] = memory[:-1].copy()
+        memory_var[1:] = memory_var[:-1].copy()
+        memory[0], memory_var[0] = level, var
+    return state.values, score
+
+
+@pytest.mark.parametrize(
+    ("mode", "feed_rates", "lags"),
+    [("residual", False, 1), ("residual", True, 2), ("increment", True, 1), ("output", False, 3)],
+)
+def test_compiled_step_equals_the_numpy_reference(mode: str, feed_rates: bool, lags: int) -> None:
+    chain, (exo, wb, out) = fitted_chain(mode, feed_rates, lags)
+    chain.active_[1] = mode != "output"  # a passed-through stage in one case
+    plan = chain.plan()
+    state = chain.start(out[397:400], wb[397:400])
+    for j in range(400, 600):  # free run on rows the correctors never saw
+        expected, expected_score = numpy_step(chain, state.values, exo[j - 1], wb[j])
+        score = plan.step(state, exo[j - 1], wb[j])
+        # outputs (of order 1) to the documented accuracy of the single-solve prediction
+        # against the batch's two solves (1e-11); variances to the finite differences'
+        q = len(chain.stages)
+        np.testing.assert_allclose(state.values[:q], expected[:q], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(state.out_mean, expected[q : 2 * q], rtol=0, atol=1e-10)
+        np.testing.assert_allclose(state.out_var, expected[4 * q : 5 * q], rtol=1e-5, atol=1e-15)
+        np.testing.assert_array_equal(state.outside, expected[5 * q : 6 * q])
+        assert score == pytest.approx(expected_score, rel=1e-9)
+        state.values[:] = expected  # each step compared from the same state
+    assert np.all(state.out_var[chain.active_] > 0)
+
+
+def test_switched_off_correction_passes_the_white_box_and_keeps_memory_consistent() -> None:
+    chain, (exo, wb, out) = fitted_chain("residual", True, 2)
+    plan = chain.plan()
+    state = chain.start(out[398:400], wb[398:400])
+    assert plan.step(state, exo[399], wb[400], enabled=False) == 1.0
+    np.testing.assert_array_equal(state.out_mean, wb[400])
+    np.testing.assert_array_equal(state.out_var, 0.0)
+    assert [m[0] for m in state.memory] == [0.0, 0.0, 0.0]  # zero residual remembered
+
+
+def test_features_far_outside_training_are_clipped_flagged_and_finite() -> None:
+    chain, (exo, wb, out) = fitted_chain("residual", False, 1)
+    plan = chain.plan()
+    state = chain.start(out[398:400], wb[398:400])
+    score = plan.step(state, exo[399] * 1e3, wb[400])
+    assert state.outside.tolist() == [1.0, 1.0, 1.0]
+    assert np.all(np.isfinite(state.out_mean)) and 0.0 <= score < 1.0
+
+
+def test_buffers_of_the_wrong_kind_are_refused_with_their_name() -> None:
+    chain, (exo, wb, out) = fitted_chain("residual", False, 1)
+    plan = chain.plan()
+    state = chain.start(out[398:400], wb[398:400])
+    with pytest.raises(TypeError, match="exo_prev: buffer of float64"):
+        plan.step(state, exo[399].astype(np.float32), wb[400])
+    with pytest.raises(TypeError, match="y_wb: a C-contiguous"):
+        plan.step(state, exo[399], wb[398:401, 0])  # a strided view
+    with pytest.raises(ValueError, match="y_wb holds 2 values, 3 needed"):
+        plan.step(state, exo[399], wb[400, :2].copy())
+    short = ChainState([1, 1, 1])
+    with pytest.raises(ValueError, match="state holds"):
+        _chainstep.step(plan._plan, plan._params, plan._work, short.values[:-1], exo[399],
+                        wb[400], True)
+    with pytest.raises(TypeError, match="state: a C-contiguous writable"):
+        _chainstep.step(plan._plan, plan._params, plan._work, bytes(8 * state.values.size),
+                        exo[399], wb[400], True)
+
+
+@pytest.mark.parametrize("m", [1, 3, 4, 5, 8, 9, 13, 16, 17])
+def test_packed_factor_holds_each_column_from_its_block_start(m: int) -> None:
+    rng = np.random.default_rng(m)
+    factor = np.tril(rng.standard_normal((m, m)))
+    packed = packed_factor(factor)
+    ld = -(-m // 8) * 8
+    start = 0
+    for j in range(m):
+        first = j // 8 * 8
+        column = packed[start : start + ld - first]
+        np.testing.assert_array_equal(column[: m - first], factor[first:, j])
+        np.testing.assert_array_equal(column[m - first :], 0.0)
+        start += ld - first
+    assert start == packed.size
+
+
+@pytest.mark.parametrize("m", [1, 2, 3, 4, 5, 7, 8, 9, 31, 33])
+def test_single_point_prediction_equals_the_batch_for_every_block_remainder(m: int) -> None:
+    rng = np.random.default_rng(m)
+    X = rng.uniform(-2, 2, (200, 3))
+    y = np.sin(X[:, 0]) * np.cos(X[:, 1]) + 0.05 * rng.standard_normal(200)
+    model = SparseGPR(n_inducing=m, max_iter=20).fit(X, y)
+    Xt = rng.uniform(-2.5, 2.5, (20, 3))
+    mean, var = model.predict(Xt, full_noise=True)
+    one = np.array([model.predict_one(x, full_noise=True) for x in Xt])
+    # as tests/test_sgpr_properties.py: means on the target's scale, variances on s²'s
+    np.testing.assert_allclose(one[:, 0], mean, rtol=1e-9, atol=1e-9 * np.std(y))
+    np.testing.assert_allclose(one[:, 1], var, rtol=1e-8, atol=1e-10 * model.signal_variance_)
+
+
+def test_rate_features_are_step_changes_of_outputs_and_residuals() -> None:
+    chain, (exo, wb, out) = fitted_chain("residual", True, 2)
+    itfv = chain.stages[2]
+    X, _ = itfv.teacher_forced(exo, wb, out)
+    names = chain.feature_names(2)
+    j = 321  # the recording row of X[j - L]
+    row = X[j - itfv.lags]
+    for q, stage in enumerate(("EHV", "RAM")):
+        change = out[j, q] - out[j - 1, q]
+        assert row[names.index(stage)] == out[j, q]
+        assert row[names.index(f"d{stage}")] == pytest.approx(change, abs=1e-15)
+        residual_change = change - (wb[j, q] - wb[j - 1, q])
+        assert row[names.index(f"d{stage}.r")] == pytest.approx(residual_change, abs=1e-15)
+    assert row[names.index("ITFV.r[k-2]")] == out[j - 2, 2] - wb[j - 2, 2]
