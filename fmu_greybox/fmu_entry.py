@@ -23,11 +23,13 @@ each time.
 
 from __future__ import annotations
 
+import ctypes
 import functools
 import importlib
 import json
 import logging
 import sys
+import threading
 from pathlib import Path
 
 from pythonfmu import Fmi2Slave
@@ -36,6 +38,8 @@ from pythonfmu import Fmi2Slave
 RUNTIME_FILE = "fmu_runtime.json"
 #: Python logger of the FMUs' errors.
 LOGGER = "fmu_greybox.fmu"
+#: Threads whose Python thread state :func:`keep_thread_state` keeps.
+_KEPT = threading.local()
 
 
 def report(instance: str, call: str, message: str) -> None:
@@ -62,6 +66,7 @@ def guarded(call: str, fallback=None):
     def decorate(method):
         @functools.wraps(method)
         def run(self, *args):
+            keep_thread_state()
             try:
                 return method(self, *args)
             except Exception as exc:
@@ -73,6 +78,22 @@ def guarded(call: str, fallback=None):
         return run
 
     return decorate
+
+
+def keep_thread_state() -> None:
+    """Keep the calling thread's Python thread state from one FMI call to the next.
+
+    pythonfmu (0.7) brackets every FMI call with ``PyGILState_Ensure``/``PyGILState_Release``.
+    On a thread Python did not create (libcosim steps its slaves on its own worker threads),
+    each pair makes a new Python thread state and deletes it again: in libcosim that was half
+    the cost of a grey-box step (measured with M = 50: 44 µs per step, 22 µs with the state
+    kept). One more ``PyGILState_Ensure``, never released, keeps the thread's state for the
+    thread's life; it costs one thread state (about a kilobyte) per worker thread that ever
+    calls the FMU, freed when the interpreter exits.
+    """
+    if not getattr(_KEPT, "held", False):
+        ctypes.pythonapi.PyGILState_Ensure()
+        _KEPT.held = True
 
 
 def refuse_step(slave, current_time: float) -> bool:
@@ -157,8 +178,6 @@ def hold_namespace() -> None:
     after the simulation had finished. Never giving them back leaks one namespace per FMU module,
     once per process.
     """
-    import ctypes
-
     ctypes.pythonapi.Py_IncRef(ctypes.py_object(globals()))
 
 

@@ -6,6 +6,7 @@ after about 1 s of the 1.5 s validation recording to stay quick.
 
 from __future__ import annotations
 
+import threading
 import zipfile
 from pathlib import Path
 
@@ -27,6 +28,7 @@ from test_export import (
 from fmu_greybox.bench import SSD_FILE, build_playback_fmu, make_bench, read_layout, run_bench
 from fmu_greybox.cli import main
 from fmu_greybox.errors import BenchError
+from fmu_greybox.export_slave import GreyBoxSlave
 from fmu_greybox.recording import Recording, load_recording, save_recording
 
 #: 1024 steps: the recording's mean step (the master's) is then exactly libcosim's 1 ms, which
@@ -101,6 +103,25 @@ def test_libcosim_gives_the_masters_outputs(
     assert_matches_master(result.signals, run, prefix="greybox.")
     for q, name in enumerate(STAGE_OUTPUTS):
         assert_close(result[f"whitebox.{name}"], run.whitebox[:, q], f"whitebox.{name}")
+
+
+def test_libcosim_worker_threads_keep_their_python_state(bench: Path, monkeypatch) -> None:
+    """pythonfmu wraps each FMI call in PyGILState_Ensure/Release; on libcosim's worker
+    threads the FMU keeps the thread's Python state between calls (fmu_entry.keep_thread_state)
+    instead of getting a new one per call (thread-local data would not survive a step)."""
+    local, new_states = threading.local(), []
+    stepping = GreyBoxSlave.do_step
+
+    def counting(self, current_time: float, step_size: float) -> bool:
+        if not hasattr(local, "seen"):
+            local.seen = True
+            new_states.append(current_time)
+        return stepping(self, current_time, step_size)
+
+    monkeypatch.setattr(GreyBoxSlave, "do_step", counting)
+    result = run_bench(bench, "libcosim", stop_time=0.1)
+    assert result.n_samples == 100
+    assert 1 <= len(new_states) <= 4, new_states  # one per worker thread, not one per step
 
 
 def test_fmpy_ssp_gives_the_masters_outputs(
