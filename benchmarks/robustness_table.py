@@ -615,8 +615,8 @@ def model_cases(tmp: Path, saved: Path) -> list[Case]:
         ),
         Case(
             "model",
-            "model: format version 2",
-            tampered("version", manifest_edit(lambda m: m.update(format_version=2))),
+            "model: format version 3",
+            tampered("version", manifest_edit(lambda m: m.update(format_version=3))),
             here + "test_valid_json_edits_of_the_manifest_are_refused",
         ),
         Case(

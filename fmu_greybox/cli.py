@@ -280,6 +280,13 @@ def simulate(
     help="Inducing points per stage (overrides [gp] inducing).",
 )
 @click.option(
+    "--terms",
+    "terms_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="diagnosis.json of 'diagnose': fold its named terms into the white-box first; the "
+    "correctors learn what remains and the model (and its exported FMU) carries the terms.",
+)
+@click.option(
     "--out",
     "out_dir",
     type=click.Path(file_okay=False, path_type=Path),
@@ -293,27 +300,33 @@ def train(
     config_path: Path,
     recording_path: Path | None,
     inducing: int | None,
+    terms_path: Path | None,
     out_dir: Path,
 ) -> None:
     """Train the stage correctors of a project (teacher forcing).
 
     \b
-    Example:
+    Examples:
       fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv --out model/
+      fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv \\
+          --terms diag/diagnosis.json --out model/
     """
     from .config import load_config
     from .model_dir import save_model
+    from .named_model import read_terms
     from .project_data import load_project_recording
     from .training import train_model, with_inducing
 
     config = with_inducing(load_config(config_path), inducing)
     recording = load_project_recording(config, recording_path)
-    model = train_model(config, recording, progress=not ctx.obj["quiet"])
+    terms = read_terms(terms_path) if terms_path is not None else []
+    model = train_model(config, recording, progress=not ctx.obj["quiet"], terms=terms)
     save_model(model, out_dir)
+    named = f", named terms: {', '.join(t.effect for t in terms)}" if terms else ""
     _info(
         ctx,
         f"wrote {out_dir} ({len(model.chain.stages)} stages, "
-        f"{model.training['train_rows']} training rows, {model.training['seconds']} s)",
+        f"{model.training['train_rows']} training rows, {model.training['seconds']} s{named})",
     )
 
 
@@ -375,7 +388,7 @@ def validate(
         trace_figure(
             run.time,
             result.data.outputs[run.rows],
-            run.whitebox,
+            result.whitebox,
             run.mean,
             run.std,
             model.chain.stage_names,

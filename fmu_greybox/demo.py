@@ -7,7 +7,8 @@ On the reference actuator, with nothing but this repository:
    :data:`~fmu_greybox.synth.TYPICAL_MAGNITUDES` unless given), plus an independent validation
    recording of the same actuator;
 3. diagnose the training recording, given only the white-box FMU and the project file;
-4. train the grey-box correctors and validate them, free-running, on the validation recording;
+4. fold the diagnosis' named terms into the white-box, train the grey-box correctors on what
+   remains, and validate the whole corrected model, free-running, on the validation recording;
 5. export the grey-box FMU and run it on an SSP bench in fmpy and in libcosim, checking both
    against the in-process master;
 6. write ``report.html`` (:mod:`fmu_greybox.main_report`), ``diagnosis.json``, ``metrics.json``
@@ -43,6 +44,7 @@ from .diagnosis.report import diagnosis_payload, write_json
 from .export import export_greybox
 from .fmu_archive import open_fmu
 from .model_dir import file_sha256, load_model, save_model
+from .named_model import terms_from_findings
 from .recording import Recording, save_recording
 from .spectra import FrequencyResponse, stage_responses
 from .synth import TYPICAL_MAGNITUDES, FlightTestProfile, SynthRequest, synthesise
@@ -226,9 +228,12 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
     write_json(payload, out / "diagnosis.json")
     step("diagnose")
 
-    say(f"[4/6] training the grey-box ({settings.inducing} inducing points per stage)")
+    terms = terms_from_findings(payload["findings"])
+    on = f"the white-box + {len(terms)} named term(s)" if terms else "the white-box"
+    say(f"[4/6] training the grey-box on {on} ({settings.inducing} inducing points per stage)")
     model_dir = out / "model"
-    save_model(train_model(_training_config(config, settings), training, progress), model_dir)
+    trained = train_model(_training_config(config, settings), training, progress, terms=terms)
+    save_model(trained, model_dir)
     model = load_model(model_dir)
     validation = validate_model(model, validation_rec, progress)
     write_metrics(validation, model, out / "metrics.json")
@@ -255,7 +260,7 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
     responses = stage_responses(
         validation_rec[config.signals[first_input].column][run.rows],
         validation.data.outputs[run.rows],
-        {"white-box": run.whitebox, "grey-box": run.mean},
+        {"white-box": validation.whitebox, "grey-box": run.mean},
         model.dt,
         first_input,
         model.chain.target_signals,

@@ -414,6 +414,15 @@ def _annotation(
             features=" ".join(model.chain.feature_names(stage.stage_index)),
             inducing=str(corrector.inducing_points_.shape[0]),
         )
+    for term in model.terms:
+        data = term.to_dict()
+        etree.SubElement(
+            node,
+            "NamedTerm",
+            effect=term.effect,
+            stage=model.chain.stages[term.entry].name,
+            **{k: str(v) for k, v in data.items() if k != "entry"},
+        )
     return node
 
 

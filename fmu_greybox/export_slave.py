@@ -3,8 +3,8 @@
 :class:`GreyBoxSlave` is the pythonfmu slave of an FMU written by :mod:`fmu_greybox.export`. Its
 resources hold a copy of the model folder (``greybox_model/``: white-box FMU, corrector arrays,
 ``model.json`` with the SHA-256 of every file) and ``fmu_runtime.json`` (export settings). At
-instantiation the model is loaded and every hash checked; the white-box runs through
-:class:`~fmu_greybox.fmu_instance.FmuInstance`.
+instantiation the model is loaded and every hash checked; the white-box runs with the model's
+named terms, if it carries any (:meth:`~fmu_greybox.model_dir.GreyBoxModel.whitebox`).
 
 Each ``fmi2DoStep(t, h)`` does what :func:`fmu_greybox.master.run_master` does for one row: step
 the white-box with the current inputs, then the stage correctors in autoregressive order; the
@@ -28,7 +28,6 @@ Variables (value references in this order, see :func:`greybox_interface`):
 
 from __future__ import annotations
 
-import base64
 import functools
 import json
 import math
@@ -56,13 +55,13 @@ from .chain_step import ChainState
 from .errors import ExportError, ModelFormatError
 from .fmu_archive import FmuArchive, open_fmu
 from .fmu_entry import RUNTIME_FILE, guarded, refuse_step, report
-from .fmu_instance import FmuInstance
 from .model_dir import MANIFEST, GreyBoxModel, file_sha256, load_model
+from .named_model import NamedModel
 
 #: Folder in the FMU's resources holding the copy of the model folder.
 MODEL_FOLDER = "greybox_model"
 #: Version of the serialised FMU state.
-STATE_VERSION = 2
+STATE_VERSION = 3
 #: Default ``ood_threshold``: out of domain when the features are farther than about 2.1
 #: length-scales from every inducing point of some stage (kernel correlation below 0.1).
 DEFAULT_OOD_THRESHOLD = 0.1
@@ -213,7 +212,13 @@ def greybox_interface(
             "Predictive standard deviation of {name} (stage {stage}; first-order "
             "propagation of the correctors' variance through the chain)",
         ),
-        ("wb", "Raw white-box {name} (uncorrected)"),
+        (
+            "wb",
+            "White-box {name} with the named terms "
+            f"({', '.join(t.effect for t in model.terms)}), before the correctors"
+            if model.terms
+            else "Raw white-box {name} (uncorrected)",
+        ),
     ):
         for stage in chain.stages:
             name = stage.config.whitebox_output
@@ -292,7 +297,7 @@ def greybox_interface(
 class _Run:
     """What exists once the FMU is initialised."""
 
-    whitebox: FmuInstance
+    whitebox: NamedModel
     state: ChainState
     started_with: list[float] = field(default_factory=list)
 
@@ -432,7 +437,7 @@ class GreyBoxSlave(Fmi2Slave):
             )
         reals = self._reals
         u = reals[: self._n_in]
-        wb = run.whitebox.step(u, dt)  # exactly the trained step, see the module docstring
+        wb = run.whitebox.step(u)  # by exactly the trained step, see the module docstring
         y_wb = wb[self._stage_output]
         exo = self._exo
         exo[:] = [u[i] for i in self._exo_index]
@@ -497,19 +502,18 @@ class GreyBoxSlave(Fmi2Slave):
             return run
         start = dict(zip(self.interface.input_names, inputs, strict=True))
         if run is None:
-            whitebox = FmuInstance(
+            whitebox = self.model.whitebox(
                 self.archive,
-                inputs=self.interface.input_names,
-                outputs=self.interface.wb_outputs,
-                parameters=self.model.config.parameters,
-                start_values=start,
+                self.interface.input_names,
+                self.interface.wb_outputs,
+                start,
+                self._time,
                 instance_name=f"{self.instance_name}.whitebox",
-                start_time=self._time,
             )
         else:
             whitebox = run.whitebox
-            whitebox.reset({**self.model.config.parameters, **start}, self._time)
-        wb = whitebox.read_outputs()
+            whitebox.reset(start, self._time)
+        wb = whitebox.outputs()
         y_wb = wb[self._stage_output]
         state = self.model.chain.start(y_wb[None, :], y_wb[None, :])
         self._run = _Run(whitebox=whitebox, state=state, started_with=inputs)
@@ -543,8 +547,7 @@ class GreyBoxSlave(Fmi2Slave):
         }
         if run is not None:
             saved["run"] = {
-                "whitebox": base64.b64encode(run.whitebox.serialize_state()).decode("ascii"),
-                "whitebox_time": run.whitebox.time,
+                "whitebox": run.whitebox.state(),
                 "chain": run.state.to_array().tolist(),
                 "started_with": list(run.started_with),
             }
@@ -569,7 +572,7 @@ class GreyBoxSlave(Fmi2Slave):
             self._prepare()
         run = self._run
         run.started_with = list(kept["started_with"])
-        run.whitebox.deserialize_state(base64.b64decode(kept["whitebox"]), kept["whitebox_time"])
+        run.whitebox.restore(kept["whitebox"])
         run.state.load_array(np.asarray(kept["chain"], dtype=np.float64))
         self._reals[:] = saved["reals"]
         self._bools[:] = saved["bools"]

@@ -1,9 +1,11 @@
 """The co-simulation master: the white-box FMU and the stage correctors, stepped together.
 
 Each communication step does what a bench does: set the FMU's inputs, ``fmi2DoStep``, read the
-white-box outputs, then run the stage correctors in autoregressive order, each fed its own and
-the earlier stages' corrected outputs (free run). Rows up to ``start`` only advance the FMU and
-provide the chain's initial memory: from the recording by default, or from the white-box outputs
+white-box outputs (with the model's named terms, if any: :meth:`GreyBoxModel.whitebox`), then
+run the stage correctors in autoregressive order, each fed its own and the earlier stages'
+corrected outputs (free run). The FMU advances by the model's communication step, as the
+exported FMU does. Rows up to ``start`` only advance the FMU and provide the chain's initial
+memory: from the recording by default, or from the white-box outputs
 (``memory_from="whitebox"``), which is what an exported grey-box FMU does since it has no
 recording.
 """
@@ -16,7 +18,6 @@ import numpy as np
 from tqdm import tqdm
 
 from .fmu_archive import open_fmu
-from .fmu_instance import FmuInstance
 from .model_dir import GreyBoxModel
 from .project_data import ProjectData
 
@@ -35,7 +36,8 @@ class MasterRun:
     time : ndarray, shape (m,)
         Their times [s].
     whitebox : ndarray, shape (m, Q)
-        White-box stage outputs.
+        White-box stage outputs (with the model's named terms, if any): what the correctors
+        start from.
     mean, std : ndarray, shape (m, Q)
         Grey-box stage outputs and their standard deviations.
     """
@@ -85,25 +87,23 @@ def run_master(
     wb = np.empty((n, len(chain.stages)))
     mean = np.empty((m, len(chain.stages)))
     var = np.empty_like(mean)
-    dt = data.recording.dt
     with (
         open_fmu(model.whitebox_fmu) as archive,
-        FmuInstance(
+        model.whitebox(
             archive,
-            inputs=data.binding.inputs,
-            outputs=chain.whitebox_outputs,
-            parameters=model.config.parameters,
-            start_values=dict(zip(data.binding.inputs, u[0], strict=True)),
+            data.binding.inputs,
+            chain.whitebox_outputs,
+            dict(zip(data.binding.inputs, u[0], strict=True)),
+            float(data.recording.time[0]),
             instance_name="greybox_master",
-            start_time=float(data.recording.time[0]),
         ) as fmu,
     ):
-        wb[0] = fmu.read_outputs()
+        wb[0] = fmu.outputs()
         plan = chain.plan()
         exo = np.ascontiguousarray(data.exo, dtype=np.float64)
         state = None
         for j in tqdm(range(1, n), disable=not progress, desc="free run", unit="step", leave=False):
-            wb[j] = fmu.step(u[j - 1], dt)
+            wb[j] = fmu.step(u[j - 1])
             if j == start + 1:
                 first = max(0, start - history + 1)
                 known = data.outputs if memory_from == "recorded" else wb

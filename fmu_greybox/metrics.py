@@ -30,6 +30,7 @@ def stage_table(
     whitebox: np.ndarray,
     greybox: np.ndarray,
     target_std: Mapping[str, float],
+    named: np.ndarray | None = None,
 ) -> dict[str, dict[str, float]]:
     """Per-stage white-box and grey-box errors on the same rows.
 
@@ -41,11 +42,14 @@ def stage_table(
         Recorded targets and the two predictions.
     target_std : mapping
         Stage -> standard deviation of its training target (normalises the RMSE).
+    named : ndarray, shape (m, Q), optional
+        The white-box with named terms (a grey-box trained on top of them).
 
     Returns
     -------
     dict
-        Stage -> ``wb_rmse``, ``gb_rmse``, ``wb_nrmse``, ``gb_nrmse``, ``improvement``.
+        Stage -> ``wb_rmse``, ``gb_rmse``, ``wb_nrmse``, ``gb_nrmse``, ``improvement`` (grey-box
+        against white-box), and with ``named`` also ``named_rmse`` and ``named_nrmse``.
     """
     table = {}
     for q, name in enumerate(names):
@@ -59,18 +63,26 @@ def stage_table(
             "gb_nrmse": gb / scale,
             "improvement": improvement(wb, gb),
         }
+        if named is not None:
+            terms = rmse(named[:, q], recorded[:, q])
+            table[name].update(named_rmse=terms, named_nrmse=terms / scale)
     return table
 
 
 def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, str]) -> str:
-    """The table as fixed-width text, one stage a line (for the terminal)."""
+    """The table as fixed-width text, one stage a line (for the terminal); a column for the
+    white-box with named terms when the table has one."""
+    named = all("named_rmse" in row for row in table.values())
     lines = [
-        f"{'stage':8s} {'unit':6s} {'WB RMSE':>11s} {'GB RMSE':>11s} {'WB nRMSE':>9s} "
-        f"{'GB nRMSE':>9s} {'improvement':>11s}"
+        f"{'stage':8s} {'unit':6s} {'WB RMSE':>11s} "
+        + (f"{'+terms RMSE':>11s} " if named else "")
+        + f"{'GB RMSE':>11s} {'WB nRMSE':>9s} {'GB nRMSE':>9s} {'improvement':>11s}"
     ]
     for name, row in table.items():
         lines.append(
-            f"{name:8s} {units.get(name, ''):6s} {row['wb_rmse']:11.3e} {row['gb_rmse']:11.3e} "
-            f"{row['wb_nrmse']:9.3g} {row['gb_nrmse']:9.3g} {100 * row['improvement']:10.1f}%"
+            f"{name:8s} {units.get(name, ''):6s} {row['wb_rmse']:11.3e} "
+            + (f"{row['named_rmse']:11.3e} " if named else "")
+            + f"{row['gb_rmse']:11.3e} {row['wb_nrmse']:9.3g} {row['gb_nrmse']:9.3g} "
+            f"{100 * row['improvement']:10.1f}%"
         )
     return "\n".join(lines)

@@ -8,6 +8,9 @@ Layout::
       stage_<NAME>.npz     corrector arrays (one pair per stage, see fmu_greybox.gp)
       stage_<NAME>.json    corrector metadata
 
+The named correction terms the model carries (physics found by the diagnosis, folded into the
+white-box before the correctors) are plain data in ``model.json`` (``named_terms``).
+
 Every file's SHA-256 is recorded in ``model.json`` and checked on load, so a truncated or
 tampered file is refused with a clear error; ``model.json`` also records the SHA-256 of its own
 content (``manifest_sha256``, over canonical JSON without that key), so an edit of the manifest
@@ -22,7 +25,7 @@ import json
 import math
 import shutil
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,10 +36,15 @@ from . import __version__
 from .atomic import atomic_dir, atomic_write
 from .config import ProjectConfig, parse_config
 from .errors import ConfigError, ModelFormatError
+from .fmu_archive import FmuArchive
 from .gp import SparseGPR
 from .greybox import GreyBoxChain
+from .named_model import DEFAULT_SUBSTEPS, NamedModel
+from .terms import Term, term_from_dict
 
-FORMAT_VERSION = 1
+#: Version written; versions read (1: no named terms).
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
 MANIFEST = "model.json"
 WHITEBOX = "whitebox.fmu"
 #: Key of ``model.json`` holding the SHA-256 of the rest of its content.
@@ -60,6 +68,11 @@ class GreyBoxModel:
         Communication step [s].
     training : dict
         Facts about the training: recording hash, rows used, target spreads per stage, ...
+    terms : list of Term
+        Named correction terms folded into the white-box before the correctors (from a
+        diagnosis); empty for a plain white-box.
+    substeps : int
+        FMU steps per communication step while a feedback term is active.
     """
 
     config: ProjectConfig
@@ -67,11 +80,56 @@ class GreyBoxModel:
     whitebox_fmu: Path
     dt: float
     training: dict[str, Any] = field(default_factory=dict)
+    terms: list[Term] = field(default_factory=list)
+    substeps: int = DEFAULT_SUBSTEPS
 
     @property
     def target_std(self) -> dict[str, float]:
         """Standard deviation of each stage's training target (for normalised RMSE)."""
         return self.training["target_std"]
+
+    def whitebox(
+        self,
+        archive: FmuArchive,
+        inputs: Sequence[str],
+        outputs: Sequence[str],
+        start_values: Mapping[str, float],
+        start_time: float,
+        instance_name: str = "whitebox",
+    ) -> NamedModel:
+        """The white-box with the model's named terms, as the correctors were trained on it.
+
+        Parameters
+        ----------
+        archive : FmuArchive
+            The white-box FMU (:attr:`whitebox_fmu`, opened).
+        inputs, outputs : sequence of str
+            FMU inputs and outputs exchanged per step. A stage's output is read from the
+            instance of its stage; any other output from the last stage's.
+        start_values : mapping
+            Initial input values.
+        start_time : float
+            [s]
+
+        Returns
+        -------
+        NamedModel
+        """
+        stage_of = {s.config.whitebox_output: s.stage_index for s in self.chain.stages}
+        last = len(self.chain.stages) - 1
+        return NamedModel(
+            archive,
+            inputs,
+            outputs,
+            self.dt,
+            self.terms,
+            [stage_of.get(name, last) for name in outputs],
+            self.config.parameters,
+            start_values,
+            start_time,
+            self.substeps,
+            instance_name,
+        )
 
 
 def file_sha256(path: Path) -> str:
@@ -137,6 +195,10 @@ def save_model(model: GreyBoxModel, out_dir: str | Path) -> Path:
             "dt": model.dt,
             "stages": stages,
             "training": model.training,
+            "named_terms": {
+                "terms": [t.to_dict() for t in model.terms],
+                "substeps": model.substeps,
+            },
             "whitebox_sha256": file_sha256(tmp / WHITEBOX),
             "files": {name: file_sha256(tmp / name) for name in files},
         }
@@ -171,10 +233,10 @@ def read_manifest(model_dir: str | Path) -> dict[str, Any]:
             f"writes; {_RETRAIN}"
         )
     version = manifest.get("format_version")
-    if version != FORMAT_VERSION:
+    if version not in READABLE_VERSIONS:
         raise ModelFormatError(
-            f"{path}: format version {version!r}; this tool reads version "
-            f"{FORMAT_VERSION}. Retrain the model with this version"
+            f"{path}: format version {version!r}; this tool reads versions "
+            f"{', '.join(map(str, READABLE_VERSIONS))}. Retrain the model with this version"
         )
     recorded = manifest.get(MANIFEST_HASH)
     if recorded is not None and recorded != manifest_digest(manifest):
@@ -276,13 +338,33 @@ def load_model(model_dir: str | Path) -> GreyBoxModel:
     chain.correctors_ = [_load_corrector(model_dir / s["stem"]) for s in stages]
     chain.active_ = np.array([s["active"] for s in stages], dtype=bool)
     chain.feature_bounds_ = bounds
+    terms, substeps = _named_terms(model_dir / MANIFEST, manifest, len(stages))
     return GreyBoxModel(
         config=config,
         chain=chain,
         whitebox_fmu=model_dir / WHITEBOX,
         dt=float(manifest["dt"]),
         training=manifest["training"],
+        terms=terms,
+        substeps=substeps,
     )
+
+
+def _named_terms(
+    path: Path, manifest: Mapping[str, Any], n_stages: int
+) -> tuple[list[Term], int]:
+    """The manifest's named terms and sub-steps (none in a version 1 folder)."""
+    named = manifest.get("named_terms", {"terms": [], "substeps": DEFAULT_SUBSTEPS})
+    try:
+        terms = [term_from_dict(t) for t in named["terms"]]
+        substeps = int(named["substeps"])
+        if substeps < 1 or any(not 0 <= t.entry < n_stages for t in terms):
+            raise ValueError("sub-steps below 1 or a term entering at a stage that is not there")
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ModelFormatError(
+            f"{path}: field 'named_terms' is unusable ({exc}); {_RETRAIN}"
+        ) from exc
+    return terms, substeps
 
 
 def _feature_bounds(stage: Mapping[str, Any], n_features: int) -> np.ndarray:

@@ -7,6 +7,7 @@ running the white-box FMU open-loop over the recorded inputs.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,8 +19,9 @@ from .config import ProjectConfig
 from .errors import ConfigError, RecordingError
 from .fmu_archive import FmuArchive
 from .greybox import GreyBoxChain
+from .named_model import DEFAULT_SUBSTEPS, simulate_with_terms
 from .recording import Recording, load_recording
-from .simulate import simulate_binding
+from .terms import Term
 
 
 @dataclass
@@ -37,7 +39,7 @@ class ProjectData:
     outputs : ndarray, shape (n, Q)
         Recorded stage targets.
     y_wb : ndarray, shape (n, Q)
-        White-box predictions of the stage targets.
+        White-box predictions of the stage targets (with the named terms, if any).
     """
 
     recording: Recording
@@ -87,6 +89,8 @@ def prepare(
     archive: FmuArchive,
     recording: Recording,
     progress: bool = False,
+    terms: Sequence[Term] = (),
+    substeps: int = DEFAULT_SUBSTEPS,
 ) -> ProjectData:
     """Check the recording against the project and simulate the white-box over it.
 
@@ -100,6 +104,11 @@ def prepare(
     recording : Recording
     progress : bool
         Show a progress bar during the simulation.
+    terms : sequence of Term
+        Named correction terms folded into the white-box (see
+        :class:`~fmu_greybox.named_model.NamedModel`); ``y_wb`` is then white-box + terms.
+    substeps : int
+        FMU steps per communication step while a feedback term is active.
 
     Returns
     -------
@@ -113,8 +122,18 @@ def prepare(
         if sig.column in recording.signals and sig.variable in archive.variables:
             check_unit(archive, sig.variable, recording, sig.column)
     binding = bind_inputs(archive, recording, config.input_mapping(), config.fixed_inputs)
-    y_wb = simulate_binding(
-        archive, binding, recording, chain.whitebox_outputs, config.parameters, progress
+    y_wb = simulate_with_terms(
+        archive,
+        binding.inputs,
+        binding.matrix(recording),
+        recording.dt,
+        chain.whitebox_outputs,
+        terms,
+        config.parameters,
+        stages=range(len(chain.stages)),
+        start_time=float(recording.time[0]),
+        substeps=substeps,
+        progress=progress,
     )
     exo = np.column_stack([recording[signals[n].column] for n in chain.exo_names])
     outputs = np.column_stack([recording[signals[n].column] for n in chain.target_signals])

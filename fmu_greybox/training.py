@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Sequence
 
 import numpy as np
 from tqdm import tqdm
@@ -12,8 +13,10 @@ from .config import ProjectConfig
 from .fmu_archive import open_fmu
 from .greybox import GreyBoxChain
 from .model_dir import GreyBoxModel, file_sha256
+from .named_model import check_terms
 from .project_data import prepare, split_row, whitebox_path
 from .recording import Recording
+from .terms import Term
 
 
 def with_inducing(config: ProjectConfig, inducing: int | None) -> ProjectConfig:
@@ -30,6 +33,7 @@ def train_model(
     recording: Recording,
     progress: bool = False,
     target_mode: str | None = None,
+    terms: Sequence[Term] = (),
 ) -> GreyBoxModel:
     """Simulate the white-box over the recording and fit every stage's corrector.
 
@@ -44,6 +48,9 @@ def train_model(
         Show progress bars (simulation, then one per stage's optimisation).
     target_mode : str, optional
         Overrides ``config.gp.target``.
+    terms : sequence of Term
+        Named correction terms (from a diagnosis) folded into the white-box first: the
+        correctors then learn what white-box + terms leave, and the model carries the terms.
 
     Returns
     -------
@@ -54,7 +61,8 @@ def train_model(
     chain = GreyBoxChain(config, target_mode)
     with open_fmu(fmu_path) as archive:
         config.check_against_fmu(archive)
-        data = prepare(config, chain, archive, recording, progress)
+        check_terms(terms, archive, len(chain.stages))
+        data = prepare(config, chain, archive, recording, progress, terms)
     split = split_row(config, data.n_samples)
     rows = slice(0, split + 1)
     bars: dict[str, tqdm] = {}
@@ -95,5 +103,10 @@ def train_model(
         "seconds": round(time.perf_counter() - started, 2),
     }
     return GreyBoxModel(
-        config=config, chain=chain, whitebox_fmu=fmu_path, dt=recording.dt, training=training
+        config=config,
+        chain=chain,
+        whitebox_fmu=fmu_path,
+        dt=recording.dt,
+        training=training,
+        terms=list(terms),
     )

@@ -6,6 +6,8 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from .atomic import atomic_write
 from .fmu_archive import open_fmu
 from .master import MasterRun, run_master
@@ -26,7 +28,9 @@ class Validation:
     data : ProjectData
         The recording arranged for the chain.
     table : dict
-        Stage -> ``wb_rmse``, ``gb_rmse``, ``wb_nrmse``, ``gb_nrmse``, ``improvement``.
+        Stage -> ``wb_rmse``, ``gb_rmse``, ``wb_nrmse``, ``gb_nrmse``, ``improvement`` (the
+        grey-box against the plain white-box), and for a model with named terms
+        ``named_rmse``, ``named_nrmse`` (white-box + terms, without the correctors).
     held_out : str
         Which rows were held out, in words.
     """
@@ -36,9 +40,17 @@ class Validation:
     table: dict[str, dict[str, float]]
     held_out: str
 
+    @property
+    def whitebox(self) -> np.ndarray:
+        """The plain white-box's stage outputs over the master's rows, shape (m, Q)."""
+        return self.data.y_wb[self.run.rows]
+
 
 def validate_model(model: GreyBoxModel, recording: Recording, progress: bool = False) -> Validation:
     """Free-run the grey-box over held-out rows and compare with the white-box.
+
+    ``data.y_wb`` is the plain white-box; ``run.whitebox`` what the correctors start from (the
+    same, or white-box + the model's named terms).
 
     On the training recording the held-out rows are those after the training split; on any
     other recording, every row after the first.
@@ -57,7 +69,12 @@ def validate_model(model: GreyBoxModel, recording: Recording, progress: bool = F
         held_out = f"all {data.n_samples - 1} rows of a recording not used in training"
     run = run_master(model, data, start, progress)
     table = stage_table(
-        model.chain.stage_names, data.outputs[run.rows], run.whitebox, run.mean, model.target_std
+        model.chain.stage_names,
+        data.outputs[run.rows],
+        data.y_wb[run.rows],  # the plain white-box (prepare folds no terms)
+        run.mean,
+        model.target_std,
+        named=run.whitebox if model.terms else None,
     )
     return Validation(run=run, data=data, table=table, held_out=held_out)
 

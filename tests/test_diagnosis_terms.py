@@ -5,7 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fmu_greybox.diagnosis.terms import (
+from fmu_greybox.fmu_archive import open_fmu
+from fmu_greybox.fmu_instance import FmuInstance
+from fmu_greybox.named_model import simulate_with_terms
+from fmu_greybox.simulate import run_open_loop
+from fmu_greybox.terms import (
     CoulombForce,
     DelayLine,
     FlowDroop,
@@ -17,12 +21,8 @@ from fmu_greybox.diagnosis.terms import (
     SensorDelay,
     StribeckForce,
     ViscousForce,
-    simulate_with_terms,
     term_from_dict,
 )
-from fmu_greybox.fmu_archive import open_fmu
-from fmu_greybox.fmu_instance import FmuInstance
-from fmu_greybox.simulate import run_open_loop
 
 INPUTS = ["valve_current", "supply_pressure", "load_force", "engage"]
 OUTPUTS = ["spool_position", "ram_position", "itfv_pressure", "ram_velocity"]

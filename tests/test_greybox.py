@@ -137,7 +137,8 @@ def test_correction_off_passes_the_white_box_through(model, data) -> None:
 def test_model_folder_round_trip_and_tamper_detection(model, data, tmp_path: Path) -> None:
     folder = save_model(model, tmp_path / "model")
     manifest = json.loads((folder / MANIFEST).read_text())
-    assert manifest["format_version"] == 1
+    assert manifest["format_version"] == 2
+    assert manifest["named_terms"] == {"terms": [], "substeps": 4}
     assert manifest["training"]["recording_sha256"] == data.recording.sha256()
     assert len(manifest["whitebox_sha256"]) == 64
     assert not list(folder.glob("*.pkl")) and not list(folder.glob("*.pickle"))

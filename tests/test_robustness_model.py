@@ -134,9 +134,9 @@ def test_each_missing_file_is_named(saved: Path, tmp_path: Path) -> None:
         (lambda m: m["stages"].pop(), "content does not match the hash it recorded"),
         (lambda m: m["files"].pop("stage_RAM.npz"), "content does not match the hash"),
         (lambda m: m.update(format_version="1"), "format version '1'"),
-        (lambda m: m.update(format_version=2), "format version 2; this tool reads version 1"),
+        (lambda m: m.update(format_version=3), "format version 3; this tool reads versions 1, 2"),
     ],
-    ids=["dt", "stage removed", "hash removed", "version as text", "version 2"],
+    ids=["dt", "stage removed", "hash removed", "version as text", "version 3"],
 )
 def test_valid_json_edits_of_the_manifest_are_refused(
     saved: Path, tmp_path: Path, edit: Callable[[dict], Any], pattern: str
@@ -244,6 +244,17 @@ def _set_stage(index: int, **fields: Any) -> Callable[[dict], Any]:
         (lambda m: m["stages"].pop(), r"stages do not fit the stored project"),
         (lambda m: m.update(target_mode="delta"), r"stages do not fit.*'delta' is not one of"),
         (lambda m: m["project"]["gp"].update(inducing=0), r"stored project is invalid"),
+        (
+            lambda m: m.update(named_terms={"terms": [{"kind": "Exec"}], "substeps": 4}),
+            r"'named_terms' is unusable \(unknown term kind 'Exec'",
+        ),
+        (
+            lambda m: m.update(
+                named_terms={"terms": [{"kind": "InputOffset", "entry": 7}], "substeps": 4}
+            ),
+            r"'named_terms' is unusable .*a term entering at a stage that is not there",
+        ),
+        (lambda m: m.update(named_terms={"terms": []}), r"'named_terms' is unusable"),
     ],
 )
 def test_rehashed_but_malformed_manifest_is_refused(
@@ -253,7 +264,7 @@ def test_rehashed_but_malformed_manifest_is_refused(
     folder = copy_of(saved, tmp_path)
     manifest = read(folder)
     edit(manifest)
-    manifest["format_version"] = 1
+    manifest["format_version"] = 2
     write_rehashed(folder, manifest)
     error = refused(folder, pattern)
     assert str(folder) in str(error)

@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import filtfilt
 
+from ..terms import Term
 from .hypotheses import Hypothesis
 from .runner import Simulator
-from .terms import Term
 
 
 def autocorrelation_time(residual: np.ndarray, max_lag: int | None = None) -> float:

@@ -8,8 +8,9 @@ attributes end in ``_``):
 2. if a stage departs from the recording beyond noise, generate the hypotheses the project's
    roles allow (:func:`~.hypotheses.generate_hypotheses`) and keep the few the data support
    (:class:`~.select.ForwardSelection`);
-3. fold the kept terms into the white-box (:func:`~.terms.simulate_with_terms`) and train the
-   grey-box correctors (:class:`~fmu_greybox.greybox.GreyBoxChain`) on what remains;
+3. fold the kept terms into the white-box
+   (:func:`~fmu_greybox.named_model.simulate_with_terms`) and train the grey-box correctors
+   (:class:`~fmu_greybox.greybox.GreyBoxChain`) on what remains;
 4. compare white-box, white-box + named terms and grey-box on held-out rows.
 
 The held-out part is the project's (``split.train_fraction``), but at least the last 20 % of
@@ -29,9 +30,11 @@ from ..errors import ConfigError
 from ..fmu_archive import FmuArchive, open_fmu
 from ..greybox import GreyBoxChain
 from ..metrics import improvement, rmse
+from ..named_model import simulate_with_terms
 from ..project_data import check_step, whitebox_path
 from ..recording import Recording
 from ..simulate import real_outputs
+from ..terms import ViscousForce
 from .findings import (
     Finding,
     named_findings,
@@ -44,7 +47,6 @@ from .locate import Locator, regime_signals
 from .runner import Experiment, Simulator
 from .select import ForwardSelection
 from .signals import SignalMap
-from .terms import ViscousForce, simulate_with_terms
 
 #: Largest share of a recording used for training in a diagnosis.
 MAX_TRAIN_FRACTION = 0.8

@@ -25,8 +25,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..fmu_archive import FmuArchive
-from .signals import SignalMap
-from .terms import (
+from ..terms import (
     CoulombForce,
     FlowDroop,
     InputDeadband,
@@ -39,6 +38,7 @@ from .terms import (
     Term,
     ViscousForce,
 )
+from .signals import SignalMap
 
 #: Physics a parameter's name or description points to (first match wins).
 PHYSICS_KEYWORDS: tuple[tuple[str, str], ...] = (

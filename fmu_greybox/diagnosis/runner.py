@@ -22,9 +22,10 @@ from ..binding import bind_inputs
 from ..config import ProjectConfig
 from ..errors import FmuError
 from ..fmu_archive import FmuArchive
+from ..named_model import simulate_with_terms
 from ..recording import Recording
+from ..terms import Term
 from .signals import SignalMap, noise_level
-from .terms import Term, simulate_with_terms
 
 
 @dataclass

@@ -1,7 +1,8 @@
-"""Named correction terms and the runner that steps a white-box FMU with them.
+"""Named correction terms: physics the white-box left out, applied where it enters.
 
 A term corrects the white-box where the physics enters, step by step, the way a co-simulation
-master would apply it:
+master would apply it (:class:`fmu_greybox.named_model.NamedModel` steps a white-box with its
+terms):
 
 * at an FMU **input**, from the recorded input (:meth:`Term.on_input`): a gain, an offset, a
   deadband or a delay of a command, applied once per communication step; or fed back from the
@@ -14,12 +15,12 @@ master would apply it:
 
 A term acts on the stages from its ``entry`` stage on: stages before it keep the plain white-box
 outputs. A term entering after the first stage models physics between two stages (e.g. a dead
-zone between a valve's spool and its metering edges): :func:`simulate_with_terms` runs one FMU
-instance per distinct entry stage and takes each observed output from the instance of its stage.
+zone between a valve's spool and its metering edges): the named model runs one FMU instance per
+distinct entry stage and takes each observed output from the instance of its stage.
 
 Terms are small dataclasses, picklable, and round-trip through :meth:`Term.to_dict` /
-:func:`term_from_dict` so that a later run (or the co-simulation master) can rebuild them from
-``diagnosis.json``.
+:func:`term_from_dict` so that a later run (training, the co-simulation master, an exported
+FMU) can rebuild them from ``diagnosis.json`` or a model folder.
 """
 
 from __future__ import annotations
@@ -29,9 +30,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
-
-from ..fmu_archive import FmuArchive
-from ..fmu_instance import FmuInstance
 
 
 class DelayLine:
@@ -54,6 +52,15 @@ class DelayLine:
         self.buffer = np.zeros((self.size, width))
         self.count = 0
         self.head = -1
+
+    def memory(self) -> np.ndarray:
+        """Everything the line remembers, as one float64 vector (for FMU state)."""
+        return np.concatenate([[self.count, self.head], self.buffer.ravel()])
+
+    def restore(self, memory: np.ndarray) -> None:
+        """Take back what :meth:`memory` returned."""
+        self.count, self.head = int(memory[0]), int(memory[1])
+        self.buffer[:] = np.reshape(memory[2:], self.buffer.shape)
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """Push this step's value and return the delayed one (a new array)."""
@@ -104,6 +111,18 @@ class Term:
 
     def on_output(self, y: np.ndarray) -> None:
         """Correct the outputs the sensors report, in place, after a step."""
+
+    def memory(self) -> np.ndarray:
+        """What the term remembers between steps, as one float64 vector (empty if nothing);
+        valid after :meth:`bind`."""
+        line = getattr(self, "_line", None)
+        return line.memory() if line is not None else np.zeros(0)
+
+    def restore(self, memory: np.ndarray) -> None:
+        """Take back what :meth:`memory` returned."""
+        line = getattr(self, "_line", None)
+        if line is not None:
+            line.restore(memory)
 
     def to_dict(self) -> dict:
         """The term as plain data (``kind`` names the class)."""
@@ -274,9 +293,6 @@ class SensorDelay(Term):
         return {**super().to_dict(), "outputs": list(self.outputs)}
 
 
-#: Largest number of runs :func:`simulate_with_terms` keeps in a cache.
-CACHE_SIZE = 8
-
 TERM_KINDS: dict[str, type[Term]] = {
     cls.__name__: cls
     for cls in (
@@ -314,142 +330,3 @@ def term_from_dict(data: Mapping) -> Term:
     if "outputs" in data:
         data["outputs"] = tuple(data["outputs"])
     return cls(**data)
-
-
-def simulate_with_terms(
-    archive: FmuArchive,
-    inputs: Sequence[str],
-    u: np.ndarray,
-    dt: float,
-    outputs: Sequence[str],
-    terms: Sequence[Term] = (),
-    parameters: Mapping[str, float] | None = None,
-    stages: Sequence[int] | None = None,
-    start_time: float = 0.0,
-    substeps: int = 4,
-    cache: dict | None = None,
-) -> np.ndarray:
-    """Run the white-box open-loop over recorded inputs with correction terms applied.
-
-    Timing as :func:`fmu_greybox.simulate.run_open_loop`: row 0 is the initial output, row
-    ``k + 1`` the output after the step that applied (the corrected) ``u[k]``; a feedback term
-    computes its correction from the outputs at the start of each sub-step.
-
-    Parameters
-    ----------
-    archive : FmuArchive
-        The white-box FMU.
-    inputs : sequence of str
-        FMU inputs, one per column of ``u``.
-    u : ndarray, shape (n, len(inputs))
-        Recorded inputs.
-    dt : float
-        Communication step [s].
-    outputs : sequence of str
-        FMU outputs returned.
-    terms : sequence of Term
-        Corrections applied.
-    parameters : mapping, optional
-        Project parameter values (terms' parameter values override them).
-    stages : sequence of int, optional
-        Stage index of every output (default 0): an output of stage ``s`` sees the terms with
-        ``entry <= s`` only.
-    start_time : float
-        Time of row 0 [s].
-    substeps : int
-        FMU steps per communication step when a feedback term is active.
-    cache : dict, optional
-        Results of earlier runs by (terms, outputs, rows): a run whose active terms, outputs
-        and length match one in it is not repeated (the stages before a late-entering term
-        usually match the plain run). Bounded to :data:`CACHE_SIZE` entries.
-
-    Returns
-    -------
-    ndarray, shape (n, len(outputs))
-
-    Raises
-    ------
-    FmuError
-        If the FMU fails (e.g. a correction drives it out of its valid range).
-    """
-    stages = list(stages) if stages is not None else [0] * len(outputs)
-    levels = sorted({0, *(t.entry for t in terms)})
-    y = np.empty((u.shape[0], len(outputs)))
-    for i, level in enumerate(levels):
-        upper = levels[i + 1] if i + 1 < len(levels) else math.inf
-        cols = [j for j, s in enumerate(stages) if level <= s < upper]
-        if not cols:
-            continue
-        active = [t for t in terms if t.entry <= level]
-        names = [outputs[j] for j in cols]
-        key = (repr([t.to_dict() for t in active]), tuple(names), u.shape[0])
-        if cache is not None and key in cache:
-            y[:, cols] = cache[key]
-            continue
-        y[:, cols] = _run(archive, inputs, u, dt, names, active, parameters, start_time, substeps)
-        if cache is not None:
-            while len(cache) >= CACHE_SIZE:
-                cache.pop(next(iter(cache)))
-            cache[key] = y[:, cols].copy()
-    return y
-
-
-def _run(
-    archive: FmuArchive,
-    inputs: Sequence[str],
-    u: np.ndarray,
-    dt: float,
-    outputs: list[str],
-    terms: list[Term],
-    parameters: Mapping[str, float] | None,
-    start_time: float,
-    substeps: int,
-) -> np.ndarray:
-    """One FMU instance stepped with ``terms``; returns the columns of ``outputs``."""
-    bound = list(outputs)
-    for term in terms:
-        bound += [name for name in term.needs() if name not in bound]
-    values = dict(parameters or {})
-    for term in terms:
-        values.update(term.parameters())
-    once = [t for t in terms if t.acts_on_inputs and not t.feedback]
-    fed = [t for t in terms if t.acts_on_inputs and t.feedback]
-    after = [t for t in terms if t.acts_on_outputs]
-    sub = max(1, int(substeps)) if fed else 1
-    h = dt / sub
-    n, m = u.shape[0], len(outputs)
-    y = np.empty((n, m))
-    with FmuInstance(
-        archive,
-        inputs=inputs,
-        outputs=bound,
-        parameters=values,
-        start_values=dict(zip(inputs, u[0], strict=True)),
-        start_time=start_time,
-    ) as instance:
-        for term in terms:
-            term.bind(inputs, bound, dt)
-        current = instance.read_outputs().copy()
-        sensed = current.copy()
-        for term in after:
-            term.on_output(sensed)
-        y[0] = sensed[:m]
-        held = np.empty(u.shape[1])
-        row = np.empty(u.shape[1])
-        for k in range(n - 1):
-            held[:] = u[k]
-            for term in once:
-                term.on_input(held, current)
-            for _ in range(sub):
-                row[:] = held
-                for term in fed:
-                    term.on_input(row, current)
-                current = instance.step(row, h)
-            if after:
-                sensed[:] = current
-                for term in after:
-                    term.on_output(sensed)
-                y[k + 1] = sensed[:m]
-            else:
-                y[k + 1] = current[:m]
-    return y

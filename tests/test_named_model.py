@@ -1,0 +1,206 @@
+"""The white-box with named terms: stepping, state, reset, and a grey-box that carries terms."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from fmpy import simulate_fmu
+from fmpy.validation import validate_fmu
+from lxml import etree
+from test_export import (
+    INPUTS,
+    STAGE_OUTPUTS,
+    Slave,
+    assert_close,
+    input_rows,
+    input_signal,
+    master_run,
+    synth_recording,
+)
+
+from fmu_greybox.cli import main
+from fmu_greybox.config import load_config
+from fmu_greybox.errors import ConfigError
+from fmu_greybox.export import export_greybox
+from fmu_greybox.fmu_archive import open_fmu
+from fmu_greybox.model_dir import load_model, save_model
+from fmu_greybox.named_model import NamedModel, check_terms, read_terms, simulate_with_terms
+from fmu_greybox.recording import save_recording
+from fmu_greybox.terms import CoulombForce, InputDelay, InputGain, SensorDelay
+from fmu_greybox.training import train_model, with_inducing
+
+ROOT = Path(__file__).resolve().parents[1]
+OUTPUTS = ["spool_position", "ram_position", "itfv_pressure"]
+DT = 1e-3
+
+
+def terms() -> list:
+    """A delayed command, a fed-back friction force, and a sensor delay from stage 1 on."""
+    return [
+        InputDelay(input="valve_current", delay=0.0025),
+        CoulombForce(input="load_force", source="ram_velocity", force=400.0, smoothing=2e-3),
+        SensorDelay(outputs=("ram_position", "itfv_pressure"), delay=0.002, entry=1),
+    ]
+
+
+@pytest.fixture(scope="module")
+def archive(whitebox_fmu):
+    with open_fmu(whitebox_fmu) as a:
+        yield a
+
+
+@pytest.fixture(scope="module")
+def u() -> np.ndarray:
+    t = np.arange(600) * DT
+    rows = np.empty((t.size, 4))
+    rows[:, 0] = 3.0 * np.sin(2 * np.pi * 2 * t)
+    rows[:, 1] = 20.7e6
+    rows[:, 2] = 3000.0 * np.sin(2 * np.pi * 0.7 * t)
+    rows[:, 3] = 1.0
+    return rows
+
+
+def stepped(model: NamedModel, u: np.ndarray) -> np.ndarray:
+    return np.array([model.step(row).copy() for row in u])
+
+
+def named(archive, u) -> NamedModel:
+    return NamedModel(archive, INPUTS, OUTPUTS, DT, terms(), [0, 1, 2],
+                      start_values=dict(zip(INPUTS, u[0], strict=True)))
+
+
+def test_stepping_equals_the_batch_runner_and_differs_from_the_plain_model(archive, u) -> None:
+    with named(archive, u) as model:
+        y = np.vstack([model.outputs().copy(), stepped(model, u[:-1])])
+    batch = simulate_with_terms(archive, INPUTS, u, DT, OUTPUTS, terms(), stages=[0, 1, 2])
+    np.testing.assert_array_equal(y, batch)
+    plain = simulate_with_terms(archive, INPUTS, u, DT, OUTPUTS)
+    assert np.max(np.abs(y[:, 1] - plain[:, 1])) > 1e-4  # the terms act (ram position, m)
+    # the sensor delay enters at stage 1: the spool position only sees the stage-0 terms
+    stage0 = simulate_with_terms(archive, INPUTS, u, DT, OUTPUTS, terms()[:2])
+    np.testing.assert_array_equal(y[:, 0], stage0[:, 0])
+
+
+def test_restored_state_continues_identically_in_another_instance(archive, u) -> None:
+    with named(archive, u) as first, named(archive, u) as second:
+        stepped(first, u[:250])
+        saved = json.loads(json.dumps(first.state()))  # plain data
+        after = stepped(first, u[250:400])
+        second.restore(saved)
+        np.testing.assert_array_equal(stepped(second, u[250:400]), after)
+        first.restore(saved)
+        np.testing.assert_array_equal(stepped(first, u[250:400]), after)
+
+
+def test_reset_starts_over_with_the_terms_memory_cleared(archive, u) -> None:
+    with named(archive, u) as model:
+        before = stepped(model, u[:200])
+        model.reset(dict(zip(INPUTS, u[0], strict=True)), 0.0)
+        np.testing.assert_array_equal(stepped(model, u[:200]), before)
+
+
+def test_terms_acting_on_missing_variables_are_refused(archive) -> None:
+    check_terms(terms(), archive, 3)
+    with pytest.raises(ConfigError, match=r"input 'valve_cmd'.*does not have"):
+        check_terms([InputGain(input="valve_cmd", gain=0.1)], archive, 3)
+    with pytest.raises(ConfigError, match=r"variable 'ram_speed'"):
+        check_terms([CoulombForce(input="load_force", source="ram_speed")], archive, 3)
+    with pytest.raises(ConfigError, match="enters at stage 3; the project has 3 stages"):
+        check_terms([InputGain(input="valve_current", entry=3)], archive, 3)
+
+
+def test_diagnosis_files_that_are_no_diagnosis_are_refused(tmp_path: Path) -> None:
+    bad = tmp_path / "diagnosis.json"
+    bad.write_text("{not json")
+    with pytest.raises(ConfigError, match=r"diagnosis\.json: unreadable"):
+        read_terms(bad)
+    bad.write_text(json.dumps({"verdict": "x"}))
+    with pytest.raises(ConfigError, match="findings: no list of findings"):
+        read_terms(bad)
+    bad.write_text(json.dumps({"findings": [{"effect": "offset", "terms": [{"kind": "Eval"}]}]}))
+    with pytest.raises(ConfigError, match="unknown term kind 'Eval'"):
+        read_terms(bad)
+    good = {"findings": [{"effect": "gain_error", "terms": [InputGain(input="valve_current",
+                                                                      gain=0.05).to_dict()]},
+                         {"effect": "unexplained", "terms": []}]}
+    bad.write_text(json.dumps(good))
+    assert read_terms(bad) == [InputGain(input="valve_current", gain=0.05)]
+
+
+@pytest.fixture(scope="module")
+def termed(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """A small grey-box trained on white-box + terms, saved, exported; and a validation run."""
+    folder = tmp_path_factory.mktemp("termed")
+    config = with_inducing(load_config(ROOT / "bench_configs" / "hydraulic_actuator.toml"), 30)
+    config = dataclasses.replace(config, gp=dataclasses.replace(config.gp, max_iter=15))
+    recording = synth_recording(3.0, seed=21)
+    model = train_model(config, recording, terms=terms())
+    save_model(model, folder / "model")
+    fmu = export_greybox(folder / "model", folder / "greybox.fmu", author="tests").path
+    return {"model_dir": folder / "model", "fmu": fmu, "validation": synth_recording(1.0, 22),
+            "recording": recording, "folder": folder}
+
+
+def test_a_model_carries_its_terms_through_save_load_and_into_the_master(termed) -> None:
+    model = load_model(termed["model_dir"])
+    assert model.terms == terms()
+    validation = termed["validation"]
+    run = master_run(termed["model_dir"], validation)
+    with open_fmu(model.whitebox_fmu) as archive:
+        expected = simulate_with_terms(archive, INPUTS, input_rows(validation), DT, OUTPUTS,
+                                       terms(), stages=[0, 1, 2])
+    np.testing.assert_array_equal(run.whitebox, expected[1:])
+
+
+def test_exported_fmu_with_terms_gives_the_masters_outputs(termed) -> None:
+    fmu, validation = termed["fmu"], termed["validation"]
+    assert validate_fmu(str(fmu)) == []
+    result = simulate_fmu(str(fmu), stop_time=validation.time[-1], step_size=DT,
+                          output_interval=DT, input=input_signal(validation))
+    run = master_run(termed["model_dir"], validation)
+    for q, name in enumerate(STAGE_OUTPUTS):
+        assert_close(result[name][1:], run.mean[:, q], name)
+        assert_close(result[name + "_std"][1:], run.std[:, q], name + "_std")
+        assert_close(result[name + "_wb"][1:], run.whitebox[:, q], name + "_wb")
+    with zipfile.ZipFile(fmu) as archive:
+        xml = archive.read("modelDescription.xml")
+    annotated = etree.fromstring(xml).findall(".//GreyBox/NamedTerm")
+    assert [(t.get("effect"), t.get("stage")) for t in annotated] == [
+        ("time_delay", "EHV"), ("coulomb_friction", "EHV"), ("time_delay", "RAM")]
+
+
+def test_exported_fmu_state_with_terms_restores_identically(termed) -> None:
+    rows = input_rows(termed["validation"])
+    slave = Slave(termed["fmu"], "termed", rows)
+    try:
+        slave.run(rows[:300])
+        state = slave.slave.getFMUstate()
+        after = slave.run(rows[300:500])
+        slave.slave.setFMUstate(state)
+        slave.k = 300
+        np.testing.assert_array_equal(slave.run(rows[300:500]), after)
+        slave.slave.freeFMUstate(state)
+    finally:
+        slave.close()
+
+
+def test_train_command_folds_a_diagnosis_terms(termed, tmp_path: Path) -> None:
+    diagnosis = tmp_path / "diagnosis.json"
+    diagnosis.write_text(json.dumps({"findings": [
+        {"effect": "coulomb_friction", "terms": [terms()[1].to_dict()]},
+        {"effect": "none", "terms": []},
+    ]}))
+    recording = save_recording(termed["recording"], tmp_path / "rec.csv")
+    result = CliRunner().invoke(main, [
+        "train", str(ROOT / "bench_configs" / "hydraulic_actuator.toml"), "--recording",
+        str(recording), "--inducing", "10", "--terms", str(diagnosis), "--out",
+        str(tmp_path / "model")])
+    assert result.exit_code == 0, result.output
+    assert "named terms: coulomb_friction" in result.output
+    assert load_model(tmp_path / "model").terms == [terms()[1]]
