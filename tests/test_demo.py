@@ -67,6 +67,20 @@ def test_demo_finds_the_concealed_effect(demo: tuple[Path, dict]) -> None:
         assert row["wb_rmse"] > 0 and row["gb_rmse"] > 0
 
 
+def test_demo_model_carries_the_named_terms_and_improves_the_ram(demo: tuple[Path, dict]) -> None:
+    """The diagnosis' terms are folded into the trained model (and so into its FMU); on the
+    independent recording the corrected model beats the white-box on the stage the friction
+    acts on."""
+    out, summary = demo
+    diagnosis = json.loads((out / "diagnosis.json").read_text())
+    manifest = json.loads((out / "model" / "model.json").read_text())
+    found = [t for f in diagnosis["findings"] for t in f.get("terms", [])]
+    assert manifest["named_terms"]["terms"] == found and found
+    metrics = json.loads((out / "metrics.json").read_text())["stages"]
+    assert metrics["RAM"]["named_rmse"] < 0.5 * metrics["RAM"]["wb_rmse"]
+    assert summary["validation"]["RAM"]["improvement"] < -0.5
+
+
 def test_demo_bench_runs_match_the_master(demo: tuple[Path, dict]) -> None:
     _, summary = demo
     assert set(summary["bench"]) == {"fmpy", "libcosim"}
