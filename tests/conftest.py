@@ -124,6 +124,28 @@ def truth_fmu(fmu_dir: Path) -> Path:
 
 
 @pytest.fixture(scope="session")
+def whitebox_archive(whitebox_fmu: Path):
+    """The white-box FMU, opened once per session."""
+    from fmu_greybox.fmu_archive import open_fmu
+
+    with open_fmu(whitebox_fmu) as archive:
+        yield archive
+
+
+@pytest.fixture(scope="session")
+def actuator_inputs() -> np.ndarray:
+    """800 rows at 1 ms of the white-box's inputs (current, supply, load, engage): a biased
+    sine current and a slower load sine at full supply, engaged."""
+    t = np.arange(800) * 1e-3
+    u = np.empty((t.size, 4))
+    u[:, 0] = 2.0 * np.sin(2 * np.pi * 3 * t) + 0.5
+    u[:, 1] = 20.7e6
+    u[:, 2] = 2000.0 * np.sin(2 * np.pi * 1.3 * t)
+    u[:, 3] = 1.0
+    return u
+
+
+@pytest.fixture(scope="session")
 def instantiate() -> Callable[..., tuple[FMU2Slave, dict[str, int]]]:
     """:func:`instantiate_fmu`."""
     return instantiate_fmu

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fmu_greybox.fmu_archive import open_fmu
 from fmu_greybox.fmu_instance import FmuInstance
 from fmu_greybox.named_model import simulate_with_terms
 from fmu_greybox.simulate import run_open_loop
@@ -30,20 +29,13 @@ DT = 1e-3
 
 
 @pytest.fixture(scope="module")
-def archive(whitebox_fmu):
-    with open_fmu(whitebox_fmu) as a:
-        yield a
+def archive(whitebox_archive):
+    return whitebox_archive
 
 
 @pytest.fixture(scope="module")
-def inputs() -> np.ndarray:
-    t = np.arange(800) * DT
-    u = np.empty((t.size, 4))
-    u[:, 0] = 2.0 * np.sin(2 * np.pi * 3 * t) + 0.5
-    u[:, 1] = 20.7e6
-    u[:, 2] = 2000.0 * np.sin(2 * np.pi * 1.3 * t)
-    u[:, 3] = 1.0
-    return u
+def inputs(actuator_inputs) -> np.ndarray:
+    return actuator_inputs
 
 
 def plain(archive, u: np.ndarray, parameters=None) -> np.ndarray:

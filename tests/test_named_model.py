@@ -49,33 +49,19 @@ def terms() -> list:
     ]
 
 
-@pytest.fixture(scope="module")
-def archive(whitebox_fmu):
-    with open_fmu(whitebox_fmu) as a:
-        yield a
-
-
-@pytest.fixture(scope="module")
-def u() -> np.ndarray:
-    t = np.arange(600) * DT
-    rows = np.empty((t.size, 4))
-    rows[:, 0] = 3.0 * np.sin(2 * np.pi * 2 * t)
-    rows[:, 1] = 20.7e6
-    rows[:, 2] = 3000.0 * np.sin(2 * np.pi * 0.7 * t)
-    rows[:, 3] = 1.0
-    return rows
-
-
 def stepped(model: NamedModel, u: np.ndarray) -> np.ndarray:
     return np.array([model.step(row).copy() for row in u])
 
 
-def named(archive, u) -> NamedModel:
+def named(archive, u: np.ndarray) -> NamedModel:
     return NamedModel(archive, INPUTS, OUTPUTS, DT, terms(), [0, 1, 2],
                       start_values=dict(zip(INPUTS, u[0], strict=True)))
 
 
-def test_stepping_equals_the_batch_runner_and_differs_from_the_plain_model(archive, u) -> None:
+def test_stepping_equals_the_batch_run_and_differs_from_plain(
+    whitebox_archive, actuator_inputs
+) -> None:
+    archive, u = whitebox_archive, actuator_inputs
     with named(archive, u) as model:
         y = np.vstack([model.outputs().copy(), stepped(model, u[:-1])])
     batch = simulate_with_terms(archive, INPUTS, u, DT, OUTPUTS, terms(), stages=[0, 1, 2])
@@ -87,7 +73,10 @@ def test_stepping_equals_the_batch_runner_and_differs_from_the_plain_model(archi
     np.testing.assert_array_equal(y[:, 0], stage0[:, 0])
 
 
-def test_restored_state_continues_identically_in_another_instance(archive, u) -> None:
+def test_restored_state_continues_identically_in_another_instance(
+    whitebox_archive, actuator_inputs
+) -> None:
+    archive, u = whitebox_archive, actuator_inputs
     with named(archive, u) as first, named(archive, u) as second:
         stepped(first, u[:250])
         saved = json.loads(json.dumps(first.state()))  # plain data
@@ -98,14 +87,16 @@ def test_restored_state_continues_identically_in_another_instance(archive, u) ->
         np.testing.assert_array_equal(stepped(first, u[250:400]), after)
 
 
-def test_reset_starts_over_with_the_terms_memory_cleared(archive, u) -> None:
+def test_reset_starts_over_with_the_terms_memory_cleared(whitebox_archive, actuator_inputs) -> None:
+    archive, u = whitebox_archive, actuator_inputs
     with named(archive, u) as model:
         before = stepped(model, u[:200])
         model.reset(dict(zip(INPUTS, u[0], strict=True)), 0.0)
         np.testing.assert_array_equal(stepped(model, u[:200]), before)
 
 
-def test_terms_acting_on_missing_variables_are_refused(archive) -> None:
+def test_terms_acting_on_missing_variables_are_refused(whitebox_archive) -> None:
+    archive = whitebox_archive
     check_terms(terms(), archive, 3)
     with pytest.raises(ConfigError, match=r"input 'valve_cmd'.*does not have"):
         check_terms([InputGain(input="valve_cmd", gain=0.1)], archive, 3)
