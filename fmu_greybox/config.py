@@ -37,6 +37,10 @@ ROLE_UNITS: dict[str, tuple[str, ...]] = {
 }
 
 TARGET_MODES = ("residual", "increment", "output")
+#: Target setting that lets training choose residual or increment per stage.
+AUTO = "auto"
+#: Where training takes the earlier stages' outputs in a stage's features from.
+FEED_SOURCES = ("recorded", "free_run")
 INDUCING_METHODS = ("equispaced", "kmeans", "greedy")
 
 
@@ -84,11 +88,15 @@ class StageConfig:
     lags : int
         Number of own previous outputs fed back (>= 1).
     target_mode : str or None
-        What this stage's corrector learns (overrides ``[gp] target``).
+        What this stage's corrector learns (overrides ``[gp] target``); one of
+        :data:`TARGET_MODES` or :data:`AUTO`.
     feed_rates : bool
         Also feed the rates of change of the feeding stages' outputs and of their residuals
         to the white-box (e.g. a pressure stage fed by a position stage sees the velocity
         and the velocity error).
+    differences : int
+        Also feed the last ``differences`` step changes of each of the stage's inputs, of its
+        white-box output and of each feeding stage's output (0: none).
     """
 
     name: str
@@ -99,6 +107,7 @@ class StageConfig:
     lags: int = 1
     target_mode: str | None = None
     feed_rates: bool = False
+    differences: int = 0
 
 
 @dataclass(frozen=True)
@@ -114,7 +123,13 @@ class GPConfig:
     max_iter : int
         Cap on optimiser iterations.
     target : str
-        ``"residual"`` (recorded minus white-box) or ``"output"`` (the recorded output).
+        ``"residual"`` (recorded minus white-box), ``"increment"`` (its step change),
+        ``"output"`` (the recorded output) or ``"auto"`` (residual or increment per stage, by a
+        free run on the tail of the training rows).
+    feeds : str
+        Where the earlier stages' outputs in a stage's training features come from:
+        ``"recorded"`` (teacher forcing) or ``"free_run"`` (the earlier stages' own free run
+        over the training rows, as the stage will see them when running).
     max_train_samples : int
         Training rows used per stage at most (evenly thinned beyond that).
     seed : int
@@ -125,6 +140,7 @@ class GPConfig:
     inducing_method: str = "equispaced"
     max_iter: int = 200
     target: str = "residual"
+    feeds: str = "recorded"
     max_train_samples: int = 30000
     seed: int = 0
 
@@ -403,6 +419,7 @@ def _stages(reader: _Reader, items: Any, signals: Mapping[str, Signal]) -> tuple
                 "lags",
                 "target_mode",
                 "feed_rates",
+                "differences",
             },
         )
         name = reader.get(entry, "name", str, None, where + ".", required=True)
@@ -423,8 +440,13 @@ def _stages(reader: _Reader, items: Any, signals: Mapping[str, Signal]) -> tuple
         if not 1 <= lags <= 10:
             reader.fail(where + ".lags", f"{lags} is outside 1..10")
         mode = reader.get(entry, "target_mode", str, None, where + ".")
-        if mode is not None and mode not in TARGET_MODES:
-            reader.fail(where + ".target_mode", f"{mode!r} is not one of {', '.join(TARGET_MODES)}")
+        if mode is not None and mode not in (*TARGET_MODES, AUTO):
+            reader.fail(
+                where + ".target_mode", f"{mode!r} is not one of {', '.join((*TARGET_MODES, AUTO))}"
+            )
+        differences = reader.get(entry, "differences", int, 0, where + ".")
+        if not 0 <= differences <= 10:
+            reader.fail(where + ".differences", f"{differences} is outside 0..10")
         stages.append(
             StageConfig(
                 name=name,
@@ -437,6 +459,7 @@ def _stages(reader: _Reader, items: Any, signals: Mapping[str, Signal]) -> tuple
                 lags=lags,
                 target_mode=mode,
                 feed_rates=reader.get(entry, "feed_rates", bool, False, where + "."),
+                differences=differences,
             )
         )
     _check_order(reader, stages)
@@ -518,6 +541,7 @@ def _gp(reader: _Reader, table: Mapping[str, Any]) -> GPConfig:
             "inducing_method",
             "max_iter",
             "target",
+            "feeds",
             "max_train_samples",
             "seed",
             "kernel",
@@ -535,6 +559,7 @@ def _gp(reader: _Reader, table: Mapping[str, Any]) -> GPConfig:
         inducing_method=reader.get(table, "inducing_method", str, GPConfig.inducing_method, "gp."),
         max_iter=reader.get(table, "max_iter", int, GPConfig.max_iter, "gp."),
         target=reader.get(table, "target", str, GPConfig.target, "gp."),
+        feeds=reader.get(table, "feeds", str, GPConfig.feeds, "gp."),
         max_train_samples=reader.get(
             table, "max_train_samples", int, GPConfig.max_train_samples, "gp."
         ),
@@ -551,8 +576,10 @@ def _gp(reader: _Reader, table: Mapping[str, Any]) -> GPConfig:
             "gp.inducing_method",
             f"{gp.inducing_method!r} is not one of {', '.join(INDUCING_METHODS)}",
         )
-    if gp.target not in TARGET_MODES:
-        reader.fail("gp.target", f"{gp.target!r} is not one of {', '.join(TARGET_MODES)}")
+    if gp.target not in (*TARGET_MODES, AUTO):
+        reader.fail("gp.target", f"{gp.target!r} is not one of {', '.join((*TARGET_MODES, AUTO))}")
+    if gp.feeds not in FEED_SOURCES:
+        reader.fail("gp.feeds", f"{gp.feeds!r} is not one of {', '.join(FEED_SOURCES)}")
     return gp
 
 

@@ -515,7 +515,8 @@ class GreyBoxSlave(Fmi2Slave):
             whitebox.reset(start, self._time)
         wb = whitebox.outputs()
         y_wb = wb[self._stage_output]
-        state = self.model.chain.start(y_wb[None, :], y_wb[None, :])
+        exo = np.array([inputs[i] for i in self._exo_index])
+        state = self.model.chain.start(y_wb[None, :], y_wb[None, :], exo[None, :])
         self._run = _Run(whitebox=whitebox, state=state, started_with=inputs)
         self._publish(wb, y_wb, state, 1.0, False)
         return self._run

@@ -13,15 +13,19 @@ from collections.abc import Callable
 import numpy as np
 
 from .chain_step import ChainPlan, ChainState
-from .config import ProjectConfig
+from .config import AUTO, ProjectConfig
 from .errors import ConfigError
 from .gp import SparseGPR
-from .stage import TARGET_MODES, StageLayout
+from .stage import TARGET_MODES, SourceLayout, StageLayout
 
 ProgressCallback = Callable[[str, int, float], None]
 
 #: Features are clipped to their training range widened by this share of the range.
 RANGE_MARGIN = 0.05
+#: Share of the training rows a stage with target "auto" is free-run over to choose.
+SELECTION_TAIL = 0.2
+#: Relative free-run RMSE gain that makes "increment" win over "residual".
+SELECTION_MARGIN = 1e-3
 
 
 class GreyBoxChain:
@@ -52,9 +56,9 @@ class GreyBoxChain:
 
     def __init__(self, config: ProjectConfig, target_mode: str | None = None) -> None:
         mode = target_mode or config.gp.target
-        if mode not in TARGET_MODES:
+        if mode not in (*TARGET_MODES, AUTO):
             raise ConfigError(
-                f"{mode!r} is not one of {', '.join(TARGET_MODES)}", field="gp.target"
+                f"{mode!r} is not one of {', '.join((*TARGET_MODES, AUTO))}", field="gp.target"
             )
         self.config = config
         self.target_mode = mode
@@ -72,8 +76,13 @@ class GreyBoxChain:
             )
             for q, s in enumerate(config.stages)
         ]
-        self.correctors_: list[SparseGPR] = []
-        self.feature_bounds_: list[np.ndarray] = []
+        self.layout = SourceLayout(
+            n_exo=len(self.exo_names),
+            n_stages=len(self.stages),
+            depth=max(1, *(s.depth for s in self.stages)),
+        )
+        self.correctors_: list[SparseGPR | None] = []
+        self.feature_bounds_: list[np.ndarray | None] = []
         self.active_ = np.ones(len(self.stages), dtype=bool)
 
     # ------------------------------------------------------------------ names
@@ -94,9 +103,9 @@ class GreyBoxChain:
 
     @property
     def history(self) -> int:
-        """Rows of known outputs :meth:`start` needs: the longest memory, and at least two
-        (for the rate features)."""
-        return max(2, *(s.lags for s in self.stages))
+        """Rows of known data :meth:`start` uses: the history of outputs and of the inputs
+        before them, and the longest memory."""
+        return max(self.layout.depth + 2, *(s.memory_length for s in self.stages))
 
     def feature_names(self, q: int) -> list[str]:
         """Feature names of stage ``q``."""
@@ -110,7 +119,16 @@ class GreyBoxChain:
         outputs: np.ndarray,
         progress: ProgressCallback | None = None,
     ) -> GreyBoxChain:
-        """Train every stage by teacher forcing.
+        """Train every stage, in chain order.
+
+        A stage's own memory and target come from the recorded outputs (teacher forcing). The
+        earlier stages' outputs in its features come from the recording, or with ``[gp] feeds
+        = "free_run"`` from the earlier (already trained) stages' own free run over the same
+        rows, as the stage will see them when it runs. A stage whose target is ``"auto"`` is
+        trained both as ``residual`` and ``increment`` on the leading rows, each free-run with
+        the stages before it over the last :data:`SELECTION_TAIL` of the rows, and takes
+        ``increment`` only where that free run's RMSE is lower by more than
+        :data:`SELECTION_MARGIN`; then it is trained on all rows.
 
         Parameters
         ----------
@@ -121,57 +139,121 @@ class GreyBoxChain:
         outputs : ndarray, shape (n, Q)
             Recorded stage outputs.
         progress : callable, optional
-            Called as ``progress(stage_name, iteration, bound)`` during optimisation.
+            Called as ``progress(label, iteration, bound)`` during optimisation (label: the
+            stage name, with the candidate target while choosing one).
 
         Returns
         -------
         GreyBoxChain
             ``self``, with :attr:`correctors_` set.
         """
-        gp = self.config.gp
-        self.correctors_ = []
-        self.feature_bounds_ = []
-        for stage in self.stages:
-            X, t = stage.teacher_forced(exo, y_wb, outputs)
-            X, t = _thin(X, t, gp.max_train_samples)
-            self.feature_bounds_.append(_widened_range(X))
-            corrector = SparseGPR(
-                n_inducing=min(gp.inducing, t.size),
-                inducing=gp.inducing_method,
-                max_iter=gp.max_iter,
-                seed=gp.seed,
-            )
-            callback = None
-            if progress is not None:
-                callback = _stage_progress(progress, stage.name)
-            self.correctors_.append(corrector.fit(X, t, progress=callback))
+        q_count = len(self.stages)
+        self.correctors_ = [None] * q_count
+        self.feature_bounds_ = [None] * q_count
+        self.active_[:] = True
+        self.selection_: dict[str, dict[str, float]] = {}
+        for q, stage in enumerate(self.stages):
+            if stage.target_mode == AUTO:
+                stage.target_mode = self._choose_target(q, exo, y_wb, outputs, progress)
+            self._fit_stage(q, exo, y_wb, outputs, progress, stage.name)
         return self
 
+    def _fit_stage(
+        self,
+        q: int,
+        exo: np.ndarray,
+        y_wb: np.ndarray,
+        outputs: np.ndarray,
+        progress: ProgressCallback | None,
+        label: str,
+    ) -> None:
+        """Fit stage ``q``'s corrector on the rows given (the stages before it are fitted)."""
+        gp = self.config.gp
+        stage = self.stages[q]
+        fed = self._fed(q, exo, y_wb, outputs) if gp.feeds == "free_run" and q else None
+        X, t = stage.teacher_forced(self.layout, exo, y_wb, outputs, fed)
+        X, t = _thin(X, t, gp.max_train_samples)
+        self.feature_bounds_[q] = _widened_range(X)
+        corrector = SparseGPR(
+            n_inducing=min(gp.inducing, t.size),
+            inducing=gp.inducing_method,
+            max_iter=gp.max_iter,
+            seed=gp.seed,
+        )
+        callback = _stage_progress(progress, label) if progress is not None else None
+        self.correctors_[q] = corrector.fit(X, t, progress=callback)
+
+    def _fed(self, q: int, exo: np.ndarray, y_wb: np.ndarray, outputs: np.ndarray) -> np.ndarray:
+        """The recorded outputs with the stages before ``q`` replaced by their free run."""
+        kept = self.active_.copy()
+        self.active_[:] = np.arange(len(self.stages)) < q
+        try:
+            start = self.history - 1
+            mean, _ = self.free_run(exo, y_wb, outputs, start)
+        finally:
+            self.active_[:] = kept
+        fed = outputs.copy()
+        fed[start + 1 :, :q] = mean[:, :q]
+        return fed
+
+    def _choose_target(
+        self,
+        q: int,
+        exo: np.ndarray,
+        y_wb: np.ndarray,
+        outputs: np.ndarray,
+        progress: ProgressCallback | None,
+    ) -> str:
+        """``residual`` or ``increment`` for stage ``q`` (see :meth:`fit`)."""
+        stage = self.stages[q]
+        split = max(self.history + 2, int((1.0 - SELECTION_TAIL) * exo.shape[0]))
+        head = slice(0, split)
+        kept = self.active_.copy()
+        errors = {}
+        try:
+            self.active_[:] = np.arange(len(self.stages)) <= q
+            for mode in ("residual", "increment"):
+                stage.target_mode = mode
+                self._fit_stage(
+                    q, exo[head], y_wb[head], outputs[head], progress, f"{stage.name} ({mode}?)"
+                )
+                mean, _ = self.free_run(exo, y_wb, outputs, split - 1)
+                errors[mode] = float(np.sqrt(np.mean((mean[:, q] - outputs[split:, q]) ** 2)))
+        finally:
+            self.active_[:] = kept
+        better = errors["increment"] < (1.0 - SELECTION_MARGIN) * errors["residual"]
+        chosen = "increment" if better else "residual"
+        self.selection_[stage.name] = {**errors, "chosen": chosen}
+        return chosen
+
     # ------------------------------------------------------------------ running
-    def start(self, outputs: np.ndarray, y_wb: np.ndarray) -> ChainState:
-        """Initial memory from known outputs before the first predicted row.
+    def start(self, outputs: np.ndarray, y_wb: np.ndarray, exo: np.ndarray) -> ChainState:
+        """Initial state from known data up to the row before the first predicted one.
 
         Parameters
         ----------
         outputs, y_wb : ndarray, shape (h, Q)
             Known stage outputs and white-box predictions of the last ``h`` rows, oldest
-            first, ``h <= history`` (a stage whose memory is longer cycles through them).
+            first (``h <= history``; with fewer rows than the history needs, the oldest
+            stands in for the ones before it).
+        exo : ndarray, shape (h, n_exo)
+            Exogenous inputs of the same rows (the last one is not used: the first step is
+            given it).
 
         Returns
         -------
         ChainState
         """
-        outputs = np.atleast_2d(outputs)
-        y_wb = np.atleast_2d(y_wb)
-        state = ChainState([stage.lags for stage in self.stages])
+        outputs, y_wb, exo = (np.atleast_2d(a) for a in (outputs, y_wb, exo))
+        state = ChainState(self.layout, [stage.memory_length for stage in self.stages])
+        last = outputs.shape[0] - 1
+        for h in range(self.layout.depth + 1):
+            state.history("wb")[h] = y_wb[max(last - h, 0)]
+            state.history("out")[h] = outputs[max(last - h, 0)]
+            state.history("exo")[h] = exo[max(last - 1 - h, 0)]
         for stage, memory in zip(self.stages, state.memory, strict=True):
-            level = stage.level(outputs[:, stage.stage_index], y_wb[:, stage.stage_index])[::-1]
-            memory[:] = np.resize(level, stage.lags)  # the most recent first, cycled if short
-        before = -2 if outputs.shape[0] > 1 else -1
-        state.out_mean[:] = outputs[-1]
-        state.wb[:] = y_wb[-1]
-        state.prev_mean[:] = outputs[before]
-        state.prev_wb[:] = y_wb[before]
+            level = stage.level(outputs[:, stage.stage_index], y_wb[:, stage.stage_index])
+            memory[:] = level[np.maximum(last - np.arange(stage.memory_length), 0)]
         return state
 
     def plan(self) -> ChainPlan:
@@ -245,7 +327,8 @@ class GreyBoxChain:
             Predictions of rows ``start + 1 .. n - 1``.
         """
         first = max(0, start - self.history + 1)
-        state = self.start(outputs[first : start + 1], y_wb[first : start + 1])
+        known = slice(first, start + 1)
+        state = self.start(outputs[known], y_wb[known], exo[known])
         n = exo.shape[0]
         exo = np.ascontiguousarray(exo, dtype=np.float64)
         y_wb = np.ascontiguousarray(y_wb, dtype=np.float64)

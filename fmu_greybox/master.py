@@ -107,7 +107,8 @@ def run_master(
             if j == start + 1:
                 first = max(0, start - history + 1)
                 known = data.outputs if memory_from == "recorded" else wb
-                state = chain.start(known[first : start + 1], wb[first : start + 1])
+                rows = slice(first, start + 1)
+                state = chain.start(known[rows], wb[rows], exo[rows])
             if state is not None:
                 plan.step(state, exo[j - 1], wb[j])
                 mean[j - start - 1] = state.out_mean

@@ -40,6 +40,7 @@ from .fmu_archive import FmuArchive
 from .gp import SparseGPR
 from .greybox import GreyBoxChain
 from .named_model import DEFAULT_SUBSTEPS, NamedModel
+from .stage import TARGET_MODES
 from .terms import Term, term_from_dict
 
 #: Version written; versions read (1: no named terms).
@@ -181,6 +182,7 @@ def save_model(model: GreyBoxModel, out_dir: str | Path) -> Path:
                     "stem": stem,
                     "features": model.chain.feature_names(stage.stage_index),
                     "active": bool(model.chain.active_[stage.stage_index]),
+                    "target_mode": stage.target_mode,
                     "feature_low": model.chain.feature_bounds_[stage.stage_index][0].tolist(),
                     "feature_high": model.chain.feature_bounds_[stage.stage_index][1].tolist(),
                 }
@@ -325,6 +327,11 @@ def load_model(model_dir: str | Path) -> GreyBoxModel:
     stages = manifest["stages"]
     try:
         chain = GreyBoxChain(config, manifest["target_mode"])
+        for layout, stage in zip(chain.stages, stages, strict=False):
+            # the target training chose (version 1 folders: the project's)
+            layout.target_mode = stage.get("target_mode", layout.target_mode)
+            if layout.target_mode not in TARGET_MODES:
+                raise ValueError(f"stage {stage.get('name')!r}: unknown target_mode")
         if [s["name"] for s in stages] != chain.stage_names:
             raise ValueError(
                 f"stages {[s['name'] for s in stages]} differ from the project's "

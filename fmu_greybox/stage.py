@@ -1,4 +1,4 @@
-"""One stage of the autoregressive grey-box: its features, its dataset, its one-step predictor.
+"""One stage of the autoregressive grey-box: its features and its training dataset.
 
 Timing (see :mod:`fmu_greybox.simulate`): the prediction of the stage output at row ``j`` uses
 
@@ -7,29 +7,28 @@ Timing (see :mod:`fmu_greybox.simulate`): the prediction of the stage output at 
 * the outputs of the earlier stages at row ``j`` (already computed this step),
 * with ``feed_rates``, the changes over the last step of the earlier stages' outputs and of
   their residuals to the white-box (a velocity and a velocity error, for a position stage),
-* the stage's own previous values at rows ``j - 1 ... j - L`` (its *memory*).
+* with ``differences = K``, the last K step changes of each input (``u[j-1] - u[j-2]``, ...),
+  of the stage's white-box output and of each feeding stage's output (``s[j] - s[j-1]``, ...),
+* the stage's own memory: its previous levels at rows ``j - 1 ... j - L``, or in ``increment``
+  mode their last L step changes.
 
 What the corrector learns (``target``):
 
 ``residual``
-    ``r_j = y_j - y_wb_j``; memory holds previous residuals; output ``y_wb_j + r_j``.
+    ``r_j = y_j - y_wb_j``; memory: ``r_{j-1} ... r_{j-L}``; output ``y_wb_j + r_j``.
 ``increment``
-    ``r_j - r_{j-1}``; memory holds previous residuals; output ``y_wb_j + r_{j-1} + d_j``.
+    ``d_j = r_j - r_{j-1}``; memory: ``d_{j-1} ... d_{j-L}`` (from L + 1 stored residuals);
+    output ``y_wb_j + r_{j-1} + d_j``.
 ``output``
-    ``y_j`` itself (the paper's formulation); memory holds previous outputs.
+    ``y_j`` itself (the paper's formulation); memory: ``y_{j-1} ... y_{j-L}``.
 
-Training replaces the memory and the earlier stages' outputs by recorded values (teacher
-forcing); a free run feeds back the predictions.
-
-Every feature is a fixed linear combination of the stage's *sources*, one vector per row:
-
-    exogenous inputs of row j-1 (n_exo) | white-box outputs of row j (Q) | stage outputs of
-    row j (Q) | stage outputs of row j-1 (Q) | white-box outputs of row j-1 (Q) | the stage's
-    memory, levels of rows j-1 ... j-L (L)
-
-:meth:`StageLayout.feature_map` is that combination as a matrix; training applies it to
-recorded sources (:meth:`StageLayout.teacher_forced`), the compiled chain step to the chain's
-state (:mod:`fmu_greybox.chain_plan`), so the two cannot disagree on what a feature is.
+Every feature is a fixed linear combination of the stage's *sources*, one vector per row, laid
+out by :class:`SourceLayout`: the white-box and stage outputs of rows ``j ... j - H``, the
+exogenous inputs of rows ``j - 1 ... j - 1 - H`` (H, the chain's history depth, covers the
+deepest difference), then the stage's stored levels. :meth:`StageLayout.feature_map` is that
+combination as a matrix; training applies it to recorded sources (:meth:`StageLayout.
+teacher_forced`), the compiled chain step (:mod:`fmu_greybox.chain_step`) to the chain's
+state, so the two cannot disagree on what a feature is.
 """
 
 from __future__ import annotations
@@ -40,10 +39,71 @@ import numpy as np
 
 from .config import TARGET_MODES, StageConfig
 
-__all__ = ["SHARED_BLOCKS", "TARGET_MODES", "StageLayout"]
+__all__ = ["TARGET_MODES", "SourceLayout", "StageLayout"]
 
-#: The per-stage blocks of the sources shared by all stages, in order (each Q long).
-SHARED_BLOCKS = ("wb", "out", "prev_out", "prev_wb")
+
+@dataclass(frozen=True)
+class SourceLayout:
+    """Positions of the sources shared by every stage of a chain.
+
+    ``H + 1`` rows of history, each the Q white-box outputs then the Q stage outputs (row
+    ``j - h`` at ``h``), then ``H + 1`` rows of exogenous inputs (row ``j - 1 - h`` at ``h``).
+    A stage's stored levels follow them in its own sources.
+
+    Attributes
+    ----------
+    n_exo : int
+        Length of the chain's exogenous vector.
+    n_stages : int
+        Q.
+    depth : int
+        H >= 1.
+    """
+
+    n_exo: int
+    n_stages: int
+    depth: int
+
+    def wb(self, h: int, q: int) -> int:
+        """White-box output of stage ``q`` at row ``j - h``."""
+        return 2 * self.n_stages * h + q
+
+    def out(self, h: int, q: int) -> int:
+        """Output of stage ``q`` at row ``j - h``."""
+        return 2 * self.n_stages * h + self.n_stages + q
+
+    def exo(self, h: int, i: int) -> int:
+        """Exogenous input ``i`` at row ``j - 1 - h``."""
+        return 2 * self.n_stages * (self.depth + 1) + self.n_exo * h + i
+
+    @property
+    def shared(self) -> int:
+        """Number of shared sources: ``(H + 1)(2Q + n_exo)``."""
+        return (self.depth + 1) * (2 * self.n_stages + self.n_exo)
+
+    def memory(self, lag: int) -> int:
+        """The stage's stored level of row ``j - 1 - lag``."""
+        return self.shared + lag
+
+    def sources(
+        self, exo: np.ndarray, y_wb: np.ndarray, outputs: np.ndarray, rows: np.ndarray
+    ) -> np.ndarray:
+        """The shared sources of the given rows from arrays of the whole sequence.
+
+        Parameters
+        ----------
+        exo : ndarray, shape (n, n_exo)
+        y_wb, outputs : ndarray, shape (n, Q)
+        rows : ndarray of int, shape (m,)
+            Each ``>= depth + 1``.
+
+        Returns
+        -------
+        ndarray, shape (m, shared)
+        """
+        history = [block[rows - h] for h in range(self.depth + 1) for block in (y_wb, outputs)]
+        inputs = [exo[rows - 1 - h] for h in range(self.depth + 1)]
+        return np.hstack(history + inputs)
 
 
 @dataclass
@@ -55,7 +115,7 @@ class StageLayout:
     config : StageConfig
         The stage definition.
     target_mode : str
-        One of :data:`TARGET_MODES`.
+        One of :data:`TARGET_MODES` (or ``"auto"`` until training chose).
     exo_index : ndarray of int, shape (n_exo,)
         Positions of this stage's exogenous inputs in the chain's exogenous vector.
     stage_index : int
@@ -77,39 +137,33 @@ class StageLayout:
 
     @property
     def lags(self) -> int:
-        """Length of the stage's memory."""
+        """Number of memory features L."""
         return self.config.lags
 
     @property
-    def n_rates(self) -> int:
-        """Number of rate features (two per feeding stage with ``feed_rates``)."""
-        return 2 * self.feed_index.size if self.config.feed_rates else 0
+    def memory_length(self) -> int:
+        """Stored levels: L, or L + 1 in ``increment`` mode (whose memory is differences)."""
+        return self.lags + (self.target_mode == "increment")
 
     @property
-    def n_features(self) -> int:
-        """Number of corrector inputs D."""
-        return self.exo_index.size + 1 + self.feed_index.size + self.n_rates + self.lags
-
-    @property
-    def memory_slice(self) -> slice:
-        """Positions of the memory features."""
-        return slice(self.n_features - self.lags, self.n_features)
+    def depth(self) -> int:
+        """Rows of history beyond the current one that the features reach back."""
+        return max(self.config.differences, 1 if self.config.feed_rates else 0)
 
     def feature_names(self, exo_names: list[str], stage_names: list[str]) -> list[str]:
-        """Human-readable names of the D features, in order."""
+        """Human-readable names of the D features, in order (as :meth:`feature_map`)."""
         own = "y" if self.target_mode == "output" else "r"
-        return (
-            [f"{exo_names[i]}[k-1]" for i in self.exo_index]
-            + [f"{self.config.whitebox_output}_wb"]
-            + [stage_names[i] for i in self.feed_index]
-            + (
-                [f"d{stage_names[i]}" for i in self.feed_index]
-                + [f"d{stage_names[i]}.r" for i in self.feed_index]
-                if self.config.feed_rates
-                else []
-            )
-            + [f"{self.name}.{own}[k-{lag}]" for lag in range(1, self.lags + 1)]
-        )
+        wb = f"{self.config.whitebox_output}_wb"
+        feeds = [stage_names[i] for i in self.feed_index]
+        names = [f"{exo_names[i]}[k-1]" for i in self.exo_index] + [wb] + feeds
+        if self.config.feed_rates:
+            names += [f"d{f}" for f in feeds] + [f"d{f}.r" for f in feeds]
+        for k in range(self.config.differences):
+            names += [f"d({exo_names[i]})[k-{k + 1}]" for i in self.exo_index]
+            names += [f"d({s})[k{f'-{k}' if k else ''}]" for s in [wb, *feeds]]
+        if self.target_mode == "increment":
+            return names + [f"d({self.name}.r)[k-{lag}]" for lag in range(1, self.lags + 1)]
+        return names + [f"{self.name}.{own}[k-{lag}]" for lag in range(1, self.lags + 1)]
 
     # ------------------------------------------------------------------ levels
     def level(self, y: np.ndarray, y_wb: np.ndarray) -> np.ndarray:
@@ -117,79 +171,92 @@ class StageLayout:
         return y if self.target_mode == "output" else y - y_wb
 
     # ------------------------------------------------------------------ features
-    def feature_map(self, n_exo: int, n_stages: int) -> np.ndarray:
-        """The features as a linear map of the sources (see the module notes).
+    def feature_map(self, layout: SourceLayout) -> np.ndarray:
+        """The features as a linear map of the stage's sources (see the module notes).
 
         Parameters
         ----------
-        n_exo : int
-            Length of the chain's exogenous vector.
-        n_stages : int
-            Q.
+        layout : SourceLayout
+            The chain's shared sources (``depth`` at least :attr:`depth`).
 
         Returns
         -------
-        ndarray, shape (D, n_exo + 4 Q + L)
+        ndarray, shape (D, layout.shared + memory_length)
         """
-        block = {name: n_exo + i * n_stages for i, name in enumerate(SHARED_BLOCKS)}
-        memory = n_exo + len(SHARED_BLOCKS) * n_stages
-        rows: list[dict[int, float]] = [{int(i): 1.0} for i in self.exo_index]
-        rows.append({block["wb"] + self.stage_index: 1.0})
+        q = self.stage_index
         feeds = [int(f) for f in self.feed_index]
-        rows += [{block["out"] + f: 1.0} for f in feeds]
+        exo = [int(i) for i in self.exo_index]
+        rows: list[dict[int, float]] = [{layout.exo(0, i): 1.0} for i in exo]
+        rows.append({layout.wb(0, q): 1.0})
+        rows += [{layout.out(0, f): 1.0} for f in feeds]
         if self.config.feed_rates:
             # the step change of each feeding stage's output, then of its residual
-            rows += [{block["out"] + f: 1.0, block["prev_out"] + f: -1.0} for f in feeds]
+            rows += [{layout.out(0, f): 1.0, layout.out(1, f): -1.0} for f in feeds]
             rows += [
                 {
-                    block["out"] + f: 1.0,
-                    block["prev_out"] + f: -1.0,
-                    block["wb"] + f: -1.0,
-                    block["prev_wb"] + f: 1.0,
+                    layout.out(0, f): 1.0,
+                    layout.out(1, f): -1.0,
+                    layout.wb(0, f): -1.0,
+                    layout.wb(1, f): 1.0,
                 }
                 for f in feeds
             ]
-        rows += [{memory + lag: 1.0} for lag in range(self.lags)]
-        A = np.zeros((len(rows), memory + self.lags))
+        for k in range(self.config.differences):
+            rows += [{layout.exo(k, i): 1.0, layout.exo(k + 1, i): -1.0} for i in exo]
+            rows.append({layout.wb(k, q): 1.0, layout.wb(k + 1, q): -1.0})
+            rows += [{layout.out(k, f): 1.0, layout.out(k + 1, f): -1.0} for f in feeds]
+        for lag in range(self.lags):
+            if self.target_mode == "increment":
+                rows.append({layout.memory(lag): 1.0, layout.memory(lag + 1): -1.0})
+            else:
+                rows.append({layout.memory(lag): 1.0})
+        A = np.zeros((len(rows), layout.shared + self.memory_length))
         for i, row in enumerate(rows):
             for column, weight in row.items():
                 A[i, column] = weight
         return A
 
+    def first_row(self, layout: SourceLayout) -> int:
+        """First row whose features the recorded sequence holds."""
+        return max(layout.depth + 1, self.memory_length)
+
     # ------------------------------------------------------------------ datasets
     def teacher_forced(
         self,
+        layout: SourceLayout,
         exo: np.ndarray,
         y_wb: np.ndarray,
         outputs: np.ndarray,
+        fed: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Training rows with recorded values in place of every fed-back quantity.
+        """Training rows with recorded values in place of the stage's own fed-back values.
 
         Parameters
         ----------
+        layout : SourceLayout
         exo : ndarray, shape (n, n_exo_chain)
             The chain's exogenous inputs per row.
-        y_wb : ndarray, shape (n, n_stages)
+        y_wb : ndarray, shape (n, Q)
             White-box predictions of every stage output per row.
-        outputs : ndarray, shape (n, n_stages)
-            Recorded stage outputs per row.
+        outputs : ndarray, shape (n, Q)
+            Recorded stage outputs per row (the stage's memory and target come from them).
+        fed : ndarray, shape (n, Q), optional
+            The earlier stages' outputs as the features see them (default ``outputs``:
+            teacher forcing; a free run of the earlier stages for ``feeds = "free_run"``).
 
         Returns
         -------
-        X : ndarray, shape (n - L, D)
-            Features of rows ``L .. n-1``.
-        t : ndarray, shape (n - L,)
+        X : ndarray, shape (n - first_row, D)
+            Features of rows ``first_row .. n-1``.
+        t : ndarray, shape (n - first_row,)
             Corrector targets of those rows.
         """
-        L = self.lags
         q = self.stage_index
         level = self.level(outputs[:, q], y_wb[:, q])
-        rows = np.arange(L, outputs.shape[0])
-        sources = np.hstack(
-            [exo[rows - 1], y_wb[rows], outputs[rows], outputs[rows - 1], y_wb[rows - 1]]
-            + [level[rows - lag][:, None] for lag in range(1, L + 1)]
-        )
-        X = sources @ self.feature_map(exo.shape[1], outputs.shape[1]).T
+        rows = np.arange(self.first_row(layout), outputs.shape[0])
+        shared = layout.sources(exo, y_wb, outputs if fed is None else fed, rows)
+        memory = [level[rows - 1 - lag][:, None] for lag in range(self.memory_length)]
+        X = np.hstack([shared, *memory]) @ self.feature_map(layout).T
         if self.target_mode == "increment":
             t = level[rows] - level[rows - 1]
         else:

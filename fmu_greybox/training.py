@@ -98,6 +98,7 @@ def train_model(
             s.name: float(c.bound_) for s, c in zip(chain.stages, chain.correctors_, strict=True)
         },
         "free_run_check": free_run_check,
+        "target_selection": chain.selection_,
         "whitebox_source": str(fmu_path),
         "whitebox_sha256": file_sha256(fmu_path),
         "seconds": round(time.perf_counter() - started, 2),

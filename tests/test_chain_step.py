@@ -36,11 +36,14 @@ def signals(n: int = 600, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.nda
     return exo, wb, out + 1e-3 * rng.standard_normal(out.shape)
 
 
-def fitted_chain(mode: str, feed_rates: bool, lags: int) -> tuple[GreyBoxChain, tuple]:
+def fitted_chain(
+    mode: str, feed_rates: bool, lags: int, differences: int = 0, feeds: str = "recorded"
+) -> tuple[GreyBoxChain, tuple]:
     raw = tomllib.loads(REFERENCE.read_text())
-    raw["gp"].update(inducing=23, max_iter=15, target=mode)  # 23: not a multiple of 4 or 8
+    # 23 inducing points: not a multiple of 4 or 8
+    raw["gp"].update(inducing=23, max_iter=15, target=mode, feeds=feeds)
     for stage in raw["stages"]:
-        stage.update(lags=lags, feed_rates=feed_rates)
+        stage.update(lags=lags, feed_rates=feed_rates, differences=differences)
     chain = GreyBoxChain(parse_config(raw, REFERENCE))
     exo, wb, out = signals()
     chain.fit(exo[:400], wb[:400], out[:400])
@@ -48,22 +51,24 @@ def fitted_chain(mode: str, feed_rates: bool, lags: int) -> tuple[GreyBoxChain, 
 
 
 def numpy_step(chain: GreyBoxChain, values: np.ndarray, exo_prev, y_wb, enabled=True):
-    """One chain step from the documented equations: features A s, clipping, the GP mean and
-    latent variance by batch prediction, its gradient by central differences, first-order
-    variance propagation. Returns the new state vector and the domain score."""
-    q_count, n_exo = len(chain.stages), len(chain.exo_names)
-    state = ChainState([s.lags for s in chain.stages], values.copy())
-    state.prev_mean[:] = state.out_mean
-    state.prev_wb[:] = state.wb
-    state.wb[:] = y_wb
+    """One chain step from the documented equations: the history shifted, features A s,
+    clipping, the GP mean and latent variance by batch prediction, its gradient by central
+    differences, first-order variance propagation. Returns the new state vector and the
+    domain score."""
+    layout, q_count = chain.layout, len(chain.stages)
+    state = ChainState(layout, [s.memory_length for s in chain.stages], values.copy())
+    for block in ("wb", "out", "exo"):
+        history = state.history(block)
+        history[1:] = history[:-1].copy()
+    state.history("wb")[0] = y_wb
+    state.history("exo")[0] = exo_prev
     score = 1.0
     for q, stage in enumerate(chain.stages):
         memory, memory_var = state.memory[q], state.memory_var[q]
         y = state.wb[q]
-        shared = state.values[: 4 * q_count]
         if enabled and chain.active_[q]:
-            A = stage.feature_map(n_exo, q_count)
-            x = A @ np.concatenate([exo_prev, shared, memory])
+            A = stage.feature_map(layout)
+            x = A @ np.concatenate([state.values[: layout.shared], memory])
             low, high = chain.feature_bounds_[q]
             clipped = np.clip(x, low, high)
             state.outside[q] = float(np.any(clipped != x))
@@ -74,11 +79,11 @@ def numpy_step(chain: GreyBoxChain, values: np.ndarray, exo_prev, y_wb, enabled=
             minus = clipped - np.diag(step)
             grad = (posterior.predict(plus)[0] - posterior.predict(minus)[0]) / (2 * step)
             sensitivity = grad @ A
-            memory_columns = slice(n_exo + 4 * q_count, None)
-            memory_sensitivity = sensitivity[memory_columns].copy()
+            memory_sensitivity = sensitivity[layout.shared :].copy()
             if stage.target_mode == "increment":
                 memory_sensitivity[0] += 1.0
-            out_sensitivity = sensitivity[n_exo + q_count : n_exo + 2 * q_count]
+            first_out = layout.out(0, 0)
+            out_sensitivity = sensitivity[first_out : first_out + q_count]
             var = (
                 var
                 + np.sum(out_sensitivity**2 * state.out_var)
@@ -102,24 +107,34 @@ def numpy_step(chain: GreyBoxChain, values: np.ndarray, exo_prev, y_wb, enabled=
 
 
 @pytest.mark.parametrize(
-    ("mode", "feed_rates", "lags"),
-    [("residual", False, 1), ("residual", True, 2), ("increment", True, 1), ("output", False, 3)],
+    ("mode", "feed_rates", "lags", "differences"),
+    [
+        ("residual", False, 1, 0),
+        ("residual", True, 2, 0),
+        ("increment", True, 1, 0),
+        ("output", False, 3, 0),
+        ("increment", False, 2, 2),
+        ("residual", True, 2, 3),
+    ],
 )
-def test_compiled_step_equals_the_numpy_reference(mode: str, feed_rates: bool, lags: int) -> None:
-    chain, (exo, wb, out) = fitted_chain(mode, feed_rates, lags)
+def test_compiled_step_equals_the_numpy_reference(
+    mode: str, feed_rates: bool, lags: int, differences: int
+) -> None:
+    chain, (exo, wb, out) = fitted_chain(mode, feed_rates, lags, differences)
     chain.active_[1] = mode != "output"  # a passed-through stage in one case
     plan = chain.plan()
-    state = chain.start(out[397:400], wb[397:400])
+    state = chain.start(out[394:400], wb[394:400], exo[394:400])
     for j in range(400, 600):  # free run on rows the correctors never saw
         expected, expected_score = numpy_step(chain, state.values, exo[j - 1], wb[j])
         score = plan.step(state, exo[j - 1], wb[j])
         # outputs (of order 1) to the documented accuracy of the single-solve prediction
         # against the batch's two solves (1e-11); variances to the finite differences'
-        q = len(chain.stages)
-        np.testing.assert_allclose(state.values[:q], expected[:q], rtol=0, atol=1e-12)
-        np.testing.assert_allclose(state.out_mean, expected[q : 2 * q], rtol=0, atol=1e-10)
-        np.testing.assert_allclose(state.out_var, expected[4 * q : 5 * q], rtol=1e-5, atol=1e-15)
-        np.testing.assert_array_equal(state.outside, expected[5 * q : 6 * q])
+        reference = ChainState(chain.layout, state.memory_lengths, expected)
+        np.testing.assert_array_equal(state.history("wb"), reference.history("wb"))
+        np.testing.assert_array_equal(state.history("exo"), reference.history("exo"))
+        np.testing.assert_allclose(state.out_mean, reference.out_mean, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(state.out_var, reference.out_var, rtol=1e-5, atol=1e-15)
+        np.testing.assert_array_equal(state.outside, reference.outside)
         assert score == pytest.approx(expected_score, rel=1e-9)
         state.values[:] = expected  # each step compared from the same state
     assert np.all(state.out_var[chain.active_] > 0)
@@ -128,7 +143,7 @@ def test_compiled_step_equals_the_numpy_reference(mode: str, feed_rates: bool, l
 def test_switched_off_correction_passes_the_white_box_and_keeps_memory_consistent() -> None:
     chain, (exo, wb, out) = fitted_chain("residual", True, 2)
     plan = chain.plan()
-    state = chain.start(out[398:400], wb[398:400])
+    state = chain.start(out[398:400], wb[398:400], exo[398:400])
     assert plan.step(state, exo[399], wb[400], enabled=False) == 1.0
     np.testing.assert_array_equal(state.out_mean, wb[400])
     np.testing.assert_array_equal(state.out_var, 0.0)
@@ -138,7 +153,7 @@ def test_switched_off_correction_passes_the_white_box_and_keeps_memory_consisten
 def test_features_far_outside_training_are_clipped_flagged_and_finite() -> None:
     chain, (exo, wb, out) = fitted_chain("residual", False, 1)
     plan = chain.plan()
-    state = chain.start(out[398:400], wb[398:400])
+    state = chain.start(out[398:400], wb[398:400], exo[398:400])
     score = plan.step(state, exo[399] * 1e3, wb[400])
     assert state.outside.tolist() == [1.0, 1.0, 1.0]
     assert np.all(np.isfinite(state.out_mean)) and 0.0 <= score < 1.0
@@ -147,14 +162,14 @@ def test_features_far_outside_training_are_clipped_flagged_and_finite() -> None:
 def test_buffers_of_the_wrong_kind_are_refused_with_their_name() -> None:
     chain, (exo, wb, out) = fitted_chain("residual", False, 1)
     plan = chain.plan()
-    state = chain.start(out[398:400], wb[398:400])
+    state = chain.start(out[398:400], wb[398:400], exo[398:400])
     with pytest.raises(TypeError, match="exo_prev: buffer of float64"):
         plan.step(state, exo[399].astype(np.float32), wb[400])
     with pytest.raises(TypeError, match="y_wb: a C-contiguous"):
         plan.step(state, exo[399], wb[398:401, 0])  # a strided view
     with pytest.raises(ValueError, match="y_wb holds 2 values, 3 needed"):
         plan.step(state, exo[399], wb[400, :2].copy())
-    short = ChainState([1, 1, 1])
+    short = ChainState(chain.layout, [1, 1, 1])
     with pytest.raises(ValueError, match="state holds"):
         _chainstep.step(plan._plan, plan._params, plan._work, short.values[:-1], exo[399],
                         wb[400], True)
@@ -196,10 +211,10 @@ def test_single_point_prediction_equals_the_batch_for_every_block_remainder(m: i
 def test_rate_features_are_step_changes_of_outputs_and_residuals() -> None:
     chain, (exo, wb, out) = fitted_chain("residual", True, 2)
     itfv = chain.stages[2]
-    X, _ = itfv.teacher_forced(exo, wb, out)
+    X, _ = itfv.teacher_forced(chain.layout, exo, wb, out)
     names = chain.feature_names(2)
-    j = 321  # the recording row of X[j - L]
-    row = X[j - itfv.lags]
+    j = 321  # the recording row of X[j - first]
+    row = X[j - itfv.first_row(chain.layout)]
     for q, stage in enumerate(("EHV", "RAM")):
         change = out[j, q] - out[j - 1, q]
         assert row[names.index(stage)] == out[j, q]
@@ -207,3 +222,67 @@ def test_rate_features_are_step_changes_of_outputs_and_residuals() -> None:
         residual_change = change - (wb[j, q] - wb[j - 1, q])
         assert row[names.index(f"d{stage}.r")] == pytest.approx(residual_change, abs=1e-15)
     assert row[names.index("ITFV.r[k-2]")] == out[j - 2, 2] - wb[j - 2, 2]
+
+
+def test_differences_and_increment_memory_are_step_changes() -> None:
+    chain, (exo, wb, out) = fitted_chain("increment", False, 2, differences=2)
+    itfv = chain.stages[2]
+    X, t = itfv.teacher_forced(chain.layout, exo, wb, out)
+    names = chain.feature_names(2)
+    j = 300
+    row = X[j - itfv.first_row(chain.layout)]
+    load = chain.exo_names.index("load_force")
+    r = out[:, 2] - wb[:, 2]
+    expected = {
+        "d(load_force)[k-1]": exo[j - 1, load] - exo[j - 2, load],
+        "d(load_force)[k-2]": exo[j - 2, load] - exo[j - 3, load],
+        "d(itfv_pressure_wb)[k]": wb[j, 2] - wb[j - 1, 2],
+        "d(itfv_pressure_wb)[k-1]": wb[j - 1, 2] - wb[j - 2, 2],
+        "d(EHV)[k]": out[j, 0] - out[j - 1, 0],
+        "d(RAM)[k-1]": out[j - 1, 1] - out[j - 2, 1],
+        "d(ITFV.r)[k-1]": r[j - 1] - r[j - 2],
+        "d(ITFV.r)[k-2]": r[j - 2] - r[j - 3],
+    }
+    for name, value in expected.items():
+        assert row[names.index(name)] == pytest.approx(value, abs=1e-14), name
+    assert t[j - itfv.first_row(chain.layout)] == pytest.approx(r[j] - r[j - 1], abs=1e-15)
+
+
+def test_free_run_feeds_are_the_earlier_stages_own_free_run() -> None:
+    chain, (exo, wb, out) = fitted_chain("residual", False, 2, differences=1, feeds="free_run")
+    fed = chain._fed(2, exo[:400], wb[:400], out[:400])
+    chain.active_[2] = False
+    mean, _ = chain.free_run(exo[:400], wb[:400], out[:400], chain.history - 1)
+    start = chain.history
+    np.testing.assert_array_equal(fed[start:, :2], mean[:, :2])
+    np.testing.assert_array_equal(fed[:start], out[:start])
+    np.testing.assert_array_equal(fed[:, 2], out[:400, 2])
+    assert np.max(np.abs(fed[start:, 1] - out[start:400, 1])) > 1e-4  # not the recording
+    # the last stage was trained on those: its feed features' range is the free run's
+    names = chain.feature_names(2)
+    low = chain.feature_bounds_[2][0][names.index("RAM")]
+    assert low == pytest.approx(fed[start:, 1].min() - 0.05 * np.ptp(fed[start:, 1]), rel=1e-9)
+
+
+def integrating(n: int = 800) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Signals whose first-stage residual integrates a function of the input (a drift the
+    increment target states in one step) and whose other residuals are static maps."""
+    exo, wb, out = signals(n)
+    drift = np.cumsum(0.02 * np.sin(3 * exo[:, 0]) + 0.01)
+    out = wb + np.column_stack([drift, 0.2 * exo[:, 1], 0.1 * np.tanh(exo[:, 2])])
+    return exo, wb, out
+
+
+def test_auto_target_chooses_increment_for_an_integrating_residual() -> None:
+    raw = tomllib.loads(REFERENCE.read_text())
+    raw["gp"].update(inducing=40, max_iter=30, target="auto")
+    for stage in raw["stages"]:
+        stage.update(lags=2)
+    chain = GreyBoxChain(parse_config(raw, REFERENCE))
+    exo, wb, out = integrating()
+    chain.fit(exo[:600], wb[:600], out[:600])
+    assert chain.stages[0].target_mode == "increment", chain.selection_
+    selection = chain.selection_["EHV"]
+    assert selection["chosen"] == "increment"
+    assert selection["increment"] < selection["residual"]
+    assert set(chain.selection_) == {"EHV", "RAM", "ITFV"}

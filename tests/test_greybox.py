@@ -56,18 +56,21 @@ def data(model, recording):
 def test_teacher_forced_rows_are_aligned(model, data) -> None:
     chain = model.chain
     ram = chain.stages[1]
-    X, t = ram.teacher_forced(data.exo, data.y_wb, data.outputs)
+    X, t = ram.teacher_forced(chain.layout, data.exo, data.y_wb, data.outputs)
     names = chain.feature_names(1)
-    j = 123  # row of the recording predicted by X[j - L]
-    row = X[j - ram.lags]
+    j = 123  # row of the recording predicted by X[j - first]
+    row, target = X[j - ram.first_row(chain.layout)], t[j - ram.first_row(chain.layout)]
     exo = {name: data.exo[j - 1, i] for i, name in enumerate(chain.exo_names)}
     assert row[names.index("supply_pressure[k-1]")] == exo["supply_pressure"]
     assert row[names.index("load_force[k-1]")] == exo["load_force"]
     assert row[names.index("ram_position_wb")] == data.y_wb[j, 1]
-    assert row[names.index("EHV")] == data.outputs[j, 0]
     residual = data.outputs[:, 1] - data.y_wb[:, 1]
-    assert row[names.index("RAM.r[k-1]")] == residual[j - 1]
-    assert t[j - ram.lags] == residual[j]
+    if ram.target_mode == "increment":
+        assert row[names.index("d(RAM.r)[k-1]")] == residual[j - 1] - residual[j - 2]
+        assert target == residual[j] - residual[j - 1]
+    else:
+        assert row[names.index("RAM.r[k-1]")] == residual[j - 1]
+        assert target == residual[j]
 
 
 def test_master_equals_array_free_run(model, data) -> None:
@@ -81,24 +84,28 @@ def test_master_equals_array_free_run(model, data) -> None:
 
 
 def test_steps_equal_a_batch_prediction_of_the_same_features(model, data) -> None:
-    """The first stage's free-run outputs equal a batch GP prediction over the features it saw."""
+    """The first stage's free-run outputs equal a batch GP prediction over the features it saw
+    (its dataset rebuilt with its own free-run outputs in place of the recorded ones)."""
     chain = model.chain
-    start = 50
+    stage, start = chain.stages[0], 50
     mean, _ = chain.free_run(data.exo, data.y_wb, data.outputs, start)
+    seen = data.outputs.copy()
+    seen[start + 1 :, 0] = mean[:, 0]
+    X, _ = stage.teacher_forced(chain.layout, data.exo, data.y_wb, seen)
     rows = np.arange(start + 1, data.n_samples)
-    residual = mean[:, 0] - data.y_wb[rows, 0]
-    previous = np.r_[data.outputs[start, 0] - data.y_wb[start, 0], residual[:-1]]
-    X = np.column_stack([data.exo[rows - 1][:, chain.stages[0].exo_index], data.y_wb[rows, 0],
-                         previous])
     low, high = chain.feature_bounds_[0]
-    batch, _ = chain.correctors_[0].predict(np.clip(X, low, high))
-    np.testing.assert_allclose(batch, residual, rtol=0, atol=1e-9 * np.abs(residual).max())
+    batch, _ = chain.correctors_[0].predict(np.clip(X[rows - stage.first_row(chain.layout)],
+                                                    low, high))
+    level = seen[:, 0] - data.y_wb[:, 0]
+    if stage.target_mode == "increment":
+        batch = batch + level[rows - 1]
+    np.testing.assert_allclose(batch, level[rows], rtol=0, atol=1e-9 * np.abs(level).max())
 
 
 def test_chain_state_round_trip(model, data) -> None:
     chain = model.chain
     plan = chain.plan()
-    state = chain.start(data.outputs[:2], data.y_wb[:2])
+    state = chain.start(data.outputs[:2], data.y_wb[:2], data.exo[:2])
     for j in range(2, 20):
         plan.step(state, data.exo[j - 1], data.y_wb[j])
     saved = state.to_array()
@@ -116,7 +123,7 @@ def test_chain_state_round_trip(model, data) -> None:
 def test_features_outside_the_training_range_are_clipped_and_flagged(model, data) -> None:
     chain = model.chain
     plan = chain.plan()
-    state = chain.start(data.outputs[:2], data.y_wb[:2])
+    state = chain.start(data.outputs[:2], data.y_wb[:2], data.exo[:2])
     plan.step(state, data.exo[1], data.y_wb[2])
     assert not state.outside.any()
     far = data.exo[1] * 100.0
@@ -127,7 +134,7 @@ def test_features_outside_the_training_range_are_clipped_and_flagged(model, data
 
 def test_correction_off_passes_the_white_box_through(model, data) -> None:
     chain = model.chain
-    state = chain.start(data.outputs[:2], data.y_wb[:2])
+    state = chain.start(data.outputs[:2], data.y_wb[:2], data.exo[:2])
     score = chain.plan().step(state, data.exo[1], data.y_wb[2], enabled=False)
     assert score == 1.0
     np.testing.assert_array_equal(state.out_mean, data.y_wb[2])

@@ -35,7 +35,7 @@
 #include <string.h>
 
 #define PLAN_VERSION 1
-#define PLAN_HEADER 6
+#define PLAN_HEADER 7
 #define STAGE_RECORD 8
 #define POSTERIOR_SCALARS 4
 
@@ -178,15 +178,18 @@ static double predict_point(const PosteriorView *p, const double *x, double *mea
 
 /* ------------------------------------------------------------------ the chain */
 
-/* State (float64), Q stages, then per stage its memory block:
- *   wb[Q] out[Q] prev_out[Q] prev_wb[Q] out_var[Q] outside[Q]
- *   memory_q[L_q] memory_var_q[L_q]      (at memory_offset_q; most recent first)
- * A stage's sources, the vector its features are a linear map of:
- *   exo_prev[n_exo] | wb out prev_out prev_wb (the state's first 4Q) | memory_q[L_q]
- * Per stage params block (at an offset that is a multiple of 8): packed posterior, then
- * A[D*S] (row-major), low[D], high[D]. */
+/* State (float64), Q stages, n_exo inputs, history depth H (fmu_greybox/stage.py,
+ * SourceLayout; fmu_greybox/chain_step.py, ChainState):
+ *   for h = 0..H: wb[Q] out[Q]          white-box and stage outputs of row j - h
+ *   for h = 0..H: exo[n_exo]            exogenous inputs of row j - 1 - h
+ *                                       (together: the shared sources, S0 of them)
+ *   out_var[Q] outside[Q]
+ *   per stage, at memory_offset: levels[n] variances[n]   (most recent first)
+ * A stage's sources are the shared ones followed by its own stored levels; its features are
+ * A s, A (D x (S0 + n)) row-major in its params block (at an offset that is a multiple of 8):
+ * packed posterior, then A, low[D], high[D]. */
 typedef struct {
-    Py_ssize_t params_offset, m, d, s, lags, mode, active, memory_offset;
+    Py_ssize_t params_offset, m, d, s, memory, mode, active, memory_offset;
 } StageRecord;
 
 static StageRecord stage_record(const long long *plan, Py_ssize_t q) {
@@ -195,19 +198,35 @@ static StageRecord stage_record(const long long *plan, Py_ssize_t q) {
     return s;
 }
 
+typedef struct {
+    Py_ssize_t n_stages, n_exo, depth, shared;
+} Layout;
+
+/* The history moves one row back; this row's white-box outputs and the previous row's inputs
+ * enter it. The stage outputs of row j start as those of row j - 1 until each stage writes
+ * its own. */
+static void shift_history(const Layout *l, double *state, const double *y_wb,
+                          const double *exo_prev) {
+    const Py_ssize_t row = 2 * l->n_stages;
+    double *exo = state + row * (l->depth + 1);
+    memmove(state + row, state, (size_t)(row * l->depth) * sizeof(double));
+    memcpy(state, y_wb, (size_t)l->n_stages * sizeof(double));
+    memmove(exo + l->n_exo, exo, (size_t)(l->n_exo * l->depth) * sizeof(double));
+    memcpy(exo, exo_prev, (size_t)l->n_exo * sizeof(double));
+}
+
 /* One stage of one step. Returns the stage's domain score (largest kernel correlation), or
  * 2.0 when the stage passes its white-box through. */
-static double stage_step(const StageRecord *r, const double *params, double *state, Py_ssize_t q,
-                         Py_ssize_t n_stages, const double *exo, Py_ssize_t n_exo, int enabled,
-                         double *work) {
-    double *wb = state, *out = state + n_stages, *out_var = state + 4 * n_stages;
-    double *outside = state + 5 * n_stages;
-    double *memory = state + r->memory_offset, *memory_var = memory + r->lags;
-    const double y = wb[q];
+static double stage_step(const StageRecord *r, const Layout *l, const double *params,
+                         double *state, Py_ssize_t q, int enabled, double *work) {
+    const Py_ssize_t n_stages = l->n_stages, shared = l->shared;
+    double *out = state + n_stages, *out_var = state + shared, *outside = out_var + n_stages;
+    double *memory = state + r->memory_offset, *memory_var = memory + r->memory;
+    const double y = state[q]; /* this row's white-box output */
     double level, var = 0.0, score = 2.0;
 
     if (enabled && r->active) {
-        const Py_ssize_t d = r->d, s = r->s, n_shared = 4 * n_stages;
+        const Py_ssize_t d = r->d, s = r->s;
         const PosteriorView p = posterior_view(params + r->params_offset, r->m, d);
         const double *a = params + r->params_offset + posterior_size(r->m, d);
         const double *low = a + d * s, *high = low + d;
@@ -216,9 +235,8 @@ static double stage_step(const StageRecord *r, const double *params, double *sta
         for (Py_ssize_t i = 0; i < d; i++) {
             const double *row = a + i * s;
             double v = 0.0;
-            for (Py_ssize_t j = 0; j < n_exo; j++) v += row[j] * exo[j];
-            for (Py_ssize_t j = 0; j < n_shared; j++) v += row[n_exo + j] * state[j];
-            for (Py_ssize_t j = 0; j < r->lags; j++) v += row[n_exo + n_shared + j] * memory[j];
+            for (Py_ssize_t j = 0; j < shared; j++) v += row[j] * state[j];
+            for (Py_ssize_t j = 0; j < r->memory; j++) v += row[shared + j] * memory[j];
             /* NaN compares false and passes unclipped, as it came */
             if (v < low[i]) v = low[i], clipped = 1.0;
             else if (v > high[i]) v = high[i], clipped = 1.0;
@@ -227,16 +245,16 @@ static double stage_step(const StageRecord *r, const double *params, double *sta
         outside[q] = clipped;
         score = predict_point(&p, x, &mu, &var_gp, grad, rest) / p.s2;
         /* first-order propagation: sensitivity of the output to each uncertain source
-         * (the stage outputs of this step, and the stage's memory) times its variance */
+         * (the stage outputs of this row, and the stage's stored levels) times its variance */
         var = var_gp;
         for (Py_ssize_t j = 0; j < n_stages; j++) {
             double c = 0.0;
-            for (Py_ssize_t i = 0; i < d; i++) c += grad[i] * a[i * s + n_exo + n_stages + j];
+            for (Py_ssize_t i = 0; i < d; i++) c += grad[i] * a[i * s + n_stages + j];
             var += c * c * out_var[j];
         }
-        for (Py_ssize_t j = 0; j < r->lags; j++) {
+        for (Py_ssize_t j = 0; j < r->memory; j++) {
             double c = r->mode == MODE_INCREMENT && j == 0 ? 1.0 : 0.0;
-            for (Py_ssize_t i = 0; i < d; i++) c += grad[i] * a[i * s + n_exo + n_shared + j];
+            for (Py_ssize_t i = 0; i < d; i++) c += grad[i] * a[i * s + shared + j];
             var += c * c * memory_var[j];
         }
         level = r->mode == MODE_INCREMENT ? memory[0] + mu : mu;
@@ -247,9 +265,9 @@ static double stage_step(const StageRecord *r, const double *params, double *sta
         out[q] = y;
     }
     out_var[q] = var;
-    if (r->lags > 1) {
-        memmove(memory + 1, memory, (size_t)(r->lags - 1) * sizeof(double));
-        memmove(memory_var + 1, memory_var, (size_t)(r->lags - 1) * sizeof(double));
+    if (r->memory > 1) {
+        memmove(memory + 1, memory, (size_t)(r->memory - 1) * sizeof(double));
+        memmove(memory_var + 1, memory_var, (size_t)(r->memory - 1) * sizeof(double));
     }
     memory[0] = level;
     memory_var[0] = var;
@@ -375,7 +393,7 @@ static PyObject *py_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     const int writable[6] = {0, 0, 1, 1, 0, 0};
     const long long *plan;
     double *state, score = 1.0;
-    Py_ssize_t n_stages, n_exo;
+    Layout layout;
     int enabled;
     (void)self;
     if (nargs != 7) {
@@ -397,23 +415,22 @@ static PyObject *py_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs
         release(b, 6);
         return NULL;
     }
-    n_stages = plan[1];
-    n_exo = plan[2];
+    layout.n_stages = plan[1];
+    layout.n_exo = plan[2];
+    layout.depth = plan[6];
+    layout.shared = (layout.depth + 1) * (2 * layout.n_stages + layout.n_exo);
     if (too_short(&b[1], plan[3], "params") || too_short(&b[2], plan[4], "work") ||
-        too_short(&b[3], plan[5], "state") || too_short(&b[4], n_exo, "exo_prev") ||
-        too_short(&b[5], n_stages, "y_wb")) {
+        too_short(&b[3], plan[5], "state") || too_short(&b[4], layout.n_exo, "exo_prev") ||
+        too_short(&b[5], layout.n_stages, "y_wb")) {
         release(b, 6);
         return NULL;
     }
     state = b[3].view.buf;
-    /* shift the step: last outputs and white-box become the previous ones */
-    memcpy(state + 3 * n_stages, state, (size_t)n_stages * sizeof(double));
-    memcpy(state + 2 * n_stages, state + n_stages, (size_t)n_stages * sizeof(double));
-    memcpy(state, b[5].view.buf, (size_t)n_stages * sizeof(double));
-    for (Py_ssize_t q = 0; q < n_stages; q++) {
+    shift_history(&layout, state, b[5].view.buf, b[4].view.buf);
+    for (Py_ssize_t q = 0; q < layout.n_stages; q++) {
         const StageRecord r = stage_record(plan, q);
-        const double stage_score = stage_step(&r, b[1].view.buf, state, q, n_stages,
-                                              b[4].view.buf, n_exo, enabled, b[2].view.buf);
+        const double stage_score =
+            stage_step(&r, &layout, b[1].view.buf, state, q, enabled, b[2].view.buf);
         if (stage_score < score) score = stage_score;
     }
     release(b, 6);
