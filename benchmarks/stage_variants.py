@@ -1,8 +1,9 @@
 """Compare stage settings (target mode, rate features, lags) on the paper's two experiments.
 
-Each variant is a JSON object of overrides: ``{"target": "output"}`` sets ``[gp] target``;
-``{"ITFV": {"feed_rates": true}}`` updates that stage's table. Prints one line per variant and
-experiment with the held-out improvement per stage (%, negative = better).
+Each variant is a JSON object of overrides of the reference project: ``{"gp": {"feeds":
+"recorded"}}`` updates ``[gp]``; ``{"ITFV": {"lags": 1}}`` updates that stage's table; ``{"*":
+{...}}`` every stage's. Prints one line per variant and experiment with the held-out improvement
+per stage (%, negative = better) and, with ``--json``, ends with one JSON line of them all.
 
 Usage::
 
@@ -28,7 +29,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("variants", help="JSON list of override objects")
     parser.add_argument("--scale", type=float, default=1.0, help="shrink sample counts")
+    parser.add_argument("--json", action="store_true", help="end with one JSON line")
     args = parser.parse_args(argv)
+    results = []
     recordings = {
         name: synthesise_experiment(spec, args.scale) for name, spec in EXPERIMENTS.items()
     }
@@ -37,9 +40,9 @@ def main(argv: list[str] | None = None) -> int:
             raw = tomllib.loads(CONFIG.read_text())
             raw["gp"].update(raw_overrides["gp"])
             raw["split"] = raw_overrides["split"]
-            if "target" in variant:
-                raw["gp"]["target"] = variant["target"]
+            raw["gp"].update(variant.get("gp", {}))
             for stage in raw["stages"]:
+                stage.update(variant.get("*", {}))
                 stage.update(variant.get(stage["name"], {}))
             started = time.perf_counter()
             model = train_model(parse_config(raw, CONFIG), recording)
@@ -52,6 +55,9 @@ def main(argv: list[str] | None = None) -> int:
                 f"{time.perf_counter() - started:.0f} s",
                 flush=True,
             )
+            results.append({"variant": variant, "experiment": name, "improvement_pct": change})
+    if args.json:
+        print(json.dumps(results))
     return 0
 
 

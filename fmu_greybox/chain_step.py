@@ -46,8 +46,8 @@ class ChainState:
 
     Layout: the shared sources of :class:`~fmu_greybox.stage.SourceLayout` (the history of
     white-box and stage outputs and of the exogenous inputs), the Q variances of the last
-    step's outputs, Q out-of-range flags, then per stage its stored levels (most recent first)
-    and their variances.
+    step's outputs, Q out-of-range flags, then per stage its n stored levels (most recent
+    first) and their covariance (n x n).
 
     Parameters
     ----------
@@ -71,8 +71,10 @@ class ChainState:
     outside : ndarray, shape (Q,)
         1.0 where a stage's features left their training range in the last step (they were
         clipped to it), else 0.0.
-    memory, memory_var : list of ndarray
-        Per stage its stored levels, most recent first, and their variances.
+    memory : list of ndarray, shapes (n_q,)
+        Per stage its stored levels, most recent first.
+    memory_cov : list of ndarray, shapes (n_q, n_q)
+        Their covariance (first-order propagation).
     """
 
     def __init__(
@@ -81,7 +83,8 @@ class ChainState:
         self.layout = layout
         self.memory_lengths = tuple(int(n) for n in memory_lengths)
         q, shared = layout.n_stages, layout.shared
-        size = shared + 2 * q + 2 * sum(self.memory_lengths)
+        blocks = [n * (1 + n) for n in self.memory_lengths]
+        size = shared + 2 * q + sum(blocks)
         self.values = np.zeros(size) if values is None else values
         if self.values.shape != (size,):
             raise ValueError(f"chain state of {self.values.size} values; {size} expected")
@@ -90,12 +93,13 @@ class ChainState:
         self.prev_wb, self.prev_mean = v[layout.wb(1, 0) :][:q], v[layout.out(1, 0) :][:q]
         self.exo = v[layout.exo(0, 0) :][: layout.n_exo]
         self.out_var, self.outside = v[shared : shared + q], v[shared + q : shared + 2 * q]
-        starts = shared + 2 * q + 2 * np.cumsum([0, *self.memory_lengths[:-1]])
-        self.memory = [v[o : o + n] for o, n in zip(starts, self.memory_lengths, strict=True)]
-        self.memory_var = [
-            v[o + n : o + 2 * n] for o, n in zip(starts, self.memory_lengths, strict=True)
-        ]
+        starts = shared + 2 * q + np.cumsum([0, *blocks[:-1]])
         self.memory_offsets = [int(o) for o in starts]
+        self.memory = [v[o : o + n] for o, n in zip(starts, self.memory_lengths, strict=True)]
+        self.memory_cov = [
+            v[o + n : o + n + n * n].reshape(n, n)
+            for o, n in zip(starts, self.memory_lengths, strict=True)
+        ]
 
     def history(self, block: str) -> np.ndarray:
         """A view of the white-box (``"wb"``) or stage-output (``"out"``) history, shape
@@ -167,8 +171,8 @@ class ChainPlan:
             )
             blocks.append((offset, block))
             offset += -(-block.size // 8) * 8  # each posterior on a cache-line boundary
-            memory_offset += 2 * stage.memory_length
-            work = max(work, m + 4 * d + 1)
+            memory_offset += stage.memory_length * (1 + stage.memory_length)
+            work = max(work, m + 5 * d + 2 * stage.memory_length + 1)
         self._params = aligned_zeros(offset)
         for start, block in blocks:
             self._params[start : start + block.size] = block

@@ -53,8 +53,9 @@ def fitted_chain(
 def numpy_step(chain: GreyBoxChain, values: np.ndarray, exo_prev, y_wb, enabled=True):
     """One chain step from the documented equations: the history shifted, features A s,
     clipping, the GP mean and latent variance by batch prediction, its gradient by central
-    differences, first-order variance propagation. Returns the new state vector and the
-    domain score."""
+    differences (zero for clipped features), first-order propagation of the earlier outputs'
+    variances and of the memory's covariance. Returns the new state vector and the domain
+    score."""
     layout, q_count = chain.layout, len(chain.stages)
     state = ChainState(layout, [s.memory_length for s in chain.stages], values.copy())
     for block in ("wb", "out", "exo"):
@@ -64,8 +65,10 @@ def numpy_step(chain: GreyBoxChain, values: np.ndarray, exo_prev, y_wb, enabled=
     state.history("exo")[0] = exo_prev
     score = 1.0
     for q, stage in enumerate(chain.stages):
-        memory, memory_var = state.memory[q], state.memory_var[q]
+        memory, cov = state.memory[q], state.memory_cov[q]
+        n = memory.size
         y = state.wb[q]
+        new_cov = np.zeros(n)
         if enabled and chain.active_[q]:
             A = stage.feature_map(layout)
             x = A @ np.concatenate([state.values[: layout.shared], memory])
@@ -74,21 +77,19 @@ def numpy_step(chain: GreyBoxChain, values: np.ndarray, exo_prev, y_wb, enabled=
             state.outside[q] = float(np.any(clipped != x))
             posterior = chain.correctors_[q].posterior_
             (mu,), (var,) = posterior.predict(clipped[None, :])
-            step = 1e-6 * np.maximum(np.abs(clipped), 1.0)
+            step = 1e-3 * posterior.x_scale  # each feature's own spread (2e-7 accurate)
             plus = clipped + np.diag(step)
             minus = clipped - np.diag(step)
             grad = (posterior.predict(plus)[0] - posterior.predict(minus)[0]) / (2 * step)
+            grad[clipped != x] = 0.0
             sensitivity = grad @ A
-            memory_sensitivity = sensitivity[layout.shared :].copy()
+            c = sensitivity[layout.shared :].copy()
             if stage.target_mode == "increment":
-                memory_sensitivity[0] += 1.0
+                c[0] += 1.0
             first_out = layout.out(0, 0)
             out_sensitivity = sensitivity[first_out : first_out + q_count]
-            var = (
-                var
-                + np.sum(out_sensitivity**2 * state.out_var)
-                + np.sum(memory_sensitivity**2 * memory_var)
-            )
+            new_cov = cov @ c
+            var = var + np.sum(out_sensitivity**2 * state.out_var) + c @ new_cov
             level = memory[0] + mu if stage.target_mode == "increment" else mu
             state.out_mean[q] = level if stage.target_mode == "output" else y + level
             standardised = (clipped - posterior.x_mean) / posterior.x_scale
@@ -101,8 +102,12 @@ def numpy_step(chain: GreyBoxChain, values: np.ndarray, exo_prev, y_wb, enabled=
             state.outside[q] = 0.0
         state.out_var[q] = var
         memory[1:] = memory[:-1].copy()
-        memory_var[1:] = memory_var[:-1].copy()
-        memory[0], memory_var[0] = level, var
+        memory[0] = level
+        shifted = np.zeros((n, n))
+        shifted[1:, 1:] = cov[:-1, :-1]
+        shifted[0, 0] = var
+        shifted[0, 1:] = shifted[1:, 0] = new_cov[:-1]
+        cov[:] = shifted
     return state.values, score
 
 
@@ -135,9 +140,15 @@ def test_compiled_step_equals_the_numpy_reference(
         np.testing.assert_allclose(state.out_mean, reference.out_mean, rtol=0, atol=1e-10)
         np.testing.assert_allclose(state.out_var, reference.out_var, rtol=1e-5, atol=1e-15)
         np.testing.assert_array_equal(state.outside, reference.outside)
+        for got, want in zip(state.memory_cov, reference.memory_cov, strict=True):
+            # finite-difference gradients: errors relative to the matrix, not to each entry
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-15 + 1e-5 * abs(want).max())
         assert score == pytest.approx(expected_score, rel=1e-9)
         state.values[:] = expected  # each step compared from the same state
     assert np.all(state.out_var[chain.active_] > 0)
+    for cov in state.memory_cov:  # a covariance: symmetric, positive semi-definite
+        np.testing.assert_allclose(cov, cov.T, rtol=0, atol=0)
+        assert np.linalg.eigvalsh(cov).min() >= -1e-12 * max(np.abs(cov).max(), 1e-300)
 
 
 def test_switched_off_correction_passes_the_white_box_and_keeps_memory_consistent() -> None:

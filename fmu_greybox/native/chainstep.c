@@ -184,7 +184,7 @@ static double predict_point(const PosteriorView *p, const double *x, double *mea
  *   for h = 0..H: exo[n_exo]            exogenous inputs of row j - 1 - h
  *                                       (together: the shared sources, S0 of them)
  *   out_var[Q] outside[Q]
- *   per stage, at memory_offset: levels[n] variances[n]   (most recent first)
+ *   per stage, at memory_offset: levels[n] (most recent first), their covariance[n * n]
  * A stage's sources are the shared ones followed by its own stored levels; its features are
  * A s, A (D x (S0 + n)) row-major in its params block (at an offset that is a multiple of 8):
  * packed posterior, then A, low[D], high[D]. */
@@ -215,47 +215,78 @@ static void shift_history(const Layout *l, double *state, const double *y_wb,
     memcpy(exo, exo_prev, (size_t)l->n_exo * sizeof(double));
 }
 
+/* Push a new level into a memory of n levels with covariance P (n x n, row-major): the levels
+ * move one back, the new one (variance var, covariance cov[k] with the old level k) enters in
+ * front, the oldest leaves. */
+static void push_level(double *memory, double *p, Py_ssize_t n, double level, double var,
+                       const double *cov) {
+    if (n < 1) return;
+    memmove(memory + 1, memory, (size_t)(n - 1) * sizeof(double));
+    memory[0] = level;
+    for (Py_ssize_t i = n - 1; i > 0; i--) {
+        for (Py_ssize_t j = n - 1; j > 0; j--) p[i * n + j] = p[(i - 1) * n + (j - 1)];
+    }
+    p[0] = var;
+    for (Py_ssize_t k = 1; k < n; k++) p[k] = p[k * n] = cov[k - 1];
+}
+
 /* One stage of one step. Returns the stage's domain score (largest kernel correlation), or
  * 2.0 when the stage passes its white-box through. */
 static double stage_step(const StageRecord *r, const Layout *l, const double *params,
                          double *state, Py_ssize_t q, int enabled, double *work) {
     const Py_ssize_t n_stages = l->n_stages, shared = l->shared;
     double *out = state + n_stages, *out_var = state + shared, *outside = out_var + n_stages;
-    double *memory = state + r->memory_offset, *memory_var = memory + r->memory;
+    double *memory = state + r->memory_offset, *memory_cov = memory + r->memory;
+    double *cov = work; /* the new level's covariance with the stored ones (memory long) */
     const double y = state[q]; /* this row's white-box output */
     double level, var = 0.0, score = 2.0;
 
+    work += r->memory;
+
     if (enabled && r->active) {
-        const Py_ssize_t d = r->d, s = r->s;
+        const Py_ssize_t d = r->d, s = r->s, n = r->memory;
         const PosteriorView p = posterior_view(params + r->params_offset, r->m, d);
         const double *a = params + r->params_offset + posterior_size(r->m, d);
         const double *low = a + d * s, *high = low + d;
-        double *x = work, *grad = x + d, *rest = grad + d;
-        double mu, var_gp, clipped = 0.0;
+        double *x = work, *grad = x + d, *clipped = grad + d, *c = clipped + d;
+        double *rest = c + n;
+        double mu, var_gp, any_clipped = 0.0;
         for (Py_ssize_t i = 0; i < d; i++) {
             const double *row = a + i * s;
             double v = 0.0;
             for (Py_ssize_t j = 0; j < shared; j++) v += row[j] * state[j];
-            for (Py_ssize_t j = 0; j < r->memory; j++) v += row[shared + j] * memory[j];
+            for (Py_ssize_t j = 0; j < n; j++) v += row[shared + j] * memory[j];
             /* NaN compares false and passes unclipped, as it came */
-            if (v < low[i]) v = low[i], clipped = 1.0;
-            else if (v > high[i]) v = high[i], clipped = 1.0;
+            clipped[i] = 0.0;
+            if (v < low[i]) v = low[i], clipped[i] = 1.0;
+            else if (v > high[i]) v = high[i], clipped[i] = 1.0;
+            any_clipped += clipped[i];
             x[i] = v;
         }
-        outside[q] = clipped;
+        outside[q] = any_clipped > 0.0 ? 1.0 : 0.0;
         score = predict_point(&p, x, &mu, &var_gp, grad, rest) / p.s2;
-        /* first-order propagation: sensitivity of the output to each uncertain source
-         * (the stage outputs of this row, and the stage's stored levels) times its variance */
+        /* a clipped feature no longer moves the output */
+        for (Py_ssize_t i = 0; i < d; i++) {
+            if (clipped[i] != 0.0) grad[i] = 0.0;
+        }
+        /* first-order propagation: the corrector's latent variance, the stage outputs of this
+         * row (independent of each other and of the memory), and the stored levels through
+         * their covariance P: var = var_gp + sum c_out^2 out_var + c' P c */
         var = var_gp;
         for (Py_ssize_t j = 0; j < n_stages; j++) {
-            double c = 0.0;
-            for (Py_ssize_t i = 0; i < d; i++) c += grad[i] * a[i * s + n_stages + j];
-            var += c * c * out_var[j];
+            double sensitivity = 0.0;
+            for (Py_ssize_t i = 0; i < d; i++) sensitivity += grad[i] * a[i * s + n_stages + j];
+            var += sensitivity * sensitivity * out_var[j];
         }
-        for (Py_ssize_t j = 0; j < r->memory; j++) {
-            double c = r->mode == MODE_INCREMENT && j == 0 ? 1.0 : 0.0;
-            for (Py_ssize_t i = 0; i < d; i++) c += grad[i] * a[i * s + shared + j];
-            var += c * c * memory_var[j];
+        for (Py_ssize_t j = 0; j < n; j++) {
+            c[j] = r->mode == MODE_INCREMENT && j == 0 ? 1.0 : 0.0;
+            for (Py_ssize_t i = 0; i < d; i++) c[j] += grad[i] * a[i * s + shared + j];
+        }
+        for (Py_ssize_t k = 0; k < n; k++) {
+            double pc = 0.0; /* (P c)_k: the new level's covariance with stored level k */
+            for (Py_ssize_t l = 0; l < n; l++) pc += memory_cov[k * n + l] * c[l];
+            cov[k] = pc;
+            var += c[k] * pc;
         }
         level = r->mode == MODE_INCREMENT ? memory[0] + mu : mu;
         out[q] = r->mode == MODE_OUTPUT ? level : y + level;
@@ -263,14 +294,10 @@ static double stage_step(const StageRecord *r, const Layout *l, const double *pa
         outside[q] = 0.0;
         level = r->mode == MODE_OUTPUT ? y : 0.0;
         out[q] = y;
+        for (Py_ssize_t k = 0; k < r->memory; k++) cov[k] = 0.0;
     }
     out_var[q] = var;
-    if (r->memory > 1) {
-        memmove(memory + 1, memory, (size_t)(r->memory - 1) * sizeof(double));
-        memmove(memory_var + 1, memory_var, (size_t)(r->memory - 1) * sizeof(double));
-    }
-    memory[0] = level;
-    memory_var[0] = var;
+    push_level(memory, memory_cov, r->memory, level, var, cov);
     return score;
 }
 
