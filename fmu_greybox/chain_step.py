@@ -172,7 +172,7 @@ class ChainPlan:
             blocks.append((offset, block))
             offset += -(-block.size // 8) * 8  # each posterior on a cache-line boundary
             memory_offset += stage.memory_length * (1 + stage.memory_length)
-            work = max(work, m + 5 * d + 2 * stage.memory_length + 1)
+            work = max(work, 2 * m + 5 * d + 2 * stage.memory_length + 1)
         self._params = aligned_zeros(offset)
         for start, block in blocks:
             self._params[start : start + block.size] = block

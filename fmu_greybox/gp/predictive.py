@@ -138,7 +138,8 @@ class Posterior:
             "_chol_uu_f": np.asfortranarray(self.chol_uu),
             "_chol_b_f": np.asfortranarray(self.chol_b),
             "packed": pack_posterior(
-                factor, [weight, offset, z_scaled.ravel(), z_offset, alpha, point_weights, scalars]
+                factor,
+                [weight, offset, z_scaled.T.ravel(), z_offset, alpha, point_weights, scalars],
             ),
         }
         for name, value in derived.items():
@@ -261,8 +262,9 @@ def pack_posterior(factor: FloatArray, vectors: list[FloatArray]) -> FloatArray:
     factor : ndarray, shape (M, M)
         H, lower triangular.
     vectors : list of ndarray
-        weight (D), offset (D), Z/ℓ row-major (M·D), log s² − ½|Z/ℓ|² (M), α (M), β (M),
-        and the scalars y_scale, y_mean, s², σ² (4), in this order.
+        weight (D), offset (D), Z/ℓ by dimension (D·M: the M coordinates i, then i + 1),
+        log s² − ½|Z/ℓ|² (M), α (M), β (M), and the scalars y_scale, y_mean, s², σ² (4), in
+        this order.
 
     Returns
     -------
