@@ -10,6 +10,11 @@ and the number of features, not on how well the hyperparameters fit), exported, 
 - ``libcosim``: the FMU alone in libcosim (libcosimpy), inputs held at their first recorded
   values, a last-value observer attached, all steps in one ``step(n)`` call -- libcosim's loop
   with no Python between steps (the FMU's own Python runs inside ``fmi2DoStep``);
+- ``libcosim 1 core``: the same with the process held on one CPU core while libcosim starts its
+  worker threads (they inherit it). libcosim hands each step to whichever worker is free, so on a
+  multi-core machine consecutive steps of the FMU run on different cores, and each core's cache
+  must fetch the correctors' factors again (about 1.9 MB at M = 400 and three stages); a
+  real-time bench pins its threads (``taskset -c N``) and gets this figure;
 - ``in-process``: the grey-box's slave class called directly from Python (set, step, get), i.e.
   without pythonfmu's C++ wrapper -- the difference to ``fmpy`` is that wrapper's cost.
 
@@ -33,8 +38,10 @@ Usage: ``.venv/bin/python benchmarks/bench_export.py [--inducing 50,100,200,400]
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
+import os
 import sys
 import tempfile
 import time
@@ -137,6 +144,17 @@ def fmpy_loop(fmu: Path, u: np.ndarray) -> Clock:
         slave.terminate()
         slave.freeInstance()
     return clock
+
+
+@contextlib.contextmanager
+def one_core():
+    """Hold the calling thread, and the threads it starts, on one core (the lowest allowed)."""
+    cores = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {min(cores)})
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, cores)
 
 
 def libcosim_run(fmu: Path, u: np.ndarray) -> Clock:
@@ -263,6 +281,12 @@ def equivalence(model_dir: Path, fmu: Path, folder: Path) -> dict[str, float]:
     return figures
 
 
+def libcosim_one_core(fmu: Path, u: np.ndarray) -> Clock:
+    """:func:`libcosim_run` with libcosim's worker threads on one core."""
+    with one_core():
+        return libcosim_run(fmu, u)
+
+
 def best(run, fmu: Path, u: np.ndarray, repeats: int) -> dict[str, float]:
     """CPU and wall time per step [us], of the run with the least CPU time."""
     clock = min((run(fmu, u) for _ in range(repeats)), key=lambda c: c.cpu)
@@ -299,13 +323,15 @@ def main() -> None:
         tmp = Path(tmp)
         whitebox = reference_fmus()["HydraulicActuator"]
         bare = {"fmpy": best(fmpy_loop, whitebox, u, args.repeats),
-                "libcosim": best(libcosim_run, whitebox, u, args.repeats)}
+                "libcosim": best(libcosim_run, whitebox, u, args.repeats),
+                "libcosim 1 core": best(libcosim_one_core, whitebox, u, args.repeats)}
         for m in sizes:
             fmu = export(rec, m, tmp)
             rows.append({
                 "inducing": m,
                 "fmpy": best(fmpy_loop, fmu, u, args.repeats),
                 "libcosim": best(libcosim_run, fmu, u, args.repeats),
+                "libcosim 1 core": best(libcosim_one_core, fmu, u, args.repeats),
                 "in-process": best(in_process, fmu, u, args.repeats),
                 "breakdown": breakdown(fmu, u),
             })
@@ -316,16 +342,16 @@ def main() -> None:
     print(f"white-box FMU alone: fmpy {bare['fmpy']['cpu_us']:.1f} us "
           f"({bare['fmpy']['wall_us']:.1f}), libcosim {bare['libcosim']['cpu_us']:.1f} us "
           f"({bare['libcosim']['wall_us']:.1f})")
-    print(f"{'M/stage':>8} {'engine':>11} {'us/step':>9} {'(wall)':>9} {'x white-box':>12} "
+    print(f"{'M/stage':>8} {'engine':>15} {'us/step':>9} {'(wall)':>9} {'x white-box':>12} "
           f"{'< 100 us':>9}")
     for row in rows:
-        for engine in ("fmpy", "libcosim", "in-process"):
+        for engine in ("fmpy", "libcosim", "libcosim 1 core", "in-process"):
             cpu, wall = row[engine]["cpu_us"], row[engine]["wall_us"]
             ratio = f"{cpu / bare[engine]['cpu_us']:12.1f}" if engine in bare else f"{'':12}"
-            print(f"{row['inducing']:8d} {engine:>11} {cpu:9.1f} {wall:9.1f} {ratio} "
+            print(f"{row['inducing']:8d} {engine:>15} {cpu:9.1f} {wall:9.1f} {ratio} "
                   f"{'yes' if cpu < TARGET_US else 'no':>9}")
         pieces = ", ".join(f"{name} {us:.1f}" for name, us in row["breakdown"].items())
-        print(f"{'':8} {'':>11} in-process breakdown [us]: {pieces}")
+        print(f"{'':8} {'':>15} in-process breakdown [us]: {pieces}")
     for engine, difference in figures.items():
         print(f"equivalence, M = {sizes[0]}: {engine:18} max |FMU - master| / range = "
               f"{difference:.2e}")
