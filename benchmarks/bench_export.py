@@ -23,7 +23,7 @@ Figures are CPU time of the process per step (wall time in brackets: it also cou
 process waited for a shared CPU), after :data:`SETTLE` s and :data:`WARMUP` untimed steps, of
 the run with the least CPU time out of ``--repeats``; the
 in-process breakdown shows where a step's time goes (white-box FMU step, the chain of
-correctors, the out-of-domain score, the rest of the slave).
+correctors with their out-of-domain score, the rest of the slave).
 
 With ``--equivalence`` it also runs the grey-box of the first M on a separate 2.048 s validation
 recording in fmpy's ``simulate_fmu``, in fmpy's SSP simulation and in libcosim (the SSP bench of
