@@ -6,11 +6,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.signal import lfilter
 
 from fmu_greybox.config import load_config
 from fmu_greybox.diagnosis.calibrate import autocorrelation_time
 from fmu_greybox.diagnosis.hypotheses import physics_label
-from fmu_greybox.diagnosis.locate import Locator, regime_signals
+from fmu_greybox.diagnosis.locate import Locator, _inherited, regime_signals
 from fmu_greybox.diagnosis.runner import Experiment
 from fmu_greybox.diagnosis.signals import SignalMap, noise_level, role_from_unit
 from fmu_greybox.fmu_archive import open_fmu
@@ -24,6 +25,20 @@ def test_noise_level_of_white_noise_on_a_smooth_signal() -> None:
     t = np.arange(20000) * 1e-3
     x = 0.01 * np.sin(2 * np.pi * 0.5 * t) + 2e-5 * rng.standard_normal(t.size)
     assert noise_level(x) == pytest.approx(2e-5, rel=0.05)
+
+
+def test_inherited_share_is_counted_out_of_sample() -> None:
+    """A filtered copy of the upstream residual is inherited. A slow drift beside upstream
+    noise is not: in-sample, the integral of the noise (a random walk) fits it (73 % here)."""
+    rng = np.random.default_rng(0)
+    dt, n = 1e-3, 30000
+    noise = rng.standard_normal(n)
+    drift = np.cumsum(np.cumsum(rng.standard_normal(n)))
+    drift = (drift - drift.mean()) / drift.std() * 20 + rng.standard_normal(n)
+    smooth = np.convolve(rng.standard_normal(n), np.ones(200) / 200, mode="same") * 10
+    driven = lfilter([0.01], [1, -0.99], smooth) * 3 + 0.1 * rng.standard_normal(n)
+    assert _inherited(np.column_stack([smooth, driven]), [0, 1], 1, dt) > 0.9
+    assert _inherited(np.column_stack([noise, drift]), [0, 1], 1, dt) < 0.2
 
 
 def test_autocorrelation_time_of_white_and_correlated_residuals() -> None:

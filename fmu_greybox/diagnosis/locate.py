@@ -9,7 +9,8 @@ load level, pressure level, command amplitude), in frequency bands.
 The origin stage is the first stage, in chain order, whose residual exceeds the noise: the
 stages before it match, so everything it shows is its own. For every later stage the share of
 its residual that its upstream stages' residuals explain (through a bank of low-pass filters
-and an integrator, since errors propagate through dynamics) is reported as inherited.
+and an integrator, since errors propagate through dynamics; cross-validated over two halves of
+the rows) is reported as inherited.
 """
 
 from __future__ import annotations
@@ -382,7 +383,14 @@ def _bands(r: np.ndarray, dt: float) -> list[Regime]:
 
 
 def _inherited(normalised: np.ndarray, stages: list[int], q: int, dt: float) -> float:
-    """Share of stage ``q``'s residual energy that its upstream residuals explain."""
+    """Share of stage ``q``'s residual energy that its upstream residuals explain.
+
+    Stage ``q``'s residual is regressed on its upstream residuals, their integral and their
+    low-passed versions. The share is cross-validated (coefficients fitted on one half of the
+    rows, the energy explained counted on the other, both ways): the integral of upstream
+    *noise* is a random walk that can fit any slow drift in-sample, which would report a
+    downstream error as inherited from an upstream stage that matches within noise.
+    """
     own = normalised[:, [j for j, s in enumerate(stages) if s == q]]
     upstream = normalised[:, [j for j, s in enumerate(stages) if s < q]]
     if own.size == 0 or upstream.size == 0:
@@ -392,7 +400,11 @@ def _inherited(normalised: np.ndarray, stages: list[int], q: int, dt: float) -> 
         a = np.exp(-dt / tau)
         features.append(lfilter([1 - a], [1, -a], upstream, axis=0))
     x = np.column_stack([*features, np.ones(upstream.shape[0])])
-    coef, *_ = np.linalg.lstsq(x, own, rcond=None)
-    left = own - x @ coef
+    half = x.shape[0] // 2
+    folds = (slice(0, half), slice(half, None))
+    left = 0.0
+    for fit, test in (folds, folds[::-1]):
+        coef, *_ = np.linalg.lstsq(x[fit], own[fit], rcond=None)
+        left += float(np.sum((own[test] - x[test] @ coef) ** 2))
     total = float(np.sum(own**2)) or 1.0
-    return float(np.clip(1.0 - np.sum(left**2) / total, 0.0, 1.0))
+    return float(np.clip(1.0 - left / total, 0.0, 1.0))
