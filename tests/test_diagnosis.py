@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +12,7 @@ from click.testing import CliRunner
 
 from fmu_greybox.builtin import model_fmus
 from fmu_greybox.cli import main
-from fmu_greybox.config import load_config
+from fmu_greybox.config import load_config, parse_config
 from fmu_greybox.diagnosis import SCHEMA_VERSION, Diagnosis
 from fmu_greybox.fmu_archive import open_fmu
 from fmu_greybox.positioner_synth import synthesise_positioner
@@ -48,6 +49,23 @@ def test_structure_outside_the_vocabulary_is_unexplained(whitebox_fmu, truth_fmu
     unexplained = diagnosis.findings_[effects.index("unexplained")]
     assert unexplained.stage == "RAM"
     assert "no hypothesis explains" in unexplained.summary
+
+
+def test_friction_among_five_effects_is_named(whitebox_fmu, truth_fmu) -> None:
+    """Experiment 2's recording: offset, friction, leakage, air and delay at once, 3000 training
+    rows. The friction fixes the pressure and the velocity but leaves the position drifting
+    from the other effects: the held-out test must not let that one signal outvote the rest."""
+    effects = {"offset": 0.2, "coulomb_friction": 600.0, "internal_leakage": 2e-12,
+               "compliance": 0.3, "time_delay": 0.002}
+    recording = actuator_recording(whitebox_fmu, truth_fmu, effects, seed=2, duration=4.299)
+    raw = tomllib.loads(ACTUATOR.read_text())
+    raw["split"]["train_fraction"] = 3000.5 / 4300
+    diagnosis = Diagnosis(parse_config(raw, ACTUATOR), greybox=None).fit(recording)
+    named = {f.effect: f for f in diagnosis.findings_}
+    assert named["offset"].magnitude["value"] == pytest.approx(0.2, rel=0.15)
+    assert named["coulomb_friction"].magnitude["value"] == pytest.approx(600.0, rel=0.15)
+    itfv = diagnosis.fit_["ITFV"]
+    assert itfv["named_rmse"] < 0.7 * itfv["wb_rmse"]
 
 
 def test_diagnose_command_writes_json_and_report(whitebox_fmu, truth_fmu, tmp_path) -> None:

@@ -83,8 +83,9 @@ class Candidate:
         Terms already accepted, applied unchanged.
     cost : float
         Sum of squared normalised residuals over the training rows simulated.
-    heldout : float
-        Mean squared normalised residual over the held-out rows (``nan`` unless simulated).
+    heldout : ndarray, shape (n_observed,), or None
+        Mean squared normalised residual of each observed signal over the held-out rows
+        (``None`` unless simulated, or when no row is held out).
     simulated : ndarray or None
         The last simulation at ``theta``.
     cov : ndarray or None, shape (p, p)
@@ -95,7 +96,7 @@ class Candidate:
     theta: np.ndarray
     fixed: list[Term] = field(default_factory=list)
     cost: float = math.inf
-    heldout: float = math.nan
+    heldout: np.ndarray | None = None
     simulated: np.ndarray | None = None
     cov: np.ndarray | None = None
     _step: float = 1.0
@@ -188,12 +189,13 @@ class Calibrator:
             r = filtfilt([1.0 - a], [1.0, -a], r, axis=0)
         return r.ravel()
 
-    def heldout_cost(self, simulated: np.ndarray) -> float:
-        """Mean squared normalised residual over the held-out rows simulated."""
+    def heldout_cost(self, simulated: np.ndarray) -> np.ndarray | None:
+        """Mean squared normalised residual of each observed signal over the held-out rows
+        simulated, shape (n_observed,); ``None`` when none is."""
         rest = simulated[self.fit_rows :]
         if rest.shape[0] == 0:
-            return math.nan
-        return float(np.mean(self.experiment.residual(rest, self.fit_rows) ** 2))
+            return None
+        return np.mean(self.experiment.residual(rest, self.fit_rows) ** 2, axis=0)
 
     def evaluate(self, candidates: Sequence[Candidate]) -> None:
         """Simulate every candidate at its magnitudes and store cost and simulation."""

@@ -11,9 +11,12 @@ Each round, on top of the hypotheses already kept:
    over: the Bayesian information criterion, computed with the effective number of samples
    ``N / tau`` (``tau``: the residual's autocorrelation time), falls by more than
    ``bic_threshold``; the held-out rows, never used in fitting, improve by at least
-   ``min_heldout_gain``; and it removes at least ``min_explained`` of the residual energy
-   above the noise floor that is left (so that a later hypothesis is not kept for polishing
-   the shape of an earlier one);
+   ``min_heldout_gain`` (the geometric mean over the observed signals of each signal's
+   held-out cost ratio, so that the signal with the largest residual in noise units does not
+   outvote the others: a friction force that fixes the pressure and the velocity but leaves the
+   position drifting from another effect is still supported); and it removes at least
+   ``min_explained`` of the residual energy above the noise floor that is left (so that a
+   later hypothesis is not kept for polishing the shape of an earlier one);
 4. refit every kept hypothesis jointly over the whole training part.
 
 Magnitudes are fitted to the low-passed residual (see :class:`~.calibrate.Calibrator`): it keeps
@@ -220,7 +223,7 @@ class ForwardSelection:
             bic = n_eff * math.log(max(c.cost, 1e-300) / current.cost) + c.theta.size * math.log(
                 n_eff
             )
-            held = c.heldout / current.heldout if current.heldout > 0 else 1.0
+            held = heldout_ratio(c.heldout, current.heldout)
             round_.refined.append(
                 {
                     "key": c.hypotheses[0].key,
@@ -234,3 +237,25 @@ class ForwardSelection:
             if bic < best_bic and held <= 1.0 - self.min_heldout_gain and enough:
                 best, best_bic = c, bic
         return best
+
+
+def heldout_ratio(new: np.ndarray | None, old: np.ndarray | None) -> float:
+    """Geometric mean over the observed signals of the held-out cost ratio ``new / old``.
+
+    Parameters
+    ----------
+    new, old : ndarray, shape (n_observed,), or None
+        Mean squared normalised held-out residual of each signal (``None``: no held-out rows).
+
+    Returns
+    -------
+    float
+        1.0 when there is nothing to compare.
+    """
+    if new is None or old is None:
+        return 1.0
+    kept = old > 0
+    if not np.any(kept):
+        return 1.0
+    ratios = np.maximum(new[kept], 1e-300) / old[kept]
+    return float(np.exp(np.mean(np.log(ratios))))
