@@ -64,6 +64,8 @@ def test_friction_among_five_effects_is_named(whitebox_fmu, truth_fmu) -> None:
     named = {f.effect: f for f in diagnosis.findings_}
     assert named["offset"].magnitude["value"] == pytest.approx(0.2, rel=0.15)
     assert named["coulomb_friction"].magnitude["value"] == pytest.approx(600.0, rel=0.15)
+    # the RAM's energy is the drifting position's; the summary names what the force does fix
+    assert "itfv_pressure's" in named["coulomb_friction"].summary
     itfv = diagnosis.fit_["ITFV"]
     assert itfv["named_rmse"] < 0.7 * itfv["wb_rmse"]
 

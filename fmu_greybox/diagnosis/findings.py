@@ -22,6 +22,9 @@ from .runner import Experiment
 #: A correction "changes" a stage when it moves one of its signals by this many noise levels
 #: (RMS): the structure that makes a residual significant.
 CHANGE_THRESHOLD = SIGNIFICANT_STRUCTURE
+#: A finding's summary also names the output it helps most when that output's share explained
+#: exceeds the stage's by this much (a stage's energy can be dominated by one drifting signal).
+MENTION_MARGIN = 0.3
 
 
 @dataclass
@@ -102,6 +105,26 @@ def stage_changed(experiment: Experiment, before: np.ndarray, after: np.ndarray)
     return moved[0] if moved else None
 
 
+def best_explained_signal(
+    experiment: Experiment, before: np.ndarray, after: np.ndarray
+) -> tuple[str, float] | None:
+    """The observed output whose residual energy a step from ``before`` to ``after`` cuts most.
+
+    Returns
+    -------
+    (str, float) or None
+        The output's name and the share of its residual energy removed; ``None`` without
+        residual.
+    """
+    e_before = np.sum(experiment.residual(before) ** 2, axis=0)
+    e_after = np.sum(experiment.residual(after) ** 2, axis=0)
+    share = np.where(e_before > 0, 1.0 - e_after / np.maximum(e_before, 1e-300), 0.0)
+    if share.size == 0:
+        return None
+    j = int(np.argmax(share))
+    return experiment.outputs[j], float(share[j])
+
+
 def stage_energy(experiment: Experiment, simulated: np.ndarray, stage: int) -> float:
     """Sum of squared normalised residuals of a stage's signals over the whole recording."""
     cols = [j for j, s in enumerate(experiment.stages) if s == stage]
@@ -146,6 +169,12 @@ def named_findings(
         finding = _named(
             h, theta, ci[k : k + h.n_params], names[stage], explained, stages[stage], i > 0
         )
+        best = best_explained_signal(experiment, before, after)
+        if best is not None and best[1] >= max(explained, 0.0) + MENTION_MARGIN:
+            finding.summary = (
+                f"{finding.summary[:-1]}, and {100 * best[1]:.0f} % of {best[0]}'s."
+            )
+            finding.details["best_explained_signal"] = {"signal": best[0], "fraction": best[1]}
         found.append(((total[i] - total[i + 1]) / total[0] if total[0] > 0 else 0.0, finding))
     found.sort(key=lambda pair: -pair[0])
     return [f for _, f in found]
