@@ -166,15 +166,12 @@ def named_findings(
         left = stage_energy(experiment, before, stage)
         explained = (left - stage_energy(experiment, after, stage)) / left if left > 0 else 0.0
         k = offsets[i]
-        finding = _named(
-            h, theta, ci[k : k + h.n_params], names[stage], explained, stages[stage], i > 0
-        )
         best = best_explained_signal(experiment, before, after)
-        if best is not None and best[1] >= max(explained, 0.0) + MENTION_MARGIN:
-            finding.summary = (
-                f"{finding.summary[:-1]}, and {100 * best[1]:.0f} % of {best[0]}'s."
-            )
-            finding.details["best_explained_signal"] = {"signal": best[0], "fraction": best[1]}
+        if best is not None and best[1] < max(explained, 0.0) + MENTION_MARGIN:
+            best = None
+        finding = _named(
+            h, theta, ci[k : k + h.n_params], names[stage], explained, stages[stage], i > 0, best
+        )
         found.append(((total[i] - total[i + 1]) / total[0] if total[0] > 0 else 0.0, finding))
     found.sort(key=lambda pair: -pair[0])
     return [f for _, f in found]
@@ -188,10 +185,14 @@ def _named(
     explained: float,
     residual: StageResidual,
     after_others: bool,
+    best: tuple[str, float] | None = None,
 ) -> Finding:
     share = max(0.0, min(1.0, explained))
     left = " left by the findings before it" if after_others else ""
-    summary = f"{h.phrase(theta)}; it explains {100 * share:.0f} % of the {stage} residual{left}."
+    also = f", and {100 * best[1]:.0f} % of {best[0]}'s" if best is not None else ""
+    summary = (
+        f"{h.phrase(theta)}; it explains {100 * share:.0f} % of the {stage} residual{left}{also}."
+    )
     magnitudes = {
         name: {"value": float(v), "unit": unit, "ci95": _interval(c)}
         for name, v, unit, c in zip(h.names, theta, h.units, ci, strict=True)
@@ -210,6 +211,11 @@ def _named(
             "magnitudes": magnitudes,
             "terms": [t.to_dict() for t in h.terms(theta)],
             **h.extra(theta),
+            **(
+                {"best_explained_signal": {"signal": best[0], "fraction": best[1]}}
+                if best is not None
+                else {}
+            ),
         },
     )
 
