@@ -21,6 +21,10 @@ Scoring (this file knows the truth; the diagnosis does not):
 Usage::
 
     .venv/bin/python benchmarks/concealed_effects.py [--quick] [--json] [--workers N]
+        [--case EFFECT=VALUE[+EFFECT=VALUE] ...]
+
+``--case`` replaces the suite by the cases given (noise scale 1, seeds 301, 302, ...), e.g.
+magnitudes outside the suite's.
 
 With ``--json`` the last line is one JSON object: ``origin_accuracy``, ``effect_accuracy``,
 ``control_false_findings``, ``median_improvement`` and the cases.
@@ -106,6 +110,19 @@ def cases(quick: bool) -> list[Case]:
     controls = ((1.0, 1), (1.0, 2)) if quick else ((1.0, 1), (1.0, 2), (1.0, 3), (3.0, 4))
     found += [Case({}, noise, s) for noise, s in controls]
     return found
+
+
+def given_case(text: str, seed: int) -> Case:
+    """A case from ``EFFECT=VALUE[+EFFECT=VALUE]`` (the effects of the truth model)."""
+    effects = {}
+    for part in text.split("+"):
+        name, sep, value = part.partition("=")
+        if not sep or name.strip() not in MAGNITUDES:
+            raise SystemExit(
+                f"--case {text!r}: write EFFECT=VALUE with EFFECT one of {', '.join(MAGNITUDES)}"
+            )
+        effects[name.strip()] = float(value)
+    return Case(effects, 1.0, seed)
 
 
 def expected_origin(truth: FmuArchive, recording, case: Case, config) -> tuple[str | None, list]:
@@ -231,6 +248,13 @@ def main() -> None:
     parser.add_argument(
         "--duration", type=float, default=None, help="Recording length [s] (default 20, quick 12)."
     )
+    parser.add_argument(
+        "--case",
+        action="append",
+        default=[],
+        metavar="EFFECT=VALUE[+EFFECT=VALUE]",
+        help="Run these cases instead of the suite (repeatable).",
+    )
     args = parser.parse_args()
     duration = args.duration or (12.0 if args.quick else 20.0)
     config = load_config(CONFIG)
@@ -240,7 +264,8 @@ def main() -> None:
         f"{'ok':4s} {'estimate':>10s} {'true':>10s} {'impr.':>7s} {'time':>6s}"
     )
     rows = []
-    for case in cases(args.quick):
+    chosen = [given_case(text, 301 + i) for i, text in enumerate(args.case)] or cases(args.quick)
+    for case in chosen:
         row = run_case(case, paths, config, args.workers, duration)
         rows.append(row)
         print_row(row)
