@@ -9,6 +9,7 @@ the model must be an FMI 2.0 co-simulation FMU with a binary for this platform.
 
 from __future__ import annotations
 
+import math
 import shutil
 import stat
 import tempfile
@@ -48,6 +49,8 @@ class FmuVariable:
         ``"Real"``, ``"Integer"``, ``"Boolean"``, ``"String"`` or ``"Enumeration"``.
     start : float or None
         Start value when declared and numeric.
+    minimum, maximum : float or None
+        Declared range (on the variable or its declared type), when numeric.
     """
 
     name: str
@@ -58,6 +61,8 @@ class FmuVariable:
     unit: str
     description: str
     start: float | None
+    minimum: float | None = None
+    maximum: float | None = None
 
 
 @dataclass
@@ -342,11 +347,8 @@ def _variables(description: object) -> dict[str, FmuVariable]:
     """Collect the scalar variables with their units."""
     result: dict[str, FmuVariable] = {}
     for v in description.modelVariables:
-        unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or ""
-        try:
-            start = float(v.start) if v.start is not None else None
-        except (TypeError, ValueError):
-            start = None
+        declared = v.declaredType
+        unit = v.unit or (declared.unit if declared is not None else None) or ""
         result[v.name] = FmuVariable(
             name=v.name,
             value_reference=int(v.valueReference),
@@ -355,6 +357,25 @@ def _variables(description: object) -> dict[str, FmuVariable]:
             variability=v.variability,
             unit=unit,
             description=v.description or "",
-            start=start,
+            start=_number(v.start),
+            minimum=_number(_declared(v, declared, "min")),
+            maximum=_number(_declared(v, declared, "max")),
         )
     return result
+
+
+def _declared(variable: object, declared: object | None, name: str) -> object | None:
+    """An attribute of a variable, or of its declared type when the variable has none."""
+    value = getattr(variable, name, None)
+    if value is None and declared is not None:
+        value = getattr(declared, name, None)
+    return value
+
+
+def _number(text: object | None) -> float | None:
+    """A declared attribute as a finite float, or ``None``."""
+    try:
+        value = float(text) if text is not None else None
+    except (TypeError, ValueError):
+        return None
+    return value if value is not None and math.isfinite(value) else None

@@ -11,7 +11,12 @@ from fmu_greybox.builtin import model_fmus
 from fmu_greybox.config import load_config
 from fmu_greybox.diagnosis.calibrate import Calibrator, Candidate
 from fmu_greybox.diagnosis.diagnose import data_scales
-from fmu_greybox.diagnosis.hypotheses import generate_hypotheses
+from fmu_greybox.diagnosis.hypotheses import (
+    PARAMETER_RANGE,
+    _parameter_hypotheses,
+    _relative_range,
+    generate_hypotheses,
+)
 from fmu_greybox.diagnosis.runner import Experiment, Simulator
 from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.fmu_archive import open_fmu
@@ -106,3 +111,20 @@ def test_viscous_force_on_the_positioner_recovers_extra_friction() -> None:
     low, high = fitted.ci95[0]
     assert low <= 300.0 <= high, (fitted.theta, fitted.ci95)
     assert fitted.theta[0] == pytest.approx(300.0, rel=0.1)
+
+
+def test_parameter_ranges_follow_the_fmu_declaration() -> None:
+    """A parameter is searched from a tenth to a hundred times its set value, inside the range
+    its FMU declares (the positioner's efficiency 0.9 may not exceed its declared 1.0)."""
+    with open_fmu(model_fmus("ElectroMechanicalPositioner")["ElectroMechanicalPositioner"]) as fmu:
+        efficiency = fmu.variables["transmission_efficiency"]
+        assert (efficiency.minimum, efficiency.maximum) == (None, 1.0)
+        assert fmu.variables["viscous_friction"].minimum == 0.0
+        ranges = {
+            h.name: (h.lower[0], h.upper[0]) for h in _parameter_hypotheses(fmu, {})
+        }
+    assert ranges["transmission_efficiency"] == pytest.approx((-0.9, 1.0 / 0.9 - 1.0))
+    assert ranges["viscous_friction"] == pytest.approx(PARAMETER_RANGE)
+    # a negative set value: its declared minimum bounds the relative change from above
+    assert _relative_range(-2.0, -3.0, None) == pytest.approx((-0.9, 0.5))
+    assert _relative_range(-2.0, None, -1.0) == pytest.approx((-0.5, 99.0))

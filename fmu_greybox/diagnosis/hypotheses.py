@@ -144,6 +144,11 @@ def _fmt(value: float, unit: str = "") -> str:
 
 
 # ---------------------------------------------------------------------------- parameters
+#: Relative changes a parameter mismatch may take by default: a tenth to a hundred times the
+#: set value.
+PARAMETER_RANGE = (-0.9, 99.0)
+
+
 @dataclass
 class ParameterMismatch(Hypothesis):
     """A tunable FMU parameter is mis-set; ``theta`` is its relative change."""
@@ -559,6 +564,9 @@ def _parameter_hypotheses(archive: FmuArchive, parameters: dict[str, float]) -> 
         nominal = parameters.get(var.name, var.start)
         if nominal is None or nominal == 0.0 or not math.isfinite(nominal):
             continue
+        lower, upper = _relative_range(float(nominal), var.minimum, var.maximum)
+        if lower >= upper:
+            continue
         found.append(
             ParameterMismatch(
                 name=var.name,
@@ -566,11 +574,29 @@ def _parameter_hypotheses(archive: FmuArchive, parameters: dict[str, float]) -> 
                 unit=var.unit,
                 description=var.description,
                 scale=(0.05,),
-                lower=(-0.9,),
-                upper=(9.0,),
+                lower=(lower,),
+                upper=(upper,),
             )
         )
     return found
+
+
+def _relative_range(
+    nominal: float, minimum: float | None, maximum: float | None
+) -> tuple[float, float]:
+    """Admissible relative changes of a parameter: a tenth to a hundred times its set value
+    (leakages and friction coefficients drift by orders of magnitude), within the range the FMU
+    declares for it."""
+    lower, upper = PARAMETER_RANGE
+    for value, is_minimum in ((minimum, True), (maximum, False)):
+        if value is None:
+            continue
+        change = value / nominal - 1.0
+        if is_minimum == (nominal > 0):
+            lower = max(lower, change)
+        else:
+            upper = min(upper, change)
+    return lower, upper
 
 
 def _command_hypotheses(signals: SignalMap, scales: DataScales) -> list[Hypothesis]:
