@@ -8,7 +8,8 @@ free run used for validation, and the exported FMU.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+from collections.abc import Callable, Iterator
 
 import numpy as np
 
@@ -183,15 +184,22 @@ class GreyBoxChain:
         callback = _stage_progress(progress, label) if progress is not None else None
         self.correctors_[q] = corrector.fit(X, t, progress=callback)
 
-    def _fed(self, q: int, exo: np.ndarray, y_wb: np.ndarray, outputs: np.ndarray) -> np.ndarray:
-        """The recorded outputs with the stages before ``q`` replaced by their free run."""
+    @contextlib.contextmanager
+    def _correcting_first(self, count: int) -> Iterator[None]:
+        """Run only the first ``count`` stages' correctors (the rest pass the white-box
+        through) inside the block; :attr:`active_` is restored after it."""
         kept = self.active_.copy()
-        self.active_[:] = np.arange(len(self.stages)) < q
+        self.active_[:] = np.arange(len(self.stages)) < count
         try:
-            start = self.history - 1
-            mean, _ = self.free_run(exo, y_wb, outputs, start)
+            yield
         finally:
             self.active_[:] = kept
+
+    def _fed(self, q: int, exo: np.ndarray, y_wb: np.ndarray, outputs: np.ndarray) -> np.ndarray:
+        """The recorded outputs with the stages before ``q`` replaced by their free run."""
+        start = self.history - 1
+        with self._correcting_first(q):
+            mean, _ = self.free_run(exo, y_wb, outputs, start)
         fed = outputs.copy()
         fed[start + 1 :, :q] = mean[:, :q]
         return fed
@@ -208,10 +216,8 @@ class GreyBoxChain:
         stage = self.stages[q]
         split = max(self.history + 2, int((1.0 - SELECTION_TAIL) * exo.shape[0]))
         head = slice(0, split)
-        kept = self.active_.copy()
         errors = {}
-        try:
-            self.active_[:] = np.arange(len(self.stages)) <= q
+        with self._correcting_first(q + 1):
             for mode in ("residual", "increment"):
                 stage.target_mode = mode
                 self._fit_stage(
@@ -219,8 +225,6 @@ class GreyBoxChain:
                 )
                 mean, _ = self.free_run(exo, y_wb, outputs, split - 1)
                 errors[mode] = float(np.sqrt(np.mean((mean[:, q] - outputs[split:, q]) ** 2)))
-        finally:
-            self.active_[:] = kept
         better = errors["increment"] < (1.0 - SELECTION_MARGIN) * errors["residual"]
         chosen = "increment" if better else "residual"
         self.selection_[stage.name] = {**errors, "chosen": chosen}
