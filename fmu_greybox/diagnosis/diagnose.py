@@ -114,7 +114,7 @@ class Diagnosis:
         config: ProjectConfig,
         workers: int = 2,
         screen_rows: int = 4000,
-        max_findings: int = 3,
+        max_findings: int = 5,
         greybox: GreyBoxSettings | None = GreyBoxSettings(),
         progress: Progress | None = None,
     ) -> None:

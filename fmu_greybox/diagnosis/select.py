@@ -3,10 +3,16 @@
 Each round, on top of the hypotheses already kept:
 
 1. **screen** every remaining hypothesis on a short leading window of the training rows: one
-   linearised (Gauss-Newton) step from "no effect", with sensitivities over a long difference
-   step (two scales), tried at two step lengths;
-2. **refine** the best few on a longer leading window (damped Gauss-Newton), then score them
-   on the raw residual over the whole recording;
+   linearised (Gauss-Newton) step from "no effect" on top of the kept hypotheses, with
+   sensitivities over a long difference step (two scales), tried at two step lengths, once on
+   the low-passed residual and once on the raw one; a hypothesis ranks by the better of the
+   two (a delay shows in the fast part the low-pass removes, a stiffness in the slow part the
+   ripples of the raw misfit hide);
+2. **refine** the best few on a longer leading window (damped Gauss-Newton) with the kept
+   magnitudes free (an offset kept first may have absorbed part of a leakage's drift: the
+   leakage only pays once the offset may move back), and the kept hypotheses alone refined
+   the same way as the reference; then score them on the raw residual over the whole
+   recording;
 3. **accept** the one with the best information criterion if it is significant three times
    over: the Bayesian information criterion, computed with the effective number of samples
    ``N / tau`` (``tau``: the residual's autocorrelation time), falls by more than
@@ -16,7 +22,9 @@ Each round, on top of the hypotheses already kept:
    outvote the others: a friction force that fixes the pressure and the velocity but leaves the
    position drifting from another effect is still supported); and it removes at least
    ``min_explained`` of the residual energy above the noise floor that is left (so that a
-   later hypothesis is not kept for polishing the shape of an earlier one);
+   later hypothesis is not kept for polishing the shape of an earlier one). Each test is
+   against the reference (the kept hypotheses, re-tuned when that lowers their cost), and the
+   information criterion counts the new hypothesis' magnitudes only;
 4. refit every kept hypothesis jointly over the whole training part.
 
 Magnitudes are fitted to the low-passed residual (see :class:`~.calibrate.Calibrator`): it keeps
@@ -105,7 +113,7 @@ class ForwardSelection:
         self,
         screen_rows: int = 4000,
         refine_rows: int = 10000,
-        refine_top: int = 3,
+        refine_top: int = 5,
         max_findings: int = 3,
         bic_threshold: float = 10.0,
         min_heldout_gain: float = 0.05,
@@ -138,9 +146,11 @@ class ForwardSelection:
         experiment = simulator.experiment
         n = experiment.n_samples
         full = Calibrator(simulator, n)
-        window = Calibrator(
-            simulator, min(self.screen_rows, experiment.train_rows), self.smoothing, 2.0
-        )
+        screen_rows = min(self.screen_rows, experiment.train_rows)
+        windows = [
+            Calibrator(simulator, screen_rows, self.smoothing, 2.0),
+            Calibrator(simulator, screen_rows, 0.0, 2.0),
+        ]
         longer = Calibrator(simulator, min(self.refine_rows, experiment.train_rows), self.smoothing)
         joint_fit = Calibrator(simulator, n, self.smoothing)
         current = Candidate([], np.zeros(0))
@@ -151,7 +161,7 @@ class ForwardSelection:
         while len(current.hypotheses) < self.max_findings and not self._within_noise(full, current):
             round_ = Round()
             self.rounds_.append(round_)
-            top = self._screen(window, current, remaining, round_)
+            top = self._screen(windows, current, remaining, round_)
             if not top:
                 break
             best = self._refine(longer, full, current, top, round_)
@@ -159,9 +169,7 @@ class ForwardSelection:
                 break
             round_.accepted = best.hypotheses[-1].key
             remaining = [h for h in remaining if h.key != round_.accepted]
-            joint = Candidate(
-                [*current.hypotheses, *best.hypotheses], np.concatenate([current.theta, best.theta])
-            )
+            joint = Candidate(best.hypotheses, best.theta)
             joint_fit.evaluate([joint])
             joint_fit.fit([joint], max_iter=2 if len(joint.hypotheses) == 1 else 3)
             full.evaluate([joint])
@@ -179,24 +187,31 @@ class ForwardSelection:
 
     def _screen(
         self,
-        window: Calibrator,
+        windows: list[Calibrator],
         current: Candidate,
         remaining: list[Hypothesis],
         round_: Round,
     ) -> list[Candidate]:
-        start = Candidate([], np.zeros(0), fixed=current.terms())
-        window.evaluate([start])
-        if not math.isfinite(start.cost):
-            return []
-        candidates = []
-        for h in remaining:
-            c = Candidate([h], h.start(), fixed=current.terms())
-            c.cost, c.simulated, c.heldout = start.cost, start.simulated, start.heldout
-            candidates.append(c)
-        window.fit(candidates, max_iter=1, tries=1)
-        candidates.sort(key=lambda c: c.cost)
-        round_.screened = [(c.hypotheses[0].key, c.cost / start.cost) for c in candidates[:10]]
-        better = [c for c in candidates if c.cost < 0.99 * start.cost]
+        """One linearised step of every remaining hypothesis on top of the kept ones, on each
+        screening view (the low-passed and the raw residual); a hypothesis ranks by its better
+        view."""
+        best: dict[str, tuple[float, Candidate]] = {}
+        for window in windows:
+            start = Candidate([], np.zeros(0), fixed=current.terms())
+            window.evaluate([start])
+            if not math.isfinite(start.cost):
+                continue
+            candidates = [Candidate([h], h.start(), fixed=current.terms()) for h in remaining]
+            for c in candidates:
+                c.cost, c.simulated, c.heldout = start.cost, start.simulated, start.heldout
+            window.fit(candidates, max_iter=1, tries=1)
+            for c in candidates:
+                key, ratio = c.hypotheses[-1].key, c.cost / start.cost
+                if ratio < best.get(key, (math.inf,))[0]:
+                    best[key] = (ratio, c)
+        ranked = sorted(best.items(), key=lambda item: item[1][0])
+        round_.screened = [(key, ratio) for key, (ratio, _) in ranked[:10]]
+        better = [c for _, (ratio, c) in ranked if ratio < 0.99]
         return better[: self.refine_top]
 
     def _refine(
@@ -207,36 +222,54 @@ class ForwardSelection:
         top: list[Candidate],
         round_: Round,
     ) -> Candidate | None:
-        refined = [Candidate(c.hypotheses, c.theta, fixed=current.terms()) for c in top]
-        smoothed.evaluate(refined)
-        smoothed.fit(refined, max_iter=self.max_iter)
-        full.evaluate(refined)
+        """Refine the screened candidates (kept magnitudes free) and accept the best that
+        passes the three tests against the kept hypotheses refined the same way alone."""
+        refined = [_extended(current, c.hypotheses[0], c.theta) for c in top]
+        retuned = _free(current)
+        group = [*refined, retuned] if current.hypotheses else refined
+        smoothed.evaluate(group)
+        smoothed.fit(group, max_iter=self.max_iter)
+        full.evaluate(group)
+        reference = current
+        if current.hypotheses and retuned.cost < current.cost:
+            reference = retuned
         rows = full.fit_rows
         floor = float(rows * len(full.experiment.outputs))
-        needed = self.min_explained * max(current.cost - floor, 0.0)
-        base_r = full.experiment.residual(current.simulated[:rows])
+        needed = self.min_explained * max(reference.cost - floor, 0.0)
+        base_r = full.experiment.residual(reference.simulated[:rows])
         n_eff = base_r.size / autocorrelation_time(base_r)
         best, best_bic = None, -self.bic_threshold
         for c in refined:
             if not math.isfinite(c.cost):
                 continue
-            bic = n_eff * math.log(max(c.cost, 1e-300) / current.cost) + c.theta.size * math.log(
-                n_eff
+            added = c.hypotheses[-1]
+            bic = n_eff * math.log(max(c.cost, 1e-300) / reference.cost) + added.n_params * (
+                math.log(n_eff)
             )
-            held = heldout_ratio(c.heldout, current.heldout)
+            held = heldout_ratio(c.heldout, reference.heldout)
             round_.refined.append(
                 {
-                    "key": c.hypotheses[0].key,
-                    "theta": c.theta.tolist(),
-                    "train_ratio": c.cost / current.cost,
+                    "key": added.key,
+                    "theta": c.split()[-1].tolist(),
+                    "train_ratio": c.cost / reference.cost,
                     "heldout_ratio": held,
                     "delta_bic": bic,
                 }
             )
-            enough = current.cost - c.cost >= needed
+            enough = reference.cost - c.cost >= needed
             if bic < best_bic and held <= 1.0 - self.min_heldout_gain and enough:
                 best, best_bic = c, bic
         return best
+
+
+def _free(kept: Candidate) -> Candidate:
+    """The kept hypotheses at their magnitudes, free to move."""
+    return Candidate(list(kept.hypotheses), kept.theta.copy())
+
+
+def _extended(kept: Candidate, hypothesis: Hypothesis, theta: np.ndarray) -> Candidate:
+    """The kept hypotheses plus ``hypothesis`` at ``theta``, all free."""
+    return Candidate([*kept.hypotheses, hypothesis], np.concatenate([kept.theta, theta]))
 
 
 def heldout_ratio(new: np.ndarray | None, old: np.ndarray | None) -> float:
