@@ -193,8 +193,9 @@ class ForwardSelection:
         round_: Round,
     ) -> list[Candidate]:
         """One linearised step of every remaining hypothesis on top of the kept ones, on each
-        screening view (the low-passed and the raw residual); a hypothesis ranks by its better
-        view."""
+        screening view (the low-passed and the raw residual, in that order); a hypothesis ranks
+        by its better view and is refined from its step on the first (the refinement fits the
+        low-passed residual: a step on the raw one can land in another of its basins)."""
         best: dict[str, tuple[float, Candidate]] = {}
         for window in windows:
             start = Candidate([], np.zeros(0), fixed=current.terms())
@@ -207,8 +208,10 @@ class ForwardSelection:
             window.fit(candidates, max_iter=1, tries=1)
             for c in candidates:
                 key, ratio = c.hypotheses[-1].key, c.cost / start.cost
-                if ratio < best.get(key, (math.inf,))[0]:
+                if key not in best:
                     best[key] = (ratio, c)
+                elif ratio < best[key][0]:
+                    best[key] = (ratio, best[key][1])
         ranked = sorted(best.items(), key=lambda item: item[1][0])
         round_.screened = [(key, ratio) for key, (ratio, _) in ranked[:10]]
         better = [c for _, (ratio, c) in ranked if ratio < 0.99]
