@@ -7,7 +7,7 @@ Each round, on top of the hypotheses already kept:
    sensitivities over a long difference step (two scales), tried at two step lengths, once on
    the low-passed residual and once on the raw one; a hypothesis ranks by the better of the
    two (a delay shows in the fast part the low-pass removes, a stiffness in the slow part the
-   ripples of the raw misfit hide);
+   ripples of the raw misfit hide) and is refined from its low-passed step;
 2. **refine** the best few on a longer leading window (damped Gauss-Newton) with the kept
    magnitudes free (an offset kept first may have absorbed part of a leakage's drift: the
    leakage only pays once the offset may move back), and the kept hypotheses alone refined
@@ -114,7 +114,7 @@ class ForwardSelection:
         screen_rows: int = 4000,
         refine_rows: int = 10000,
         refine_top: int = 5,
-        max_findings: int = 3,
+        max_findings: int = 5,
         bic_threshold: float = 10.0,
         min_heldout_gain: float = 0.05,
         min_explained: float = 0.2,
