@@ -22,6 +22,7 @@ from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.fmu_archive import open_fmu
 from fmu_greybox.positioner_synth import synthesise_positioner
 from fmu_greybox.synth import FlightTestProfile, SynthRequest, synthesise
+from fmu_greybox.terms import InputOffset
 
 CONFIGS = Path(__file__).resolve().parents[1] / "bench_configs"
 VALVE_GAIN = 4e-5  # m/mA of the reference white-box
@@ -128,3 +129,27 @@ def test_parameter_ranges_follow_the_fmu_declaration() -> None:
     # a negative set value: its declared minimum bounds the relative change from above
     assert _relative_range(-2.0, -3.0, None) == pytest.approx((-0.9, 0.5))
     assert _relative_range(-2.0, None, -1.0) == pytest.approx((-0.5, 99.0))
+
+
+def test_simulator_runs_a_repeated_term_set_once(whitebox_fmu, truth_fmu) -> None:
+    """The screening scores the same simulations on two views of the residual: a set of terms
+    asked for again over the same rows is answered from memory (read-only), not run again."""
+    recording = actuator_recording(whitebox_fmu, truth_fmu, {"offset": 0.2})
+    config = load_config(CONFIGS / "hydraulic_actuator.toml")
+    offset = [InputOffset(input="valve_current", offset=0.1)]
+    with open_fmu(whitebox_fmu) as whitebox:
+        signals = SignalMap.from_project(config, whitebox, recording)
+        experiment = Experiment.from_project(
+            config, whitebox, recording, signals, recording.n_samples
+        )
+        with Simulator(experiment, workers=2) as simulator:
+            first = simulator.run([[], offset], rows=500)
+            again = simulator.run([offset, [], offset], rows=500)
+            assert simulator.runs == 2
+            simulator.run([offset], rows=600)
+            assert simulator.runs == 3
+        direct = experiment.simulate(offset, 500)
+    assert again[0] is first[1] and again[2] is first[1] and again[1] is first[0]
+    np.testing.assert_array_equal(first[1], direct)
+    assert not np.allclose(first[0], first[1])
+    assert not first[1].flags.writeable

@@ -156,6 +156,9 @@ class Experiment:
 
 _WORKER: dict[str, Experiment] = {}
 
+#: Memory the :class:`Simulator` keeps its latest results in.
+MEMO_BYTES = 64 * 2**20
+
 
 def _init_worker(experiment: Experiment) -> None:
     _WORKER["experiment"] = experiment
@@ -179,7 +182,9 @@ class Simulator:
     Attributes
     ----------
     runs : int
-        Simulations run so far.
+        Simulations run so far (a set of terms asked for again over the same rows, while its
+        result is among the last :data:`MEMO_BYTES` kept, is not run again: the screening's
+        two views of the residual score the same simulations).
     rows_simulated : int
         Total rows simulated so far.
     """
@@ -189,6 +194,8 @@ class Simulator:
         self.workers = max(1, min(int(workers), os.cpu_count() or 1))
         self.runs = 0
         self.rows_simulated = 0
+        self._memo: dict[tuple[str, int], np.ndarray | None] = {}
+        self._memo_bytes = 0
         self._pool = None
         if self.workers > 1:
             methods = multiprocessing.get_all_start_methods()
@@ -206,12 +213,31 @@ class Simulator:
             In the order of ``term_sets``; ``None`` where the FMU failed.
         """
         rows = self.experiment.n_samples if rows is None else rows
-        tasks = [(list(terms), rows) for terms in term_sets]
+        keys = [(repr([t.to_dict() for t in terms]), rows) for terms in term_sets]
+        missing = {key: terms for key, terms in zip(keys, term_sets, strict=True)}
+        missing = {key: terms for key, terms in missing.items() if key not in self._memo}
+        tasks = [(list(terms), rows) for terms in missing.values()]
         self.runs += len(tasks)
         self.rows_simulated += rows * len(tasks)
         if self._pool is None or len(tasks) == 1:
-            return [self.experiment.simulate(terms, rows) for terms, rows in tasks]
-        return self._pool.map(_simulate_task, tasks, chunksize=1)
+            results = [self.experiment.simulate(terms, rows) for terms, rows in tasks]
+        else:
+            results = self._pool.map(_simulate_task, tasks, chunksize=1)
+        found = {key: self._memo[key] for key in keys if key in self._memo}
+        found.update(zip(missing, results, strict=True))
+        for key, result in zip(missing, results, strict=True):
+            self._remember(key, result)
+        return [found[key] for key in keys]
+
+    def _remember(self, key: tuple[str, int], result: np.ndarray | None) -> None:
+        """Keep a result (read-only), forgetting the oldest beyond :data:`MEMO_BYTES`."""
+        if result is not None:
+            result.setflags(write=False)
+            self._memo_bytes += result.nbytes
+        self._memo[key] = result
+        while self._memo_bytes > MEMO_BYTES and len(self._memo) > 1:
+            old = self._memo.pop(next(iter(self._memo)))
+            self._memo_bytes -= 0 if old is None else old.nbytes
 
     def close(self) -> None:
         """Stop the worker processes (idempotent)."""

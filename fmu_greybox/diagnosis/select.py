@@ -228,14 +228,12 @@ class ForwardSelection:
         """Refine the screened candidates (kept magnitudes free) and accept the best that
         passes the three tests against the kept hypotheses refined the same way alone."""
         refined = [_extended(current, c.hypotheses[0], c.theta) for c in top]
-        retuned = _free(current)
-        group = [*refined, retuned] if current.hypotheses else refined
+        retuned = [_extended(current, None, np.zeros(0))] if current.hypotheses else []
+        group = [*refined, *retuned]
         smoothed.evaluate(group)
         smoothed.fit(group, max_iter=self.max_iter)
         full.evaluate(group)
-        reference = current
-        if current.hypotheses and retuned.cost < current.cost:
-            reference = retuned
+        reference = min([current, *retuned], key=lambda c: c.cost)
         rows = full.fit_rows
         floor = float(rows * len(full.experiment.outputs))
         needed = self.min_explained * max(reference.cost - floor, 0.0)
@@ -265,14 +263,10 @@ class ForwardSelection:
         return best
 
 
-def _free(kept: Candidate) -> Candidate:
-    """The kept hypotheses at their magnitudes, free to move."""
-    return Candidate(list(kept.hypotheses), kept.theta.copy())
-
-
-def _extended(kept: Candidate, hypothesis: Hypothesis, theta: np.ndarray) -> Candidate:
-    """The kept hypotheses plus ``hypothesis`` at ``theta``, all free."""
-    return Candidate([*kept.hypotheses, hypothesis], np.concatenate([kept.theta, theta]))
+def _extended(kept: Candidate, hypothesis: Hypothesis | None, theta: np.ndarray) -> Candidate:
+    """The kept hypotheses, plus ``hypothesis`` at ``theta`` when given, all free to move."""
+    added = [] if hypothesis is None else [hypothesis]
+    return Candidate([*kept.hypotheses, *added], np.concatenate([kept.theta, theta]))
 
 
 def heldout_ratio(new: np.ndarray | None, old: np.ndarray | None) -> float:
