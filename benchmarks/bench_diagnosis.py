@@ -19,12 +19,12 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from fmu_greybox.builtin import reference_fmus
-from fmu_greybox.config import load_config
 from fmu_greybox.diagnosis import Diagnosis
-from fmu_greybox.fmu_archive import open_fmu
-from fmu_greybox.simulate import simulate_recording
-from fmu_greybox.synth import FlightTestProfile, SynthRequest, parse_effects, synthesise
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.builtin import reference_fmus
+from fmu_greybox.fmi.simulate import simulate_recording
+from fmu_greybox.project.config import load_config
+from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, parse_effects, synthesise
 
 CONFIG = Path(__file__).resolve().parent.parent / "bench_configs" / "hydraulic_actuator.toml"
 SAMPLES = 25_000

@@ -27,8 +27,10 @@ correctors with their out-of-domain score, the rest of the slave).
 
 With ``--equivalence`` it also runs the grey-box of the first M on a separate 2.048 s validation
 recording in fmpy's ``simulate_fmu``, in fmpy's SSP simulation and in libcosim (the SSP bench of
-:func:`fmu_greybox.bench.make_bench`) and prints the largest difference to the in-process master
-(:func:`fmu_greybox.master.run_master`, memory from the white-box), relative to each signal's
+:func:`fmu_greybox.export.ssp.make_bench`) and prints the largest difference to the in-process
+master
+(:func:`fmu_greybox.workflow.master.run_master`, memory from the white-box), relative to each
+signal's
 range, over the corrected outputs, their standard deviations and the white-box outputs.
 
 Usage: ``.venv/bin/python benchmarks/bench_export.py [--inducing 50,100,200,400] [--steps N]
@@ -52,14 +54,14 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from fmu_greybox import synth
-from fmu_greybox.builtin import reference_fmus
-from fmu_greybox.config import load_config
-from fmu_greybox.export import export_greybox
-from fmu_greybox.export_slave import GreyBoxSlave
-from fmu_greybox.fmu_archive import open_fmu
-from fmu_greybox.model_dir import save_model
-from fmu_greybox.training import train_model, with_inducing
+from fmu_greybox.export.fmu import export_greybox
+from fmu_greybox.export.slave import GreyBoxSlave
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.builtin import reference_fmus
+from fmu_greybox.model.store import save_model
+from fmu_greybox.project.config import load_config
+from fmu_greybox.synth import actuator as synth
+from fmu_greybox.workflow.train import train_model, with_inducing
 
 ROOT = Path(__file__).resolve().parent.parent
 INPUTS = ("valve_current", "supply_pressure", "load_force", "engage")
@@ -236,11 +238,11 @@ def equivalence(model_dir: Path, fmu: Path, folder: Path) -> dict[str, float]:
     """Largest relative difference to the master per engine (see the module docstring)."""
     from fmpy import simulate_fmu
 
-    from fmu_greybox.bench import make_bench, run_bench
-    from fmu_greybox.master import run_master
-    from fmu_greybox.model_dir import load_model
-    from fmu_greybox.project_data import prepare
-    from fmu_greybox.recording import Recording
+    from fmu_greybox.data.recording import Recording
+    from fmu_greybox.export.ssp import make_bench, run_bench
+    from fmu_greybox.model.store import load_model
+    from fmu_greybox.project.data import prepare
+    from fmu_greybox.workflow.master import run_master
 
     rec = recording(duration=2.048, seed=8)  # 2048 steps: its mean step is exactly 1 ms
     model = load_model(model_dir)

@@ -25,7 +25,7 @@ from fmpy import extract, read_model_description, simulate_fmu
 from fmpy.fmi2 import FMU2Slave
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from fmu_greybox.fmu_build import REFERENCE_MODEL_DIR, build_fmu
+from fmu_greybox.fmi.build import REFERENCE_MODEL_DIR, build_fmu
 
 OUTPUTS = (
     "spool_position", "ram_position", "itfv_pressure", "ram_velocity", "load_flow",

@@ -2,7 +2,7 @@
 
 For every truth effect of the reference actuator at several magnitudes and noise levels, for
 pairs of effects and for no-effect controls, a recording is made with the truth FMU in closed
-loop (:func:`fmu_greybox.synth.synthesise`). The diagnosis gets only the white-box FMU, the
+loop (:func:`fmu_greybox.synth.actuator.synthesise`). The diagnosis gets only the white-box FMU, the
 project file ``bench_configs/hydraulic_actuator.toml`` and the recording.
 
 Scoring (this file knows the truth; the diagnosis does not):
@@ -43,15 +43,15 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from fmu_greybox.builtin import reference_fmus
-from fmu_greybox.config import load_config
 from fmu_greybox.diagnosis import Diagnosis
 from fmu_greybox.diagnosis.findings import named_physics
 from fmu_greybox.diagnosis.locate import SIGNIFICANT_STRUCTURE
-from fmu_greybox.fmu_archive import FmuArchive, open_fmu
-from fmu_greybox.fmu_instance import FmuInstance
-from fmu_greybox.simulate import run_open_loop
-from fmu_greybox.synth import (
+from fmu_greybox.fmi.archive import FmuArchive, open_fmu
+from fmu_greybox.fmi.builtin import reference_fmus
+from fmu_greybox.fmi.instance import FmuInstance
+from fmu_greybox.fmi.simulate import run_open_loop
+from fmu_greybox.project.config import load_config
+from fmu_greybox.synth.actuator import (
     INPUTS,
     SENSOR_NOISE,
     TYPICAL_MAGNITUDES,

@@ -28,16 +28,16 @@ import time
 import tomllib
 from pathlib import Path
 
-from fmu_greybox.builtin import reference_fmus
-from fmu_greybox.config import ProjectConfig, parse_config
 from fmu_greybox.diagnosis import Diagnosis
 from fmu_greybox.diagnosis.report import diagnosis_payload
-from fmu_greybox.fmu_archive import open_fmu
-from fmu_greybox.metrics import format_table
-from fmu_greybox.named_model import terms_from_findings
-from fmu_greybox.synth import FlightTestProfile, SynthRequest, synthesise
-from fmu_greybox.training import train_model
-from fmu_greybox.validation import validate_model
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.builtin import reference_fmus
+from fmu_greybox.model.whitebox import terms_from_findings
+from fmu_greybox.project.config import ProjectConfig, parse_config
+from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
+from fmu_greybox.workflow.metrics import format_table
+from fmu_greybox.workflow.train import train_model
+from fmu_greybox.workflow.validate import validate_model
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "bench_configs" / "hydraulic_actuator.toml"

@@ -39,12 +39,13 @@ import test_fmu_archive as archive_tests  # noqa: E402
 import test_robustness_archive as hostile_tests  # noqa: E402
 import test_robustness_runs as runs_tests  # noqa: E402
 
-from fmu_greybox.builtin import reference_fmus  # noqa: E402
-from fmu_greybox.config import load_config, parse_config  # noqa: E402
+from fmu_greybox.data.recording import Recording, load_recording, save_recording  # noqa: E402
 from fmu_greybox.errors import FmuGreyboxError  # noqa: E402
-from fmu_greybox.fmu_archive import open_fmu  # noqa: E402
-from fmu_greybox.fmu_instance import FmuInstance  # noqa: E402
-from fmu_greybox.model_dir import (  # noqa: E402
+from fmu_greybox.fmi.archive import open_fmu  # noqa: E402
+from fmu_greybox.fmi.builtin import reference_fmus  # noqa: E402
+from fmu_greybox.fmi.instance import FmuInstance  # noqa: E402
+from fmu_greybox.fmi.simulate import simulate_recording  # noqa: E402
+from fmu_greybox.model.store import (  # noqa: E402
     MANIFEST,
     MANIFEST_HASH,
     file_sha256,
@@ -52,10 +53,9 @@ from fmu_greybox.model_dir import (  # noqa: E402
     manifest_digest,
     save_model,
 )
-from fmu_greybox.recording import Recording, load_recording, save_recording  # noqa: E402
-from fmu_greybox.simulate import simulate_recording  # noqa: E402
-from fmu_greybox.synth import FlightTestProfile, SynthRequest, synthesise  # noqa: E402
-from fmu_greybox.training import train_model  # noqa: E402
+from fmu_greybox.project.config import load_config, parse_config  # noqa: E402
+from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise  # noqa: E402
+from fmu_greybox.workflow.train import train_model  # noqa: E402
 
 REFERENCE = ROOT / "bench_configs" / "hydraulic_actuator.toml"
 WIDTH = 190

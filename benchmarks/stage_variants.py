@@ -20,9 +20,9 @@ import tomllib
 
 from reproduce_paper import CONFIG, EXPERIMENTS, synthesise_experiment
 
-from fmu_greybox.config import parse_config
-from fmu_greybox.training import train_model
-from fmu_greybox.validation import validate_model
+from fmu_greybox.project.config import parse_config
+from fmu_greybox.workflow.train import train_model
+from fmu_greybox.workflow.validate import validate_model
 
 
 def main(argv: list[str] | None = None) -> int:

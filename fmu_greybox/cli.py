@@ -13,8 +13,8 @@ from pathlib import Path
 
 import click
 
-from . import __version__
-from .errors import FmuGreyboxError
+from fmu_greybox import __version__
+from fmu_greybox.errors import FmuGreyboxError
 
 EXIT_USER_ERROR = 1
 
@@ -106,7 +106,7 @@ def fmu_build_cmd(ctx: click.Context, out_dir: Path) -> None:
     Example:
       fmu-greybox fmu build --out fmus/
     """
-    from .fmu_build import build_reference_fmus
+    from fmu_greybox.fmi.build import build_reference_fmus
 
     out_dir.mkdir(parents=True, exist_ok=True)
     for name, path in build_reference_fmus(out_dir).items():
@@ -158,10 +158,10 @@ def synth(
       fmu-greybox synth --effect gain_error=0.1 --noise 0 --out exp1.csv
       fmu-greybox synth --effect coulomb_friction=800 --effect time_delay=0.004 --out rec.parquet
     """
-    from . import synth as synth_mod
-    from .builtin import reference_fmus
-    from .fmu_archive import open_fmu
-    from .recording import save_recording
+    from fmu_greybox.data.recording import save_recording
+    from fmu_greybox.fmi.archive import open_fmu
+    from fmu_greybox.fmi.builtin import reference_fmus
+    from fmu_greybox.synth import actuator as synth_mod
 
     paths = reference_fmus()
     with (
@@ -248,9 +248,9 @@ def simulate(
       fmu-greybox simulate builtin:HydraulicActuator rec.csv --out wb.csv
       fmu-greybox simulate my.fmu bench.mat --map valve_current=i_cmd --fix engage=1 --out wb.csv
     """
-    from .builtin import resolve_fmu
-    from .recording import load_recording, save_recording
-    from .simulate import simulate_recording
+    from fmu_greybox.data.recording import load_recording, save_recording
+    from fmu_greybox.fmi.builtin import resolve_fmu
+    from fmu_greybox.fmi.simulate import simulate_recording
 
     options = {
         "mapping": _pairs(mapping, "--map", numeric=False),
@@ -311,11 +311,11 @@ def train(
       fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv \\
           --terms diag/diagnosis.json --out model/
     """
-    from .config import load_config
-    from .model_dir import save_model
-    from .named_model import read_terms
-    from .project_data import load_project_recording
-    from .training import train_model, with_inducing
+    from fmu_greybox.model.store import save_model
+    from fmu_greybox.model.whitebox import read_terms
+    from fmu_greybox.project.config import load_config
+    from fmu_greybox.project.data import load_project_recording
+    from fmu_greybox.workflow.train import train_model, with_inducing
 
     config = with_inducing(load_config(config_path), inducing)
     recording = load_project_recording(config, recording_path)
@@ -369,12 +369,12 @@ def validate(
       fmu-greybox validate bench_configs/hydraulic_actuator.toml --model model/ \\
           --recording rec.csv --out validation/
     """
-    from .config import load_config
-    from .metrics import format_table
-    from .model_dir import load_model
-    from .plots import save_png, trace_figure
-    from .project_data import load_project_recording
-    from .validation import validate_model, write_metrics
+    from fmu_greybox.model.store import load_model
+    from fmu_greybox.project.config import load_config
+    from fmu_greybox.project.data import load_project_recording
+    from fmu_greybox.report.plots import save_png, trace_figure
+    from fmu_greybox.workflow.metrics import format_table
+    from fmu_greybox.workflow.validate import validate_model, write_metrics
 
     config = load_config(config_path)
     model = load_model(model_dir)
@@ -477,9 +477,9 @@ def demo(
       fmu-greybox demo
       fmu-greybox demo --effect internal_leakage=1e-12 --seed 4 --out leak/
     """
-    from . import synth as synth_mod
-    from .demo import DemoSettings, run_demo
-    from .main_report import verdict_lines, write_report
+    from fmu_greybox.report.main import verdict_lines, write_report
+    from fmu_greybox.synth import actuator as synth_mod
+    from fmu_greybox.workflow.demo import DemoSettings, run_demo
 
     quiet = ctx.obj["quiet"] or as_json
     settings = DemoSettings(
@@ -568,10 +568,10 @@ def export(
       fmu-greybox export model/ --out greybox.fmu
       fmu-greybox export model/ --out greybox.fmu --ssp bench.ssp --recording rec.csv
     """
-    from .bench import make_bench
-    from .export import export_greybox
-    from .model_dir import load_model
-    from .project_data import load_project_recording
+    from fmu_greybox.export.fmu import export_greybox
+    from fmu_greybox.export.ssp import make_bench
+    from fmu_greybox.model.store import load_model
+    from fmu_greybox.project.data import load_project_recording
 
     if ssp is not None and recording_path is None:
         raise click.UsageError("--ssp needs --recording (the recording the bench plays back)")
@@ -628,8 +628,8 @@ def cosim(
       fmu-greybox cosim bench.ssp --out results.csv
       fmu-greybox cosim bench.ssp --engine libcosim --stop-time 2 --out results.parquet
     """
-    from .bench import run_bench
-    from .recording import save_recording
+    from fmu_greybox.data.recording import save_recording
+    from fmu_greybox.export.ssp import run_bench
 
     started = time.perf_counter()
     result = run_bench(ssp, engine=engine, stop_time=stop_time, step=step)
@@ -686,9 +686,9 @@ def diagnose(
       fmu-greybox synth --effect coulomb_friction=600 --duration 25 --out rec.csv
       fmu-greybox diagnose bench_configs/hydraulic_actuator.toml --recording rec.csv --out diag/
     """
-    from .config import load_config
-    from .diagnosis import Diagnosis, GreyBoxSettings, write_outputs
-    from .project_data import load_project_recording
+    from fmu_greybox.diagnosis import Diagnosis, GreyBoxSettings, write_outputs
+    from fmu_greybox.project.config import load_config
+    from fmu_greybox.project.data import load_project_recording
 
     quiet = ctx.obj["quiet"] or as_json
     config = load_config(config_path)

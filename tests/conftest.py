@@ -27,7 +27,7 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 from fmpy.model_description import ModelDescription
 
-from fmu_greybox.fmu_build import build_reference_fmus
+from fmu_greybox.fmi.build import build_reference_fmus
 
 OUTPUTS = (
     "spool_position", "ram_position", "itfv_pressure", "ram_velocity", "load_flow",
@@ -126,7 +126,7 @@ def truth_fmu(fmu_dir: Path) -> Path:
 @pytest.fixture(scope="session")
 def whitebox_archive(whitebox_fmu: Path):
     """The white-box FMU, opened once per session."""
-    from fmu_greybox.fmu_archive import open_fmu
+    from fmu_greybox.fmi.archive import open_fmu
 
     with open_fmu(whitebox_fmu) as archive:
         yield archive

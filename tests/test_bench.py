@@ -25,11 +25,11 @@ from test_export import (
     trained,
 )
 
-from fmu_greybox.bench import SSD_FILE, build_playback_fmu, make_bench, read_layout, run_bench
 from fmu_greybox.cli import main
+from fmu_greybox.data.recording import Recording, load_recording, save_recording
 from fmu_greybox.errors import BenchError
-from fmu_greybox.export_slave import GreyBoxSlave
-from fmu_greybox.recording import Recording, load_recording, save_recording
+from fmu_greybox.export.slave import GreyBoxSlave
+from fmu_greybox.export.ssp import SSD_FILE, build_playback_fmu, make_bench, read_layout, run_bench
 
 #: 1024 steps: the recording's mean step (the master's) is then exactly libcosim's 1 ms, which
 #: it counts in integer nanoseconds

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from fmu_greybox import _chainstep
-from fmu_greybox.chain_step import ChainState
-from fmu_greybox.config import parse_config
 from fmu_greybox.gp import SparseGPR
 from fmu_greybox.gp.predictive import packed_factor
-from fmu_greybox.greybox import GreyBoxChain
+from fmu_greybox.model.chain import GreyBoxChain
+from fmu_greybox.model.chain_step import ChainState
+from fmu_greybox.project.config import parse_config
 
 REFERENCE = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"
 

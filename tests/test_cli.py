@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner, Result
 
-from fmu_greybox.builtin import sources_digest
 from fmu_greybox.cli import main
-from fmu_greybox.recording import load_recording
-from fmu_greybox.synth import SENSOR_NOISE
+from fmu_greybox.data.recording import load_recording
+from fmu_greybox.fmi.builtin import sources_digest
+from fmu_greybox.synth.actuator import SENSOR_NOISE
 
 SCRIPT = Path(sys.executable).with_name("fmu-greybox")
 

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from fmu_greybox.config import load_config, parse_config
 from fmu_greybox.errors import ConfigError, UnitMismatchError
-from fmu_greybox.fmu_archive import open_fmu
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.project.config import load_config, parse_config
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "bench_configs" / "hydraulic_actuator.toml"

@@ -22,9 +22,9 @@ from fmpy.validation import validate_fmu
 from PIL import Image
 
 from fmu_greybox.cli import main
-from fmu_greybox.demo import choose_effect
-from fmu_greybox.spectra import frequency_response
-from fmu_greybox.synth import TYPICAL_MAGNITUDES
+from fmu_greybox.report.spectra import frequency_response
+from fmu_greybox.synth.actuator import TYPICAL_MAGNITUDES
+from fmu_greybox.workflow.demo import choose_effect
 
 #: A clear fault, so the test can require the diagnosis to name it.
 EFFECT = "coulomb_friction=900"
@@ -145,7 +145,7 @@ def test_report_renders_in_headless_chromium(demo: tuple[Path, dict], tmp_path: 
 
 
 def test_a_failed_demo_writes_no_report(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import fmu_greybox.demo as demo_module
+    import fmu_greybox.workflow.demo as demo_module
     from fmu_greybox.errors import BenchError
 
     def broken_bench(*_args, **_kwargs):

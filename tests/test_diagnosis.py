@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from fmu_greybox.builtin import model_fmus
 from fmu_greybox.cli import main
-from fmu_greybox.config import load_config, parse_config
+from fmu_greybox.data.recording import save_recording
 from fmu_greybox.diagnosis import SCHEMA_VERSION, Diagnosis
 from fmu_greybox.diagnosis.findings import named_physics
-from fmu_greybox.fmu_archive import open_fmu
-from fmu_greybox.positioner_synth import synthesise_positioner
-from fmu_greybox.recording import save_recording
-from fmu_greybox.synth import FlightTestProfile, SynthRequest, synthesise
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.builtin import model_fmus
+from fmu_greybox.project.config import load_config, parse_config
+from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
+from fmu_greybox.synth.positioner import synthesise_positioner
 
 CONFIGS = Path(__file__).resolve().parents[1] / "bench_configs"
 ACTUATOR = CONFIGS / "hydraulic_actuator.toml"

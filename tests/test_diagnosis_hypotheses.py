@@ -7,8 +7,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fmu_greybox.builtin import model_fmus
-from fmu_greybox.config import load_config
 from fmu_greybox.diagnosis.calibrate import Calibrator, Candidate
 from fmu_greybox.diagnosis.diagnose import data_scales
 from fmu_greybox.diagnosis.hypotheses import (
@@ -19,10 +17,12 @@ from fmu_greybox.diagnosis.hypotheses import (
 )
 from fmu_greybox.diagnosis.runner import Experiment, Simulator
 from fmu_greybox.diagnosis.signals import SignalMap
-from fmu_greybox.fmu_archive import open_fmu
-from fmu_greybox.positioner_synth import synthesise_positioner
-from fmu_greybox.synth import FlightTestProfile, SynthRequest, synthesise
-from fmu_greybox.terms import InputOffset
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.builtin import model_fmus
+from fmu_greybox.model.terms import InputOffset
+from fmu_greybox.project.config import load_config
+from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
+from fmu_greybox.synth.positioner import synthesise_positioner
 
 CONFIGS = Path(__file__).resolve().parents[1] / "bench_configs"
 VALVE_GAIN = 4e-5  # m/mA of the reference white-box

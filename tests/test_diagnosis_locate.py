@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from fmu_greybox.config import load_config
 from fmu_greybox.diagnosis.calibrate import autocorrelation_time
 from fmu_greybox.diagnosis.hypotheses import physics_label
 from fmu_greybox.diagnosis.locate import Locator, _inherited, regime_signals
 from fmu_greybox.diagnosis.runner import Experiment
 from fmu_greybox.diagnosis.signals import SignalMap, noise_level, role_from_unit
-from fmu_greybox.fmu_archive import open_fmu
-from fmu_greybox.synth import FlightTestProfile, SynthRequest, synthesise
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.project.config import load_config
+from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 
 CONFIG = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"
 

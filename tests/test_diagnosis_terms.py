@@ -5,10 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fmu_greybox.fmu_instance import FmuInstance
-from fmu_greybox.named_model import simulate_with_terms
-from fmu_greybox.simulate import run_open_loop
-from fmu_greybox.terms import (
+from fmu_greybox.fmi.instance import FmuInstance
+from fmu_greybox.fmi.simulate import run_open_loop
+from fmu_greybox.model.terms import (
     CoulombForce,
     DelayLine,
     FlowDroop,
@@ -22,6 +21,7 @@ from fmu_greybox.terms import (
     ViscousForce,
     term_from_dict,
 )
+from fmu_greybox.model.whitebox import simulate_with_terms
 
 INPUTS = ["valve_current", "supply_pressure", "load_force", "engage"]
 OUTPUTS = ["spool_position", "ram_position", "itfv_pressure", "ram_velocity"]

@@ -26,17 +26,17 @@ from fmpy.validation import validate_fmu
 from lxml import etree
 
 from fmu_greybox.cli import main
-from fmu_greybox.config import load_config
-from fmu_greybox.export import export_greybox
-from fmu_greybox.export_slave import MODEL_FOLDER, check_python
-from fmu_greybox.fmu_archive import open_fmu
-from fmu_greybox.fmu_entry import LOGGER, runtime_message
-from fmu_greybox.master import MasterRun, run_master
-from fmu_greybox.model_dir import MANIFEST, GreyBoxModel, file_sha256, load_model, save_model
-from fmu_greybox.project_data import prepare
-from fmu_greybox.recording import Recording
-from fmu_greybox.simulate import simulate_recording
-from fmu_greybox.training import train_model, with_inducing
+from fmu_greybox.data.recording import Recording
+from fmu_greybox.export.fmu import export_greybox
+from fmu_greybox.export.runtime import LOGGER, runtime_message
+from fmu_greybox.export.slave import MODEL_FOLDER, check_python
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.simulate import simulate_recording
+from fmu_greybox.model.store import MANIFEST, GreyBoxModel, file_sha256, load_model, save_model
+from fmu_greybox.project.config import load_config
+from fmu_greybox.project.data import prepare
+from fmu_greybox.workflow.master import MasterRun, run_master
+from fmu_greybox.workflow.train import train_model, with_inducing
 
 ROOT = Path(__file__).resolve().parents[1]
 RTOL = 1e-9
@@ -48,8 +48,8 @@ _CACHE: dict[str, object] = {}
 
 def synth_recording(duration: float, seed: int) -> Recording:
     """A closed-loop recording of the truth actuator with Coulomb friction."""
-    from fmu_greybox import synth
-    from fmu_greybox.builtin import reference_fmus
+    from fmu_greybox.fmi.builtin import reference_fmus
+    from fmu_greybox.synth import actuator as synth
 
     paths = reference_fmus()
     request = synth.SynthRequest(

@@ -16,8 +16,8 @@ import pytest
 from fmpy import platform as fmpy_platform
 
 from fmu_greybox.errors import FmuArchiveError, FmuError
-from fmu_greybox.fmu_archive import MAX_COMPRESSION_RATIO, open_fmu
-from fmu_greybox.fmu_instance import FmuInstance
+from fmu_greybox.fmi.archive import MAX_COMPRESSION_RATIO, open_fmu
+from fmu_greybox.fmi.instance import FmuInstance
 
 INPUTS = ("valve_current", "supply_pressure", "load_force", "engage")
 OUTPUTS = ("spool_position", "ram_position", "itfv_pressure", "pressure_a")
@@ -289,8 +289,8 @@ def test_fmu_logging_after_an_instance_is_gone_is_safe(whitebox_fmu: Path) -> No
 import gc
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
-from fmu_greybox.fmu_archive import open_fmu
-from fmu_greybox.fmu_instance import FmuInstance
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.instance import FmuInstance
 path = {str(whitebox_fmu)!r}
 with open_fmu(path) as archive, FmuInstance(archive, [], ["ram_position"]) as instance:
     instance.step([], 1e-3)

@@ -14,9 +14,9 @@ from fmpy import extract, read_model_description, simulate_fmu
 from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 
-from fmu_greybox import fmu_build
 from fmu_greybox.errors import FmuBuildError
-from fmu_greybox.fmu_build import (
+from fmu_greybox.fmi import build as fmu_build
+from fmu_greybox.fmi.build import (
     REFERENCE_MODEL_DIR,
     build_fmu,
     fmi2_platform,

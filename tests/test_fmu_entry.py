@@ -1,7 +1,7 @@
 """The entry module of fmu-greybox's Python FMUs under pythonfmu 0.7's loader.
 
 pythonfmu's binary releases one reference to the entry module's namespace per instantiation that
-it never took; :func:`fmu_greybox.fmu_entry.hold_namespace` takes it back. If the namespace's
+it never took; :func:`fmu_greybox.export.runtime.hold_namespace` takes it back. If the namespace's
 reference count ever falls below what the objects referring to it hold, the interpreter frees it
 while clearing modules at exit: a segmentation fault after everything succeeded (the CI run that
 "passed" with exit code 139). The check runs in a fresh interpreter, as a bench's would.
@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fmu_greybox.bench import build_playback_fmu
-from fmu_greybox.recording import Recording
+from fmu_greybox.data.recording import Recording
+from fmu_greybox.export.ssp import build_playback_fmu
 
 PROBE = textwrap.dedent(
     """

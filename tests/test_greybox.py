@@ -12,15 +12,15 @@ import pytest
 from click.testing import CliRunner
 
 from fmu_greybox.cli import main
-from fmu_greybox.config import parse_config
+from fmu_greybox.data.recording import save_recording
 from fmu_greybox.errors import ModelFormatError
-from fmu_greybox.fmu_archive import open_fmu
-from fmu_greybox.master import run_master
-from fmu_greybox.model_dir import MANIFEST, load_model, save_model
-from fmu_greybox.project_data import prepare, split_row
-from fmu_greybox.recording import save_recording
-from fmu_greybox.synth import FlightTestProfile, SynthRequest, synthesise
-from fmu_greybox.training import train_model
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.model.store import MANIFEST, load_model, save_model
+from fmu_greybox.project.config import parse_config
+from fmu_greybox.project.data import prepare, split_row
+from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
+from fmu_greybox.workflow.master import run_master
+from fmu_greybox.workflow.train import train_model
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "bench_configs" / "hydraulic_actuator.toml"

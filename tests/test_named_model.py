@@ -25,15 +25,15 @@ from test_export import (
 )
 
 from fmu_greybox.cli import main
-from fmu_greybox.config import load_config
+from fmu_greybox.data.recording import save_recording
 from fmu_greybox.errors import ConfigError
-from fmu_greybox.export import export_greybox
-from fmu_greybox.fmu_archive import open_fmu
-from fmu_greybox.model_dir import load_model, save_model
-from fmu_greybox.named_model import NamedModel, check_terms, read_terms, simulate_with_terms
-from fmu_greybox.recording import save_recording
-from fmu_greybox.terms import CoulombForce, InputDelay, InputGain, SensorDelay
-from fmu_greybox.training import train_model, with_inducing
+from fmu_greybox.export.fmu import export_greybox
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.model.store import load_model, save_model
+from fmu_greybox.model.terms import CoulombForce, InputDelay, InputGain, SensorDelay
+from fmu_greybox.model.whitebox import NamedModel, check_terms, read_terms, simulate_with_terms
+from fmu_greybox.project.config import load_config
+from fmu_greybox.workflow.train import train_model, with_inducing
 
 ROOT = Path(__file__).resolve().parents[1]
 OUTPUTS = ["spool_position", "ram_position", "itfv_pressure"]

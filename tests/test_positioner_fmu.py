@@ -13,13 +13,13 @@ from conftest import simulate_fmu_loop
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
-from fmu_greybox import builtin
-from fmu_greybox.config import load_config
 from fmu_greybox.errors import ConfigError, FmuArchiveError
-from fmu_greybox.fmu_archive import open_fmu
-from fmu_greybox.fmu_build import SOURCES_DIR, build_model_pair, load_variable_table
-from fmu_greybox.positioner_synth import synthesise_positioner
-from fmu_greybox.simulate import simulate_recording
+from fmu_greybox.fmi import builtin
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.build import SOURCES_DIR, build_model_pair, load_variable_table
+from fmu_greybox.fmi.simulate import simulate_recording
+from fmu_greybox.project.config import load_config
+from fmu_greybox.synth.positioner import synthesise_positioner
 
 MODEL_DIR = SOURCES_DIR / "ElectroMechanicalPositioner"
 CONFIG = Path(__file__).resolve().parents[1] / "bench_configs" / "positioner.toml"

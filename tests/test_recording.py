@@ -14,8 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 from scipy.io import savemat
 
-from fmu_greybox.errors import FmuGreyboxError, RecordingError
-from fmu_greybox.recording import (
+from fmu_greybox.data.recording import (
     UNITS_KEY,
     Recording,
     load_recording,
@@ -23,6 +22,7 @@ from fmu_greybox.recording import (
     save_recording,
     units_compatible,
 )
+from fmu_greybox.errors import FmuGreyboxError, RecordingError
 
 DT = 0.001
 

@@ -11,8 +11,8 @@ import pandas as pd
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from fmu_greybox.data.recording import Recording, load_recording, save_recording
 from fmu_greybox.errors import RecordingError
-from fmu_greybox.recording import Recording, load_recording, save_recording
 
 FUZZ = settings(
     max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=True

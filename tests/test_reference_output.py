@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fmu_greybox.fmu_build import REFERENCE_MODEL_DIR, build_fmu
+from fmu_greybox.fmi.build import REFERENCE_MODEL_DIR, build_fmu
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # conftest, when run with -m
 from conftest import INPUTS, OUTPUTS, simulate_fmu_loop

@@ -23,13 +23,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from fmu_greybox.errors import FmuArchiveError, FmuError
-from fmu_greybox.fmu_archive import (
+from fmu_greybox.fmi.archive import (
     MAX_COMPRESSION_RATIO,
     MAX_MEMBER_BYTES,
     MAX_UNCOMPRESSED_BYTES,
     open_fmu,
 )
-from fmu_greybox.fmu_instance import FmuInstance
+from fmu_greybox.fmi.instance import FmuInstance
 
 rewrite = archive_tests.rewrite
 temp_root = archive_tests.temp_root  # fixture: open_fmu's private temporary folder

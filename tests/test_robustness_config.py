@@ -19,8 +19,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from fmu_greybox.config import load_config, parse_config
 from fmu_greybox.errors import ConfigError
+from fmu_greybox.project.config import load_config, parse_config
 
 REFERENCE = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"
 RAW = tomllib.loads(REFERENCE.read_text(encoding="utf-8"))

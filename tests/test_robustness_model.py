@@ -23,10 +23,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from fmu_greybox.config import parse_config
 from fmu_greybox.errors import ModelFormatError
-from fmu_greybox.fmu_archive import open_fmu
-from fmu_greybox.model_dir import (
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.model.store import (
     MANIFEST,
     MANIFEST_HASH,
     file_sha256,
@@ -34,8 +33,9 @@ from fmu_greybox.model_dir import (
     manifest_digest,
     save_model,
 )
-from fmu_greybox.synth import FlightTestProfile, SynthRequest, synthesise
-from fmu_greybox.training import train_model
+from fmu_greybox.project.config import parse_config
+from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
+from fmu_greybox.workflow.train import train_model
 
 REFERENCE = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"
 FUZZ = settings(

@@ -18,13 +18,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from fmu_greybox.config import ROLE_UNITS, ProjectConfig, parse_config
+from fmu_greybox.data.recording import Recording, load_recording, normalise_unit
 from fmu_greybox.errors import RecordingError, UnitMismatchError
-from fmu_greybox.fmu_archive import FmuArchive, open_fmu
-from fmu_greybox.greybox import GreyBoxChain
-from fmu_greybox.project_data import prepare
-from fmu_greybox.recording import Recording, load_recording, normalise_unit
-from fmu_greybox.synth import FlightTestProfile, SynthRequest, synthesise
+from fmu_greybox.fmi.archive import FmuArchive, open_fmu
+from fmu_greybox.model.chain import GreyBoxChain
+from fmu_greybox.project.config import ROLE_UNITS, ProjectConfig, parse_config
+from fmu_greybox.project.data import prepare
+from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 
 REFERENCE = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"
 FUZZ = settings(

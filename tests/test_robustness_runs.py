@@ -22,12 +22,12 @@ import pytest
 from click.testing import CliRunner
 
 from fmu_greybox.cli import main
+from fmu_greybox.data.recording import Recording, load_recording, save_recording
 from fmu_greybox.errors import FmuError, ModelFormatError, RecordingError
-from fmu_greybox.fmu_archive import open_fmu
-from fmu_greybox.fmu_instance import FmuInstance
-from fmu_greybox.model_dir import MANIFEST, load_model
-from fmu_greybox.recording import Recording, load_recording, save_recording
-from fmu_greybox.synth import FlightTestProfile, SynthRequest, synthesise
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.instance import FmuInstance
+from fmu_greybox.model.store import MANIFEST, load_model
+from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 
 REFERENCE = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"
 

@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError, FmuError, RecordingError, UnitMismatchError
-from fmu_greybox.fmu_archive import open_fmu
-from fmu_greybox.recording import Recording
-from fmu_greybox.simulate import real_outputs, simulate_recording
-from fmu_greybox.synth import FlightTestProfile, SynthRequest, synthesise
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.simulate import real_outputs, simulate_recording
+from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 
 
 @pytest.fixture(scope="module")

@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fmu_greybox.data.recording import Recording, load_recording, save_recording
 from fmu_greybox.errors import ConfigError
-from fmu_greybox.fmu_archive import FmuArchive, open_fmu
-from fmu_greybox.recording import Recording, load_recording, save_recording
-from fmu_greybox.simulate import real_outputs, simulate_recording
-from fmu_greybox.synth import (
+from fmu_greybox.fmi.archive import FmuArchive, open_fmu
+from fmu_greybox.fmi.simulate import real_outputs, simulate_recording
+from fmu_greybox.synth.actuator import (
     SENSOR_NOISE,
     FlightTestProfile,
     SynthRequest,

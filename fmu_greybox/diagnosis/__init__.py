@@ -5,7 +5,7 @@ The estimator is :class:`~.diagnose.Diagnosis`; ``diagnosis.json`` and the HTML 
 written by :func:`~.report.write_outputs`. See ``docs/diagnosis.md``.
 """
 
-from .diagnose import Diagnosis, GreyBoxSettings
-from .report import SCHEMA_VERSION, write_outputs
+from fmu_greybox.diagnosis.diagnose import Diagnosis, GreyBoxSettings
+from fmu_greybox.diagnosis.report import SCHEMA_VERSION, write_outputs
 
 __all__ = ["SCHEMA_VERSION", "Diagnosis", "GreyBoxSettings", "write_outputs"]

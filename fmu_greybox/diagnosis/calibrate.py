@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import filtfilt
 
-from ..terms import Term
-from .hypotheses import Hypothesis
-from .runner import Simulator
+from fmu_greybox.diagnosis.hypotheses import Hypothesis
+from fmu_greybox.diagnosis.runner import Simulator
+from fmu_greybox.model.terms import Term
 
 
 def autocorrelation_time(residual: np.ndarray, max_lag: int | None = None) -> float:

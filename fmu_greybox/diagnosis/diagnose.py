@@ -9,8 +9,8 @@ attributes end in ``_``):
    roles allow (:func:`~.hypotheses.generate_hypotheses`) and keep the few the data support
    (:class:`~.select.ForwardSelection`);
 3. fold the kept terms into the white-box
-   (:func:`~fmu_greybox.named_model.simulate_with_terms`) and train the grey-box correctors
-   (:class:`~fmu_greybox.greybox.GreyBoxChain`) on what remains;
+   (:func:`~fmu_greybox.model.whitebox.simulate_with_terms`) and train the grey-box correctors
+   (:class:`~fmu_greybox.model.chain.GreyBoxChain`) on what remains;
 4. compare white-box, white-box + named terms and grey-box on held-out rows.
 
 The held-out part is the project's (``split.train_fraction``), but at least the last 20 % of
@@ -25,28 +25,28 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..config import ProjectConfig
-from ..errors import ConfigError
-from ..fmu_archive import FmuArchive, open_fmu
-from ..greybox import GreyBoxChain
-from ..metrics import improvement, rmse
-from ..named_model import simulate_with_terms
-from ..project_data import check_step, whitebox_path
-from ..recording import Recording
-from ..simulate import real_outputs
-from ..terms import ViscousForce
-from .findings import (
+from fmu_greybox.data.recording import Recording
+from fmu_greybox.diagnosis.findings import (
     Finding,
     named_findings,
     none_finding,
     stage_energy,
     unexplained_finding,
 )
-from .hypotheses import DataScales, generate_hypotheses
-from .locate import Locator, regime_signals
-from .runner import Experiment, Simulator
-from .select import ForwardSelection
-from .signals import SignalMap
+from fmu_greybox.diagnosis.hypotheses import DataScales, generate_hypotheses
+from fmu_greybox.diagnosis.locate import Locator, regime_signals
+from fmu_greybox.diagnosis.runner import Experiment, Simulator
+from fmu_greybox.diagnosis.select import ForwardSelection
+from fmu_greybox.diagnosis.signals import SignalMap
+from fmu_greybox.errors import ConfigError
+from fmu_greybox.fmi.archive import FmuArchive, open_fmu
+from fmu_greybox.fmi.simulate import real_outputs
+from fmu_greybox.model.chain import GreyBoxChain
+from fmu_greybox.model.terms import ViscousForce
+from fmu_greybox.model.whitebox import simulate_with_terms
+from fmu_greybox.project.config import ProjectConfig
+from fmu_greybox.project.data import check_step, whitebox_path
+from fmu_greybox.workflow.metrics import improvement, rmse
 
 #: Largest share of a recording used for training in a diagnosis.
 MAX_TRAIN_FRACTION = 0.8

@@ -14,10 +14,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .calibrate import Candidate
-from .hypotheses import Hypothesis
-from .locate import SIGNIFICANT_STRUCTURE, Regime, StageResidual
-from .runner import Experiment
+from fmu_greybox.diagnosis.calibrate import Candidate
+from fmu_greybox.diagnosis.hypotheses import Hypothesis
+from fmu_greybox.diagnosis.locate import SIGNIFICANT_STRUCTURE, Regime, StageResidual
+from fmu_greybox.diagnosis.runner import Experiment
 
 #: A correction "changes" a stage when it moves one of its signals by this many noise levels
 #: (RMS): the structure that makes a residual significant.

@@ -24,8 +24,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..fmu_archive import FmuArchive
-from ..terms import (
+from fmu_greybox.diagnosis.signals import SignalMap
+from fmu_greybox.fmi.archive import FmuArchive
+from fmu_greybox.model.terms import (
     CoulombForce,
     FlowDroop,
     InputDeadband,
@@ -38,7 +39,6 @@ from ..terms import (
     Term,
     ViscousForce,
 )
-from .signals import SignalMap
 
 #: Physics a parameter's name or description points to (first match wins).
 PHYSICS_KEYWORDS: tuple[tuple[str, str], ...] = (

@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter, welch
 
-from .runner import Experiment
-from .signals import SignalMap
+from fmu_greybox.diagnosis.runner import Experiment
+from fmu_greybox.diagnosis.signals import SignalMap
 
 #: A residual is significant when its RMS exceeds this many sensor-noise levels: structure of
 #: about 0.83 noise levels (RMS) on top of the noise. Lower thresholds flag the drift that

@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
-from ..atomic import atomic_write
-from ..html_page import escape, figure, fmt, page, percent, table, verdict
-from .figures import regime_figure, residual_figure, trace_figure
+from fmu_greybox import __version__
+from fmu_greybox.atomic import atomic_write
+from fmu_greybox.diagnosis.figures import regime_figure, residual_figure, trace_figure
+from fmu_greybox.report.html import escape, figure, fmt, page, percent, table, verdict
 
 SCHEMA_VERSION = 1
 

@@ -18,14 +18,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..binding import bind_inputs
-from ..config import ProjectConfig
-from ..errors import FmuError
-from ..fmu_archive import FmuArchive
-from ..named_model import simulate_with_terms
-from ..recording import Recording
-from ..terms import Term
-from .signals import SignalMap, noise_level
+from fmu_greybox.data.recording import Recording
+from fmu_greybox.diagnosis.signals import SignalMap, noise_level
+from fmu_greybox.errors import FmuError
+from fmu_greybox.fmi.archive import FmuArchive
+from fmu_greybox.fmi.binding import bind_inputs
+from fmu_greybox.model.terms import Term
+from fmu_greybox.model.whitebox import simulate_with_terms
+from fmu_greybox.project.config import ProjectConfig
 
 
 @dataclass

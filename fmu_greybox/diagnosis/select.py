@@ -43,10 +43,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .calibrate import Calibrator, Candidate, autocorrelation_time
-from .hypotheses import Hypothesis
-from .locate import SIGNIFICANT_RATIO
-from .runner import Simulator
+from fmu_greybox.diagnosis.calibrate import Calibrator, Candidate, autocorrelation_time
+from fmu_greybox.diagnosis.hypotheses import Hypothesis
+from fmu_greybox.diagnosis.locate import SIGNIFICANT_RATIO
+from fmu_greybox.diagnosis.runner import Simulator
 
 
 @dataclass

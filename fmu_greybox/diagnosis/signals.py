@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..config import ROLE_UNITS, ProjectConfig
-from ..fmu_archive import FmuArchive
-from ..recording import Recording, normalise_unit
+from fmu_greybox.data.recording import Recording, normalise_unit
+from fmu_greybox.fmi.archive import FmuArchive
+from fmu_greybox.project.config import ROLE_UNITS, ProjectConfig
 
 #: Roles that a declared unit alone identifies (dimensionless units identify nothing).
 _UNIT_ROLES: dict[str, str] = {

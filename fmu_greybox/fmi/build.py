@@ -1,0 +1,833 @@
+"""Build FMI 2.0 co-simulation FMUs from the C sources in ``fmu_sources/``.
+
+A model is a folder holding ``variables.toml`` (the variable table), ``config.h`` (state layout)
+and ``model.c`` (physics); ``fmu_sources/framework/`` supplies the FMI plumbing and the
+integrator. For one model identifier of the table the builder
+
+1. reads and checks the variable table,
+2. generates ``fmu_variables.h`` / ``fmu_variables.c`` (value references, storage indices,
+   start values, ranges) and ``modelDescription.xml`` (units, variables, model structure),
+3. compiles everything with gcc into one shared library (``-O2``, IEEE arithmetic: no
+   ``-ffast-math``, no floating-point contraction), and
+4. zips ``modelDescription.xml``, ``binaries/<platform>/<identifier>.<ext>`` and
+   ``documentation/`` into ``<out_dir>/<identifier>.fmu``, written atomically.
+
+The FMI 2 headers are the ones fmpy ships (``fmpy/c-code``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import html
+import os
+import platform
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import tomllib
+import uuid
+import warnings
+import zipfile
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+from xml.etree import ElementTree as ET
+
+from fmu_greybox import __version__
+from fmu_greybox.atomic import atomic_write
+from fmu_greybox.errors import FmuBuildError
+from fmu_greybox.resources import data_path
+
+SOURCES_DIR = data_path("fmu_sources")
+"""Root of the C sources: ``framework/`` and one folder per model."""
+
+FRAMEWORK_DIR = SOURCES_DIR / "framework"
+"""The generic FMI 2.0 co-simulation framework."""
+
+REFERENCE_MODEL_DIR = SOURCES_DIR / "HydraulicActuator"
+"""The reference actuator: white-box ``HydraulicActuator`` and ``HydraulicActuatorTruth``."""
+
+CFLAGS = ("-std=c99", "-O2", "-funroll-loops", "-fvisibility=hidden", "-ffp-contract=off", "-Wall",
+          "-Wextra")
+"""Compiler flags of every build (plus ``-shared``/``-fPIC`` for the platform)."""
+
+_CAUSALITIES = ("input", "output", "parameter")
+_VARIABILITIES = ("continuous", "discrete", "fixed", "tunable")
+_TYPES = ("Real", "Integer", "Boolean", "String")
+_TYPE_PREFIX = {"Real": "R", "Integer": "I", "Boolean": "B", "String": "S"}
+_C_TYPE = {"Real": "FW_REAL", "Integer": "FW_INTEGER", "Boolean": "FW_BOOLEAN",
+           "String": "FW_STRING"}
+_C_CAUSALITY = {"parameter": "FW_PARAMETER", "input": "FW_INPUT", "output": "FW_OUTPUT"}
+_C_VARIABILITY = {"fixed": "FW_FIXED", "tunable": "FW_TUNABLE", "discrete": "FW_DISCRETE",
+                  "continuous": "FW_CONTINUOUS"}
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+_GUID_NAMESPACE = uuid.UUID("6f1c2a0e-5b7d-4e21-9a57-1f0c3d8e4b62")
+_ZIP_DATE = (1980, 1, 1, 0, 0, 0)  # fixed: same sources give the same archive
+
+
+# ------------------------------------------------------------------------------------------------
+# Variable table
+# ------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Variable:
+    """One row of the variable table.
+
+    Attributes
+    ----------
+    name : str
+        Variable name (a C identifier).
+    value_reference : int
+        Position in the table (0-based), the same in every model of the table.
+    causality, variability, type : str
+        FMI 2.0 causality, variability and base type.
+    unit : str or None
+        Unit of a Real variable, e.g. ``"m3/(s.Pa)"``.
+    description : str
+        What the variable is.
+    start : float, int, bool, str or None
+        Start value (inputs and parameters).
+    min, max : float or None
+        Declared range.
+    dependencies : tuple of str or None
+        Inputs an output depends on directly (``None``: all).
+    models : tuple of str or None
+        Model identifiers having the variable (``None``: all models of the table).
+    """
+
+    name: str
+    value_reference: int
+    causality: str
+    variability: str
+    type: str
+    unit: str | None
+    description: str
+    start: float | int | bool | str | None
+    min: float | None
+    max: float | None
+    dependencies: tuple[str, ...] | None
+    models: tuple[str, ...] | None
+
+    def in_model(self, identifier: str) -> bool:
+        """Whether the model ``identifier`` has this variable."""
+        return self.models is None or identifier in self.models
+
+
+@dataclass(frozen=True)
+class ModelEntry:
+    """One model built from a table: identifier, description, preprocessor defines."""
+
+    identifier: str
+    description: str
+    defines: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class VariableTable:
+    """A parsed ``variables.toml``.
+
+    Attributes
+    ----------
+    path : Path
+        The table file.
+    model_name : str
+        ``modelName`` of the model descriptions.
+    description : str
+        Common description.
+    default_experiment : dict of str to float
+        ``start_time``, ``stop_time``, ``step_size`` (each optional).
+    models : tuple of ModelEntry
+        The models the table describes; the first is the default.
+    variables : tuple of Variable
+        All variables in value-reference order.
+    """
+
+    path: Path
+    model_name: str
+    description: str
+    default_experiment: dict[str, float]
+    models: tuple[ModelEntry, ...]
+    variables: tuple[Variable, ...]
+
+    def model(self, identifier: str | None) -> ModelEntry:
+        """The model entry ``identifier`` (the first one if ``None``).
+
+        Raises
+        ------
+        FmuBuildError
+            If the table has no such model.
+        """
+        if identifier is None:
+            return self.models[0]
+        for entry in self.models:
+            if entry.identifier == identifier:
+                return entry
+        known = ", ".join(m.identifier for m in self.models)
+        raise FmuBuildError(f"{self.path}: no model {identifier!r} in the table (it has {known}).")
+
+    def variables_of(self, identifier: str) -> list[Variable]:
+        """The variables of model ``identifier`` in value-reference order."""
+        return [v for v in self.variables if v.in_model(identifier)]
+
+
+def _table_error(path: Path, where: str, message: str) -> FmuBuildError:
+    return FmuBuildError(f"{path}: {where}: {message}")
+
+
+def _parse_variable(path: Path, index: int, raw: dict[str, Any],
+                    identifiers: set[str]) -> Variable:
+    where = f"variable #{index} ({raw.get('name', '?')!r})"
+    known_keys = {"name", "causality", "variability", "type", "unit", "description", "start",
+                  "min", "max", "dependencies", "models"}
+    unknown = set(raw) - known_keys
+    if unknown:
+        raise _table_error(path, where, f"unknown keys {sorted(unknown)}; allowed: "
+                           f"{sorted(known_keys)}.")
+    name = raw.get("name")
+    if not isinstance(name, str) or not _NAME.fullmatch(name):
+        raise _table_error(path, where, "name must be a C identifier (letters, digits, _).")
+    causality = raw.get("causality")
+    variability = raw.get("variability")
+    vtype = raw.get("type", "Real")
+    if causality not in _CAUSALITIES:
+        raise _table_error(path, where, f"causality must be one of {_CAUSALITIES}.")
+    if variability not in _VARIABILITIES:
+        raise _table_error(path, where, f"variability must be one of {_VARIABILITIES}.")
+    if vtype not in _TYPES:
+        raise _table_error(path, where, f"type must be one of {_TYPES}.")
+    legal = {
+        "input": {"continuous", "discrete"},
+        "output": {"continuous", "discrete"},
+        "parameter": {"fixed", "tunable"},
+    }[causality]
+    if variability not in legal:
+        raise _table_error(path, where, f"a {causality} must have variability in {sorted(legal)}.")
+    if vtype != "Real" and variability == "continuous":
+        raise _table_error(path, where, f"a {vtype} variable cannot be continuous.")
+    description = raw.get("description")
+    if not isinstance(description, str) or not description.strip():
+        raise _table_error(path, where, "description is required.")
+    unit = raw.get("unit")
+    if vtype == "Real":
+        if not isinstance(unit, str) or not unit:
+            raise _table_error(path, where, 'unit is required for Real variables ("1" if '
+                               "dimensionless).")
+        _parse_unit(unit, path, where)
+    elif unit is not None:
+        raise _table_error(path, where, "only Real variables have a unit.")
+    start = raw.get("start")
+    if causality in ("input", "parameter"):
+        if start is None:
+            raise _table_error(path, where, f"a {causality} needs a start value.")
+        start = _check_start(path, where, vtype, start)
+    elif start is not None:
+        raise _table_error(path, where, f"a {causality} has no start value (it is calculated).")
+    bounds = []
+    for key in ("min", "max"):
+        value = raw.get(key)
+        if value is not None and (vtype != "Real" or not isinstance(value, int | float)):
+            raise _table_error(path, where, f"{key} must be a number of a Real variable.")
+        bounds.append(None if value is None else float(value))
+    low, high = bounds
+    if start is not None and vtype == "Real":
+        if (low is not None and start < low) or (high is not None and start > high):
+            raise _table_error(path, where, f"start {start} lies outside [min, max].")
+    dependencies = raw.get("dependencies")
+    if dependencies is not None:
+        if causality != "output" or not isinstance(dependencies, list):
+            raise _table_error(path, where, "dependencies is a list, for outputs only.")
+        dependencies = tuple(dependencies)
+    models = raw.get("models")
+    if models is not None:
+        if not isinstance(models, list) or not set(models) <= identifiers or not models:
+            raise _table_error(path, where, f"models must be a non-empty list out of "
+                               f"{sorted(identifiers)}.")
+        models = tuple(models)
+    return Variable(name=name, value_reference=index, causality=causality,
+                    variability=variability, type=vtype, unit=unit, description=description,
+                    start=start, min=low, max=high, dependencies=dependencies, models=models)
+
+
+def _check_start(path: Path, where: str, vtype: str, start: Any) -> float | int | bool | str:
+    if vtype == "Real" and isinstance(start, int | float) and not isinstance(start, bool):
+        return float(start)
+    if vtype == "Integer" and isinstance(start, int) and not isinstance(start, bool):
+        return start
+    if vtype == "Boolean" and isinstance(start, bool):
+        return start
+    if vtype == "String" and isinstance(start, str) and len(start.encode()) < 256:
+        return start
+    raise _table_error(path, where, f"start {start!r} is not a valid {vtype} value.")
+
+
+def load_variable_table(path: Path) -> VariableTable:
+    """Read and check a model's ``variables.toml``.
+
+    Parameters
+    ----------
+    path : Path
+        The table file.
+
+    Returns
+    -------
+    VariableTable
+        The checked table.
+
+    Raises
+    ------
+    FmuBuildError
+        If the file is missing, is not TOML, or a model or variable entry is invalid.
+    """
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise FmuBuildError(f"{path}: cannot read the variable table: {exc}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise FmuBuildError(f"{path}: not valid TOML: {exc}") from exc
+
+    fmu = raw.get("fmu", {})
+    if not isinstance(fmu.get("model_name"), str):
+        raise FmuBuildError(f"{path}: [fmu] model_name is required.")
+    models = []
+    for i, entry in enumerate(raw.get("model", [])):
+        identifier = entry.get("identifier")
+        if not isinstance(identifier, str) or not _NAME.fullmatch(identifier):
+            raise _table_error(path, f"model #{i}", "identifier must be a C identifier.")
+        defines = entry.get("defines", [])
+        if not all(isinstance(d, str) and _NAME.fullmatch(d) for d in defines):
+            raise _table_error(path, f"model {identifier!r}", "defines must be C identifiers.")
+        models.append(ModelEntry(identifier, entry.get("description", fmu.get("description", "")),
+                                 tuple(defines)))
+    if not models:
+        raise FmuBuildError(f"{path}: declare at least one [[model]] with an identifier.")
+    if len({m.identifier for m in models}) != len(models):
+        raise FmuBuildError(f"{path}: model identifiers must be unique.")
+    identifiers = {m.identifier for m in models}
+
+    variables = tuple(_parse_variable(path, i, v, identifiers)
+                      for i, v in enumerate(raw.get("variable", [])))
+    by_name: dict[str, Variable] = {}
+    for v in variables:
+        if v.name in by_name:
+            raise _table_error(path, f"variable {v.name!r}", "the name is not unique.")
+        by_name[v.name] = v
+    for v in variables:
+        for dep in v.dependencies or ():
+            known = by_name.get(dep)
+            if known is None or known.causality != "input":
+                raise _table_error(path, f"variable {v.name!r}",
+                                   f"dependency {dep!r} is not an input of the table.")
+    for m in models:
+        solver = by_name.get("solver_step")
+        if solver is None or not solver.in_model(m.identifier) or solver.type != "Real" \
+                or solver.causality != "parameter":
+            raise FmuBuildError(f"{path}: model {m.identifier!r} needs the Real parameter "
+                                "solver_step [s]: the framework's longest internal step.")
+
+    experiment = {k: float(v) for k, v in fmu.get("default_experiment", {}).items()}
+    unknown = set(experiment) - {"start_time", "stop_time", "step_size"}
+    if unknown:
+        raise FmuBuildError(f"{path}: unknown default_experiment keys {sorted(unknown)}.")
+    return VariableTable(path=path, model_name=fmu["model_name"],
+                         description=fmu.get("description", ""),
+                         default_experiment=experiment, models=tuple(models), variables=variables)
+
+
+# ------------------------------------------------------------------------------------------------
+# Units: Modelica/FMI unit strings such as "m3/(s.Pa)" to SI base-unit exponents
+# ------------------------------------------------------------------------------------------------
+
+_BASE = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
+_SYMBOLS: dict[str, tuple[dict[str, int], float]] = {
+    "kg": ({"kg": 1}, 1.0), "m": ({"m": 1}, 1.0), "s": ({"s": 1}, 1.0), "A": ({"A": 1}, 1.0),
+    "K": ({"K": 1}, 1.0), "mol": ({"mol": 1}, 1.0), "cd": ({"cd": 1}, 1.0),
+    "rad": ({"rad": 1}, 1.0), "g": ({"kg": 1}, 1e-3),
+    "N": ({"kg": 1, "m": 1, "s": -2}, 1.0), "Pa": ({"kg": 1, "m": -1, "s": -2}, 1.0),
+    "J": ({"kg": 1, "m": 2, "s": -2}, 1.0), "W": ({"kg": 1, "m": 2, "s": -3}, 1.0),
+    "V": ({"kg": 1, "m": 2, "s": -3, "A": -1}, 1.0), "Hz": ({"s": -1}, 1.0),
+    "bar": ({"kg": 1, "m": -1, "s": -2}, 1e5), "l": ({"m": 3}, 1e-3),
+    "min": ({"s": 1}, 60.0), "Ohm": ({"kg": 1, "m": 2, "s": -3, "A": -2}, 1.0),
+    "H": ({"kg": 1, "m": 2, "s": -2, "A": -2}, 1.0),
+}
+_PREFIXES = {"G": 1e9, "M": 1e6, "k": 1e3, "c": 1e-2, "m": 1e-3, "u": 1e-6}
+_TOKEN = re.compile(r"\s*(?:(?P<sym>[A-Za-z]+)(?P<exp>[+-]?\d+)?|(?P<op>[./()])|(?P<one>1))")
+
+
+def _parse_unit(unit: str, path: Path | None = None,
+                where: str = "") -> tuple[dict[str, int], float]:
+    """SI base-unit exponents and factor of a unit string (grammar of Modelica units).
+
+    ``"1"`` is dimensionless, ``.`` multiplies, ``/`` divides by one factor or a parenthesised
+    group, a trailing integer is an exponent (``m3``), and the prefixes G M k c m u apply to
+    the symbols of ``_SYMBOLS``.
+    """
+    tokens: list[tuple[str, str, int]] = []
+    pos = 0
+    while pos < len(unit):
+        match = _TOKEN.match(unit, pos)
+        if not match or match.end() == pos:
+            raise _unit_error(unit, path, where)
+        pos = match.end()
+        if match.group("sym"):
+            tokens.append(("sym", match.group("sym"), int(match.group("exp") or 1)))
+        elif match.group("op"):
+            tokens.append(("op", match.group("op"), 0))
+        else:
+            tokens.append(("one", "1", 0))
+
+    def symbol(text: str) -> tuple[dict[str, int], float]:
+        if text in _SYMBOLS:
+            return _SYMBOLS[text]
+        if len(text) > 1 and text[0] in _PREFIXES and text[1:] in _SYMBOLS:
+            exps, factor = _SYMBOLS[text[1:]]
+            return exps, factor * _PREFIXES[text[0]]
+        raise _unit_error(unit, path, where, f"unknown unit symbol {text!r}")
+
+    def combine(acc: tuple[dict[str, int], float], part: tuple[dict[str, int], float],
+                sign: int) -> tuple[dict[str, int], float]:
+        exps = dict(acc[0])
+        for key, value in part[0].items():
+            exps[key] = exps.get(key, 0) + sign * value
+        return exps, acc[1] * part[1] ** sign
+
+    def factor(i: int) -> tuple[tuple[dict[str, int], float], int]:
+        if i < len(tokens) and tokens[i] == ("op", "(", 0):
+            inner, i = expression(i + 1)
+            if i >= len(tokens) or tokens[i] != ("op", ")", 0):
+                raise _unit_error(unit, path, where)
+            return inner, i + 1
+        if i < len(tokens) and tokens[i][0] == "sym":
+            exps, fac = symbol(tokens[i][1])
+            power = tokens[i][2]
+            return ({k: v * power for k, v in exps.items()}, fac**power), i + 1
+        if i < len(tokens) and tokens[i][0] == "one":
+            return ({}, 1.0), i + 1
+        raise _unit_error(unit, path, where)
+
+    def expression(i: int) -> tuple[tuple[dict[str, int], float], int]:
+        acc, i = factor(i)
+        while i < len(tokens) and tokens[i][0] == "op" and tokens[i][1] in "./":
+            sign = 1 if tokens[i][1] == "." else -1
+            part, i = factor(i + 1)
+            acc = combine(acc, part, sign)
+        return acc, i
+
+    result, end = expression(0)
+    if end != len(tokens):
+        raise _unit_error(unit, path, where)
+    exps = {k: v for k, v in result[0].items() if v != 0}
+    return exps, result[1]
+
+
+def _unit_error(unit: str, path: Path | None, where: str, detail: str = "") -> FmuBuildError:
+    detail = detail or "cannot parse it"
+    prefix = f"{path}: {where}: " if path else ""
+    return FmuBuildError(f"{prefix}unit {unit!r}: {detail}. Use SI symbols joined by '.' and "
+                         f"'/', exponents as digits (m3, s-2), e.g. 'm3/(s.Pa)'; known symbols: "
+                         f"{', '.join(_SYMBOLS)}; prefixes: {', '.join(_PREFIXES)}.")
+
+
+# ------------------------------------------------------------------------------------------------
+# Generated files
+# ------------------------------------------------------------------------------------------------
+
+
+def _number(value: float) -> str:
+    """Shortest text that reads back as the same double."""
+    return repr(float(value))
+
+
+def _guid(table: VariableTable, identifier: str, source_files: list[Path]) -> str:
+    """Deterministic GUID over identifier, builder, table and sources: changes with any."""
+    digest = hashlib.sha256(identifier.encode())
+    for file in [Path(__file__), table.path, *source_files]:
+        digest.update(file.name.encode())
+        digest.update(file.read_bytes())
+    digest.update(" ".join(CFLAGS).encode())
+    return "{" + str(uuid.uuid5(_GUID_NAMESPACE, digest.hexdigest())) + "}"
+
+
+def model_description(table: VariableTable, identifier: str, guid: str) -> bytes:
+    """Generate ``modelDescription.xml`` for one model of a table.
+
+    Parameters
+    ----------
+    table : VariableTable
+        The variable table.
+    identifier : str
+        Model identifier (``modelIdentifier`` and binary name).
+    guid : str
+        The GUID the binary is compiled with.
+
+    Returns
+    -------
+    bytes
+        UTF-8 XML: one UnitDefinition per unit used, the variables, ModelStructure Outputs
+        (with the declared dependencies) and InitialUnknowns (every output).
+    """
+    entry = table.model(identifier)
+    variables = table.variables_of(identifier)
+    root = ET.Element("fmiModelDescription", {
+        "fmiVersion": "2.0",
+        "modelName": table.model_name,
+        "guid": guid,
+        "description": entry.description,
+        "generationTool": f"fmu-greybox {__version__}",
+        "variableNamingConvention": "flat",
+        "numberOfEventIndicators": "0",
+    })
+    ET.SubElement(root, "CoSimulation", {
+        "modelIdentifier": identifier,
+        "needsExecutionTool": "false",
+        "canHandleVariableCommunicationStepSize": "true",
+        "canInterpolateInputs": "false",
+        "maxOutputDerivativeOrder": "0",
+        "canRunAsynchronuously": "false",
+        "canBeInstantiatedOnlyOncePerProcess": "false",
+        "canNotUseMemoryManagementFunctions": "false",
+        "canGetAndSetFMUstate": "true",
+        "canSerializeFMUstate": "true",
+        "providesDirectionalDerivative": "false",
+    })
+    units = ET.SubElement(root, "UnitDefinitions")
+    for unit in sorted({v.unit for v in variables if v.unit}):
+        exps, factor = _parse_unit(unit)
+        element = ET.SubElement(units, "Unit", {"name": unit})
+        attributes = {k: str(exps[k]) for k in _BASE if k in exps}
+        if factor != 1.0:
+            attributes["factor"] = _number(factor)
+        ET.SubElement(element, "BaseUnit", attributes)
+    categories = ET.SubElement(root, "LogCategories")
+    ET.SubElement(categories, "Category", {"name": "logStatusError",
+                                           "description": "Errors: what failed and how to mend it"})
+    experiment = {"start_time": "startTime", "stop_time": "stopTime", "step_size": "stepSize"}
+    ET.SubElement(root, "DefaultExperiment", {experiment[k]: _number(v)
+                                              for k, v in table.default_experiment.items()})
+    scalars = ET.SubElement(root, "ModelVariables")
+    index_of: dict[str, int] = {}
+    for position, v in enumerate(variables, start=1):
+        index_of[v.name] = position
+        attributes = {"name": v.name, "valueReference": str(v.value_reference),
+                      "description": v.description, "causality": v.causality,
+                      "variability": v.variability}
+        scalar = ET.SubElement(scalars, "ScalarVariable", attributes)
+        typed: dict[str, str] = {}
+        if v.unit:
+            typed["unit"] = v.unit
+        if v.start is not None:
+            typed["start"] = _start_text(v)
+        if v.min is not None:
+            typed["min"] = _number(v.min)
+        if v.max is not None:
+            typed["max"] = _number(v.max)
+        ET.SubElement(scalar, v.type, typed)
+    structure = ET.SubElement(root, "ModelStructure")
+    outputs = ET.SubElement(structure, "Outputs")
+    initial = ET.SubElement(structure, "InitialUnknowns")
+    for v in variables:
+        if v.causality != "output":
+            continue
+        attributes = {"index": str(index_of[v.name])}
+        if v.dependencies is not None:
+            deps = [v2 for v2 in v.dependencies if v2 in index_of]
+            attributes["dependencies"] = " ".join(str(index_of[d]) for d in deps)
+            attributes["dependenciesKind"] = " ".join("dependent" for _ in deps)
+        ET.SubElement(outputs, "Unknown", attributes)
+        ET.SubElement(initial, "Unknown", {"index": str(index_of[v.name])})
+    ET.indent(root, space="  ")
+    return ET.tostring(root, encoding="UTF-8", xml_declaration=True) + b"\n"
+
+
+def _start_text(v: Variable) -> str:
+    if v.type == "Real":
+        return _number(float(v.start))  # type: ignore[arg-type]
+    if v.type == "Boolean":
+        return "true" if v.start else "false"
+    return str(v.start)
+
+
+def _c_string(text: str) -> str:
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def variables_c_sources(table: VariableTable, identifier: str, guid: str) -> tuple[str, str]:
+    """Generate ``fmu_variables.h`` and ``fmu_variables.c`` for one model of a table.
+
+    The header defines ``MODEL_IDENTIFIER_STRING``, ``MODEL_GUID``, the counts per type,
+    ``VR_<name>`` (value reference) and ``R_/I_/B_/S_<name>`` (index in the ``SimData`` array
+    of its type) for every variable of the model, and ``FW_SOLVER_STEP``. The source holds the
+    tables the framework reads: variable rows by value reference, start values and ranges.
+
+    Parameters
+    ----------
+    table : VariableTable
+        The variable table.
+    identifier : str
+        Model identifier.
+    guid : str
+        The model's GUID.
+
+    Returns
+    -------
+    tuple of str
+        Header text and source text.
+    """
+    variables = table.variables_of(identifier)
+    n_vr = max(v.value_reference for v in variables) + 1
+    index: dict[str, int] = {}
+    counts = dict.fromkeys(_TYPES, 0)
+    for v in variables:
+        index[v.name] = counts[v.type]
+        counts[v.type] += 1
+
+    notice = (f"/* Generated by fmu_greybox.fmi.build from {table.path.parent.name}/"
+              f"{table.path.name} for {identifier}. Do not edit. */\n")
+    header = [notice, "#ifndef FMU_VARIABLES_H", "#define FMU_VARIABLES_H", "",
+              f"#define MODEL_IDENTIFIER_STRING {_c_string(identifier)}",
+              f"#define MODEL_GUID {_c_string(guid)}", "",
+              f"#define N_VALUE_REFERENCES {n_vr}",
+              f"#define N_REAL {counts['Real']}", f"#define N_INTEGER {counts['Integer']}",
+              f"#define N_BOOLEAN {counts['Boolean']}", f"#define N_STRING {counts['String']}",
+              "", "/* Value references */"]
+    header += [f"#define VR_{v.name} {v.value_reference}" for v in variables]
+    header += ["", "/* Positions in the SimData array of each type */"]
+    header += [f"#define {_TYPE_PREFIX[v.type]}_{v.name} {index[v.name]}" for v in variables]
+    header += ["", "/* The framework's internal step (parameter solver_step) */",
+               "#define FW_SOLVER_STEP R_solver_step", "", "#endif", ""]
+
+    rows = []
+    by_vr = {v.value_reference: v for v in variables}
+    for vr in range(n_vr):
+        v = by_vr.get(vr)
+        if v is None:
+            rows.append(f"    /* {vr}: not in this model */ {{0, FW_ABSENT, 0, 0, -1}},")
+        else:
+            rows.append(f"    /* {vr} */ {{{_c_string(v.name)}, {_C_TYPE[v.type]}, "
+                        f"{_C_CAUSALITY[v.causality]}, {_C_VARIABILITY[v.variability]}, "
+                        f"{index[v.name]}}},")
+
+    def array(ctype: str, name: str, vtype: str, value: Any) -> list[str]:
+        items = [f"    {value(v)}, /* {v.name} */" for v in variables if v.type == vtype]
+        items.append(f"    {value(None)}, /* keeps the array non-empty */")
+        return [f"const {ctype} {name}[N_{vtype.upper()} + 1] = {{", *items, "};", ""]
+
+    def real_start(v: Variable | None) -> str:
+        return _number(v.start) if v is not None and v.start is not None else "0.0"
+
+    def bound(attribute: str, default: str) -> Any:
+        def text(v: Variable | None) -> str:
+            value = getattr(v, attribute) if v is not None else None
+            return default if value is None else _number(value)
+        return text
+
+    source = [notice, "#include <math.h>", "", '#include "fmu_framework.h"', "",
+              "const FwVariable fw_variables[N_VALUE_REFERENCES] = {", *rows, "};", ""]
+    source += array("double", "fw_real_start", "Real", real_start)
+    source += array("double", "fw_real_min", "Real", bound("min", "-HUGE_VAL"))
+    source += array("double", "fw_real_max", "Real", bound("max", "HUGE_VAL"))
+    source += array("int", "fw_integer_start", "Integer",
+                    lambda v: str(v.start) if v is not None and v.start is not None else "0")
+    source += array("int", "fw_boolean_start", "Boolean",
+                    lambda v: "1" if v is not None and v.start else "0")
+    source += array("char *const", "fw_string_start", "String",
+                    lambda v: _c_string(str(v.start or "")) if v is not None else '""')
+    return "\n".join(header), "\n".join(source)
+
+
+# ------------------------------------------------------------------------------------------------
+# Compiling and packaging
+# ------------------------------------------------------------------------------------------------
+
+
+def fmi2_platform() -> tuple[str, str]:
+    """FMI 2.0 platform folder and shared-library extension of this machine.
+
+    Returns
+    -------
+    tuple of str
+        E.g. ``("linux64", ".so")``.
+
+    Raises
+    ------
+    FmuBuildError
+        On a platform FMI 2.0 has no binary folder for (e.g. Linux on ARM).
+    """
+    machine = platform.machine().lower()
+    bits = 64 if sys.maxsize > 2**32 else 32
+    intel = machine in {"x86_64", "amd64", "i386", "i686", "x86"}
+    if sys.platform.startswith("linux") and intel:
+        return f"linux{bits}", ".so"
+    if sys.platform == "darwin":
+        return "darwin64", ".dylib"
+    if sys.platform.startswith("win") and intel:
+        return f"win{bits}", ".dll"
+    raise FmuBuildError(f"FMI 2.0 defines no binary folder for {sys.platform} on {machine}; "
+                        "build on linux64, win64 or darwin64.")
+
+
+def fmi2_headers() -> Path:
+    """Folder of the FMI 2.0 C headers shipped with fmpy.
+
+    Raises
+    ------
+    FmuBuildError
+        If fmpy is not installed or lacks ``c-code/fmi2Functions.h``.
+    """
+    try:
+        import fmpy
+    except ImportError as exc:
+        raise FmuBuildError("fmpy is needed for the FMI 2.0 headers: pip install fmpy") from exc
+    folder = Path(fmpy.__file__).parent / "c-code"
+    if not (folder / "fmi2Functions.h").is_file():
+        raise FmuBuildError(f"{folder} lacks fmi2Functions.h; reinstall fmpy.")
+    return folder
+
+
+def _compiler() -> str:
+    compiler = os.environ.get("CC", "gcc")
+    found = shutil.which(compiler)
+    if not found:
+        raise FmuBuildError(f"C compiler {compiler!r} not found: install gcc or set CC.")
+    return found
+
+
+def _compile(model_dir: Path, entry: ModelEntry, generated: Path, library: Path) -> None:
+    sources = [*sorted(FRAMEWORK_DIR.glob("*.c")), *sorted(model_dir.glob("*.c")),
+               generated / "fmu_variables.c"]
+    command = [_compiler(), *CFLAGS, "-shared"]
+    if not sys.platform.startswith("win"):
+        command.append("-fPIC")
+    for folder in (generated, model_dir, FRAMEWORK_DIR, fmi2_headers()):
+        command += ["-I", str(folder)]
+    command += [f"-D{define}" for define in entry.defines]
+    command += [str(s) for s in sources] + ["-o", str(library), "-lm"]
+    result = subprocess.run(command, capture_output=True, text=True, check=False)
+    output = (result.stdout + result.stderr).strip()
+    if result.returncode != 0:
+        raise FmuBuildError(f"compiling {entry.identifier} failed (exit {result.returncode}):\n"
+                            f"{' '.join(command)}\n{output}")
+    if output:
+        warnings.warn(f"compiler messages for {entry.identifier}:\n{output}", stacklevel=3)
+
+
+def _zip_write(archive: zipfile.ZipFile, name: str, data: bytes, executable: bool = False) -> None:
+    info = zipfile.ZipInfo(name, date_time=_ZIP_DATE)
+    info.compress_type = zipfile.ZIP_DEFLATED
+    info.external_attr = (0o755 if executable else 0o644) << 16
+    archive.writestr(info, data)
+
+
+def _index_html(entry: ModelEntry, readme: str) -> bytes:
+    """``documentation/index.html`` (the FMI entry point): the README as preformatted text."""
+    title = html.escape(entry.identifier)
+    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{title}'
+            f"</title></head>\n<body><h1>{title}</h1><p>{html.escape(entry.description)}</p>"
+            f"\n<pre>{html.escape(readme)}</pre></body></html>\n").encode()
+
+
+def build_fmu(model_dir: Path, out_dir: Path, identifier: str | None = None) -> Path:
+    """Build one co-simulation FMU from a model folder.
+
+    Parameters
+    ----------
+    model_dir : Path
+        Folder with ``variables.toml``, ``config.h`` and ``model.c`` (and optionally
+        ``README.md``, packed as ``documentation/README.md`` and ``index.html``).
+    out_dir : Path
+        Where ``<identifier>.fmu`` is written (created if missing).
+    identifier : str or None
+        Which model of the table to build; the first one if ``None``.
+
+    Returns
+    -------
+    Path
+        The FMU, replaced atomically if it existed.
+
+    Raises
+    ------
+    FmuBuildError
+        If the table is invalid, the platform unsupported, gcc missing or compilation fails
+        (the message holds the compiler output).
+    """
+    model_dir = Path(model_dir).resolve()
+    out_dir = Path(out_dir)
+    table = load_variable_table(model_dir / "variables.toml")
+    entry = table.model(identifier)
+    folder, extension = fmi2_platform()
+    c_files = sorted([*FRAMEWORK_DIR.glob("*.[ch]"), *model_dir.glob("*.[ch]")])
+    guid = _guid(table, entry.identifier, c_files)
+    header, source = variables_c_sources(table, entry.identifier, guid)
+    description = model_description(table, entry.identifier, guid)
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f"fmu-build-{entry.identifier}-") as tmp:
+        generated = Path(tmp)
+        (generated / "fmu_variables.h").write_text(header, encoding="utf-8")
+        (generated / "fmu_variables.c").write_text(source, encoding="utf-8")
+        library = generated / f"{entry.identifier}{extension}"
+        _compile(model_dir, entry, generated, library)
+        target = out_dir / f"{entry.identifier}.fmu"
+        with atomic_write(target, "wb") as stream, zipfile.ZipFile(stream, "w") as archive:
+            _zip_write(archive, "modelDescription.xml", description)
+            _zip_write(archive, f"binaries/{folder}/{library.name}", library.read_bytes(),
+                       executable=True)
+            readme = model_dir / "README.md"
+            if readme.is_file():
+                text = readme.read_text(encoding="utf-8")
+                _zip_write(archive, "documentation/README.md", text.encode())
+                _zip_write(archive, "documentation/index.html", _index_html(entry, text))
+    return target
+
+
+def build_reference_fmus(out_dir: Path) -> dict[str, Path]:
+    """Build the reference actuator FMUs (white-box and truth), in parallel.
+
+    Parameters
+    ----------
+    out_dir : Path
+        Where the FMUs are written.
+
+    Returns
+    -------
+    dict of str to Path
+        ``{"HydraulicActuator": ..., "HydraulicActuatorTruth": ...}``.
+
+    Raises
+    ------
+    FmuBuildError
+        As :func:`build_fmu`.
+    """
+    return build_model_pair(REFERENCE_MODEL_DIR, out_dir)
+
+
+def build_model_pair(model_dir: Path, out_dir: Path) -> dict[str, Path]:
+    """Build every model a folder's table declares (white-box and truth), in parallel.
+
+    Parameters
+    ----------
+    model_dir : Path
+        Model folder (see :func:`build_fmu`); its ``variables.toml`` lists the white-box first
+        and then the truth model, whose truth-only variables carry ``models``.
+    out_dir : Path
+        Where the FMUs are written.
+
+    Returns
+    -------
+    dict of str to Path
+        Model identifier -> ``.fmu`` path, in the table's order.
+
+    Raises
+    ------
+    FmuBuildError
+        As :func:`build_fmu`.
+    """
+    table = load_variable_table(Path(model_dir) / "variables.toml")
+    identifiers = [m.identifier for m in table.models]
+    with ThreadPoolExecutor(max_workers=len(identifiers)) as pool:
+        paths = pool.map(lambda i: build_fmu(model_dir, out_dir, i), identifiers)
+        return dict(zip(identifiers, paths, strict=True))

@@ -1,0 +1,368 @@
+"""The autoregressive grey-box: stage correctors chained in the paper's order.
+
+:class:`GreyBoxChain` owns the stage layouts and their sparse-GP correctors. It is trained by
+teacher forcing (:meth:`GreyBoxChain.fit`) and run one communication step at a time
+(:meth:`GreyBoxChain.step`), the same code serving the co-simulation master, the array-based
+free run used for validation, and the exported FMU.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterator
+
+import numpy as np
+
+from fmu_greybox.errors import ConfigError
+from fmu_greybox.gp import SparseGPR
+from fmu_greybox.model.chain_step import ChainPlan, ChainState
+from fmu_greybox.model.stage import TARGET_MODES, SourceLayout, StageLayout
+from fmu_greybox.project.config import AUTO, ProjectConfig
+
+ProgressCallback = Callable[[str, int, float], None]
+
+#: Features are clipped to their training range widened by this share of the range.
+RANGE_MARGIN = 0.05
+#: Share of the training rows a stage with target "auto" is free-run over to choose.
+SELECTION_TAIL = 0.2
+#: Relative free-run RMSE gain that makes "increment" win over "residual".
+SELECTION_MARGIN = 1e-3
+
+
+class GreyBoxChain:
+    """The chain of stage correctors of a project.
+
+    Parameters
+    ----------
+    config : ProjectConfig
+        Stages, signals and GP settings.
+    target_mode : str, optional
+        Overrides ``config.gp.target``.
+
+    Attributes
+    ----------
+    stages : list of StageLayout
+        In autoregressive order.
+    exo_names : list of str
+        Signals forming the chain's exogenous vector (union of the stages' inputs).
+    correctors_ : list of SparseGPR
+        Fitted correctors, one per stage (after :meth:`fit` or loading).
+    active_ : ndarray of bool, shape (Q,)
+        Stages whose corrector is used; a stage found to free-run worse than its white-box on
+        the tail of its training data is passed through (see :meth:`check_free_run`).
+    feature_bounds_ : list of ndarray, each shape (2, D_q)
+        Per stage, the training range of each feature (widened by :data:`RANGE_MARGIN`);
+        features are clipped to it when the chain steps, so a free run never extrapolates.
+    """
+
+    def __init__(self, config: ProjectConfig, target_mode: str | None = None) -> None:
+        mode = target_mode or config.gp.target
+        if mode not in (*TARGET_MODES, AUTO):
+            raise ConfigError(
+                f"{mode!r} is not one of {', '.join((*TARGET_MODES, AUTO))}", field="gp.target"
+            )
+        self.config = config
+        self.target_mode = mode
+        self.exo_names: list[str] = []
+        for stage in config.stages:
+            self.exo_names += [s for s in stage.inputs if s not in self.exo_names]
+        names = [s.name for s in config.stages]
+        self.stages = [
+            StageLayout(
+                config=s,
+                target_mode=s.target_mode or mode,
+                exo_index=np.array([self.exo_names.index(i) for i in s.inputs], dtype=int),
+                stage_index=q,
+                feed_index=np.array([names.index(f) for f in s.feeds_from], dtype=int),
+            )
+            for q, s in enumerate(config.stages)
+        ]
+        self.layout = SourceLayout(
+            n_exo=len(self.exo_names),
+            n_stages=len(self.stages),
+            depth=max(1, *(s.depth for s in self.stages)),
+        )
+        self.correctors_: list[SparseGPR | None] = []
+        self.feature_bounds_: list[np.ndarray | None] = []
+        self.active_ = np.ones(len(self.stages), dtype=bool)
+
+    # ------------------------------------------------------------------ names
+    @property
+    def stage_names(self) -> list[str]:
+        """Stage names in order."""
+        return [s.name for s in self.stages]
+
+    @property
+    def target_signals(self) -> list[str]:
+        """Recorded signal of each stage."""
+        return [s.config.target for s in self.stages]
+
+    @property
+    def whitebox_outputs(self) -> list[str]:
+        """White-box FMU output of each stage."""
+        return [s.config.whitebox_output for s in self.stages]
+
+    @property
+    def history(self) -> int:
+        """Rows of known data :meth:`start` uses: the history of outputs and of the inputs
+        before them, and the longest memory."""
+        return max(self.layout.depth + 2, *(s.memory_length for s in self.stages))
+
+    def feature_names(self, q: int) -> list[str]:
+        """Feature names of stage ``q``."""
+        return self.stages[q].feature_names(self.exo_names, self.stage_names)
+
+    # ------------------------------------------------------------------ training
+    def fit(
+        self,
+        exo: np.ndarray,
+        y_wb: np.ndarray,
+        outputs: np.ndarray,
+        progress: ProgressCallback | None = None,
+    ) -> GreyBoxChain:
+        """Train every stage, in chain order.
+
+        A stage's own memory and target come from the recorded outputs (teacher forcing). The
+        earlier stages' outputs in its features come from the recording, or with ``[gp] feeds
+        = "free_run"`` from the earlier (already trained) stages' own free run over the same
+        rows, as the stage will see them when it runs. A stage whose target is ``"auto"`` is
+        trained both as ``residual`` and ``increment`` on the leading rows, each free-run with
+        the stages before it over the last :data:`SELECTION_TAIL` of the rows, and takes
+        ``increment`` only where that free run's RMSE is lower by more than
+        :data:`SELECTION_MARGIN`; then it is trained on all rows.
+
+        Parameters
+        ----------
+        exo : ndarray, shape (n, n_exo)
+            Exogenous inputs per row (columns as :attr:`exo_names`).
+        y_wb : ndarray, shape (n, Q)
+            White-box predictions of the stage outputs.
+        outputs : ndarray, shape (n, Q)
+            Recorded stage outputs.
+        progress : callable, optional
+            Called as ``progress(label, iteration, bound)`` during optimisation (label: the
+            stage name, with the candidate target while choosing one).
+
+        Returns
+        -------
+        GreyBoxChain
+            ``self``, with :attr:`correctors_` set.
+        """
+        q_count = len(self.stages)
+        self.correctors_ = [None] * q_count
+        self.feature_bounds_ = [None] * q_count
+        self.active_[:] = True
+        self.selection_: dict[str, dict[str, float]] = {}
+        for q, stage in enumerate(self.stages):
+            if stage.target_mode == AUTO:
+                stage.target_mode = self._choose_target(q, exo, y_wb, outputs, progress)
+            self._fit_stage(q, exo, y_wb, outputs, progress, stage.name)
+        return self
+
+    def _fit_stage(
+        self,
+        q: int,
+        exo: np.ndarray,
+        y_wb: np.ndarray,
+        outputs: np.ndarray,
+        progress: ProgressCallback | None,
+        label: str,
+    ) -> None:
+        """Fit stage ``q``'s corrector on the rows given (the stages before it are fitted)."""
+        gp = self.config.gp
+        stage = self.stages[q]
+        fed = self._fed(q, exo, y_wb, outputs) if gp.feeds == "free_run" and q else None
+        X, t = stage.teacher_forced(self.layout, exo, y_wb, outputs, fed)
+        X, t = _thin(X, t, gp.max_train_samples)
+        self.feature_bounds_[q] = _widened_range(X)
+        corrector = SparseGPR(
+            n_inducing=min(gp.inducing, t.size),
+            inducing=gp.inducing_method,
+            max_iter=gp.max_iter,
+            seed=gp.seed,
+        )
+        callback = _stage_progress(progress, label) if progress is not None else None
+        self.correctors_[q] = corrector.fit(X, t, progress=callback)
+
+    @contextlib.contextmanager
+    def _correcting_first(self, count: int) -> Iterator[None]:
+        """Run only the first ``count`` stages' correctors (the rest pass the white-box
+        through) inside the block; :attr:`active_` is restored after it."""
+        kept = self.active_.copy()
+        self.active_[:] = np.arange(len(self.stages)) < count
+        try:
+            yield
+        finally:
+            self.active_[:] = kept
+
+    def _fed(self, q: int, exo: np.ndarray, y_wb: np.ndarray, outputs: np.ndarray) -> np.ndarray:
+        """The recorded outputs with the stages before ``q`` replaced by their free run."""
+        start = self.history - 1
+        with self._correcting_first(q):
+            mean, _ = self.free_run(exo, y_wb, outputs, start)
+        fed = outputs.copy()
+        fed[start + 1 :, :q] = mean[:, :q]
+        return fed
+
+    def _choose_target(
+        self,
+        q: int,
+        exo: np.ndarray,
+        y_wb: np.ndarray,
+        outputs: np.ndarray,
+        progress: ProgressCallback | None,
+    ) -> str:
+        """``residual`` or ``increment`` for stage ``q`` (see :meth:`fit`)."""
+        stage = self.stages[q]
+        split = max(self.history + 2, int((1.0 - SELECTION_TAIL) * exo.shape[0]))
+        head = slice(0, split)
+        errors = {}
+        with self._correcting_first(q + 1):
+            for mode in ("residual", "increment"):
+                stage.target_mode = mode
+                self._fit_stage(
+                    q, exo[head], y_wb[head], outputs[head], progress, f"{stage.name} ({mode}?)"
+                )
+                mean, _ = self.free_run(exo, y_wb, outputs, split - 1)
+                errors[mode] = float(np.sqrt(np.mean((mean[:, q] - outputs[split:, q]) ** 2)))
+        better = errors["increment"] < (1.0 - SELECTION_MARGIN) * errors["residual"]
+        chosen = "increment" if better else "residual"
+        self.selection_[stage.name] = {**errors, "chosen": chosen}
+        return chosen
+
+    # ------------------------------------------------------------------ running
+    def start(self, outputs: np.ndarray, y_wb: np.ndarray, exo: np.ndarray) -> ChainState:
+        """Initial state from known data up to the row before the first predicted one.
+
+        Parameters
+        ----------
+        outputs, y_wb : ndarray, shape (h, Q)
+            Known stage outputs and white-box predictions of the last ``h`` rows, oldest
+            first (``h <= history``; with fewer rows than the history needs, the oldest
+            stands in for the ones before it).
+        exo : ndarray, shape (h, n_exo)
+            Exogenous inputs of the same rows (the last one is not used: the first step is
+            given it).
+
+        Returns
+        -------
+        ChainState
+        """
+        outputs, y_wb, exo = (np.atleast_2d(a) for a in (outputs, y_wb, exo))
+        state = ChainState(self.layout, [stage.memory_length for stage in self.stages])
+        last = outputs.shape[0] - 1
+        for h in range(self.layout.depth + 1):
+            state.history("wb")[h] = y_wb[max(last - h, 0)]
+            state.history("out")[h] = outputs[max(last - h, 0)]
+            state.history("exo")[h] = exo[max(last - 1 - h, 0)]
+        for stage, memory in zip(self.stages, state.memory, strict=True):
+            level = stage.level(outputs[:, stage.stage_index], y_wb[:, stage.stage_index])
+            memory[:] = level[np.maximum(last - np.arange(stage.memory_length), 0)]
+        return state
+
+    def plan(self) -> ChainPlan:
+        """The compiled step of the chain as it stands (correctors, ranges, active stages).
+
+        Make a new plan after changing any of them; one plan serves any number of states.
+
+        Returns
+        -------
+        ChainPlan
+        """
+        return ChainPlan(self)
+
+    def check_free_run(
+        self, exo: np.ndarray, y_wb: np.ndarray, outputs: np.ndarray, tail: float = 0.2
+    ) -> dict[str, dict[str, float]]:
+        """Free-run the last ``tail`` of the training rows; pass through stages that lose.
+
+        A corrector trained by teacher forcing can still drift when it is fed its own
+        predictions. Each stage is compared with its white-box on the free run; a stage whose
+        RMSE is not below the white-box's is deactivated (its output is the white-box's), so
+        the grey-box is never knowingly worse than the model it corrects.
+
+        Parameters
+        ----------
+        exo, y_wb, outputs : ndarray
+            The training rows, as given to :meth:`fit`.
+        tail : float
+            Share of the rows free-run.
+
+        Returns
+        -------
+        dict
+            Stage -> ``{"wb_rmse", "gb_rmse", "active"}`` on the free-run rows.
+        """
+        n = exo.shape[0]
+        start = max(1, int((1.0 - tail) * n) - 1)
+        self.active_[:] = True
+        mean, _ = self.free_run(exo, y_wb, outputs, start)
+        recorded = outputs[start + 1 :]
+        wb = np.sqrt(np.mean((y_wb[start + 1 :] - recorded) ** 2, axis=0))
+        gb = np.sqrt(np.mean((mean - recorded) ** 2, axis=0))
+        self.active_[:] = gb < wb
+        return {
+            name: {"wb_rmse": float(wb[q]), "gb_rmse": float(gb[q]), "active": bool(gb[q] < wb[q])}
+            for q, name in enumerate(self.stage_names)
+        }
+
+    def free_run(
+        self,
+        exo: np.ndarray,
+        y_wb: np.ndarray,
+        outputs: np.ndarray,
+        start: int,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Free-running prediction over precomputed white-box outputs.
+
+        Parameters
+        ----------
+        exo : ndarray, shape (n, n_exo)
+        y_wb : ndarray, shape (n, Q)
+        outputs : ndarray, shape (n, Q)
+            Recorded outputs; only rows ``start - history + 1 .. start`` are used, to
+            initialise the memory.
+        start : int
+            Last row whose outputs are taken as known (``>= 0``).
+
+        Returns
+        -------
+        mean, std : ndarray, shape (n - start - 1, Q)
+            Predictions of rows ``start + 1 .. n - 1``.
+        """
+        first = max(0, start - self.history + 1)
+        known = slice(first, start + 1)
+        state = self.start(outputs[known], y_wb[known], exo[known])
+        n = exo.shape[0]
+        exo = np.ascontiguousarray(exo, dtype=np.float64)
+        y_wb = np.ascontiguousarray(y_wb, dtype=np.float64)
+        mean = np.empty((n - start - 1, len(self.stages)))
+        var = np.empty_like(mean)
+        plan = self.plan()
+        for i, j in enumerate(range(start + 1, n)):
+            plan.step(state, exo[j - 1], y_wb[j])
+            mean[i] = state.out_mean
+            var[i] = state.out_var
+        return mean, np.sqrt(var)
+
+
+def _widened_range(X: np.ndarray) -> np.ndarray:
+    """Training range of each feature widened by :data:`RANGE_MARGIN`; shape (2, D)."""
+    low, high = X.min(axis=0), X.max(axis=0)
+    margin = RANGE_MARGIN * (high - low)
+    return np.vstack([low - margin, high + margin])
+
+
+def _thin(X: np.ndarray, t: np.ndarray, limit: int) -> tuple[np.ndarray, np.ndarray]:
+    """Keep at most ``limit`` rows, evenly spread over the sequence."""
+    if t.size <= limit:
+        return X, t
+    rows = np.linspace(0, t.size - 1, limit).round().astype(int)
+    return np.ascontiguousarray(X[rows]), t[rows]
+
+
+def _stage_progress(progress: ProgressCallback, name: str) -> Callable[[int, float], None]:
+    def callback(iteration: int, bound: float) -> None:
+        progress(name, iteration, bound)
+
+    return callback

@@ -1,0 +1,217 @@
+"""The corrector chain's state and its compiled step: one call per communication step.
+
+A :class:`ChainPlan` lays out once what ``fmu_greybox/native/chainstep.c`` needs to advance the
+chain by one row — per stage its feature map
+(:meth:`~fmu_greybox.model.stage.StageLayout.feature_map`),
+the widened training range its features are clipped to, its packed posterior
+(:attr:`~fmu_greybox.gp.predictive.Posterior.packed`), its target mode, memory length and
+whether its corrector runs — and :meth:`ChainPlan.step` hands those arrays, the chain's state
+and the step's inputs to the compiled function. Per stage and step that function does:
+
+1. shift the history: this row's white-box outputs and the previous row's inputs enter it;
+2. features ``x = A s`` from the sources ``s`` (the history of white-box and stage outputs,
+   the stage outputs so far this row, the history of inputs, the stage's stored levels; see
+   :class:`~fmu_greybox.model.stage.SourceLayout`);
+3. clip ``x`` to the widened training range (the stage is flagged *outside* if it had to);
+4. the corrector's mean, latent variance and mean gradient at ``x`` (one kernel row, one
+   triangular solve; see :mod:`fmu_greybox.gp.predictive`);
+5. the stage output and its variance: first-order propagation, the latent variance plus, for
+   every uncertain source (this step's earlier stage outputs, the stage's stored levels), the
+   squared sensitivity of the output to it times its variance (covariances ignored);
+6. push the new level into the memory.
+
+It returns the step's domain score: the smallest, over the stages whose correctors ran, of the
+largest kernel correlation between the features and an inducing point.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from fmu_greybox import _chainstep
+from fmu_greybox.gp.linalg import aligned_zeros
+from fmu_greybox.model.stage import SourceLayout
+
+if TYPE_CHECKING:
+    from fmu_greybox.model.chain import GreyBoxChain
+
+#: Target mode codes of the compiled step (``MODE_*`` in chainstep.c).
+MODE_CODES = {"residual": 0, "increment": 1, "output": 2}
+
+class ChainState:
+    """Everything the chain remembers between steps (its autoregressive memory), in one
+    float64 vector that the compiled step updates in place.
+
+    Layout: the shared sources of :class:`~fmu_greybox.model.stage.SourceLayout` (the history of
+    white-box and stage outputs and of the exogenous inputs), the Q variances of the last
+    step's outputs, Q out-of-range flags, then per stage its n stored levels (most recent
+    first) and their covariance (n x n).
+
+    Parameters
+    ----------
+    layout : SourceLayout
+    memory_lengths : sequence of int
+        Stored levels per stage.
+    values : ndarray, optional
+        The vector to wrap (zeros by default).
+
+    Attributes
+    ----------
+    values : ndarray
+    wb, out_mean : ndarray, shape (Q,)
+        White-box predictions and stage outputs of the last step.
+    prev_wb, prev_mean : ndarray, shape (Q,)
+        The same of the step before.
+    exo : ndarray, shape (n_exo,)
+        The exogenous inputs the last step was given (those of the row before it).
+    out_var : ndarray, shape (Q,)
+        Variances of the last step's stage outputs.
+    outside : ndarray, shape (Q,)
+        1.0 where a stage's features left their training range in the last step (they were
+        clipped to it), else 0.0.
+    memory : list of ndarray, shapes (n_q,)
+        Per stage its stored levels, most recent first.
+    memory_cov : list of ndarray, shapes (n_q, n_q)
+        Their covariance (first-order propagation).
+    """
+
+    def __init__(
+        self, layout: SourceLayout, memory_lengths: Sequence[int], values: np.ndarray | None = None
+    ) -> None:
+        self.layout = layout
+        self.memory_lengths = tuple(int(n) for n in memory_lengths)
+        q, shared = layout.n_stages, layout.shared
+        blocks = [n * (1 + n) for n in self.memory_lengths]
+        size = shared + 2 * q + sum(blocks)
+        self.values = np.zeros(size) if values is None else values
+        if self.values.shape != (size,):
+            raise ValueError(f"chain state of {self.values.size} values; {size} expected")
+        v = self.values
+        self.wb, self.out_mean = v[layout.wb(0, 0) :][:q], v[layout.out(0, 0) :][:q]
+        self.prev_wb, self.prev_mean = v[layout.wb(1, 0) :][:q], v[layout.out(1, 0) :][:q]
+        self.exo = v[layout.exo(0, 0) :][: layout.n_exo]
+        self.out_var, self.outside = v[shared : shared + q], v[shared + q : shared + 2 * q]
+        starts = shared + 2 * q + np.cumsum([0, *blocks[:-1]])
+        self.memory_offsets = [int(o) for o in starts]
+        self.memory = [v[o : o + n] for o, n in zip(starts, self.memory_lengths, strict=True)]
+        self.memory_cov = [
+            v[o + n : o + n + n * n].reshape(n, n)
+            for o, n in zip(starts, self.memory_lengths, strict=True)
+        ]
+
+    def history(self, block: str) -> np.ndarray:
+        """A view of the white-box (``"wb"``) or stage-output (``"out"``) history, shape
+        (H + 1, Q), row ``h`` the step ``h`` steps back, or of the inputs (``"exo"``),
+        shape (H + 1, n_exo)."""
+        layout, q = self.layout, self.layout.n_stages
+        if block == "exo":
+            return self.values[layout.exo(0, 0) : layout.shared].reshape(-1, layout.n_exo)
+        rows = self.values[: layout.exo(0, 0)].reshape(layout.depth + 1, 2, q)
+        return rows[:, 0 if block == "wb" else 1]
+
+    def copy(self) -> ChainState:
+        """An independent copy (for saving and restoring state)."""
+        return ChainState(self.layout, self.memory_lengths, self.values.copy())
+
+    def to_array(self) -> np.ndarray:
+        """The whole state as one float64 vector, a copy (for FMU state serialisation)."""
+        return self.values.copy()
+
+    def load_array(self, flat: np.ndarray) -> None:
+        """Restore from :meth:`to_array` output, in place."""
+        self.values[:] = flat
+
+
+class ChainPlan:
+    """Everything the compiled chain step reads, laid out once for a fitted chain.
+
+    Parameters
+    ----------
+    chain : GreyBoxChain
+        Fitted (or loaded): every stage has a corrector and a feature range.
+    """
+
+    def __init__(self, chain: GreyBoxChain) -> None:
+        layout = chain.layout
+        n_stages = layout.n_stages
+        records, blocks, offset = [], [], 0
+        memory_offset = layout.shared + 2 * n_stages
+        work = 0
+        for q, stage in enumerate(chain.stages):
+            active = bool(chain.active_[q])
+            block = np.zeros(0)
+            m = d = width = 0
+            if active:  # a stage passed through needs nothing but its memory
+                posterior = chain.correctors_[q].posterior_
+                feature_map = stage.feature_map(layout)
+                bounds = chain.feature_bounds_[q]
+                d, m, width = posterior.input_dim, posterior.n_inducing, feature_map.shape[1]
+                if feature_map.shape[0] != d or bounds.shape != (2, d):
+                    raise ValueError(
+                        f"stage {stage.name}: its corrector takes {d} features, its layout "
+                        f"makes {feature_map.shape[0]}; the model does not belong to this project"
+                    )
+                block = np.concatenate(
+                    [posterior.packed, feature_map.ravel(), bounds[0], bounds[1]]
+                )
+            records.append(
+                [
+                    offset,
+                    m,
+                    d,
+                    width,
+                    stage.memory_length,
+                    # a stage still to be trained (target "auto") passes through as residual
+                    MODE_CODES.get(stage.target_mode, MODE_CODES["residual"]),
+                    int(active),
+                    memory_offset,
+                ]
+            )
+            blocks.append((offset, block))
+            offset += -(-block.size // 8) * 8  # each posterior on a cache-line boundary
+            memory_offset += stage.memory_length * (1 + stage.memory_length)
+            work = max(work, 2 * m + 5 * d + 2 * stage.memory_length + 1)
+        self._params = aligned_zeros(offset)
+        for start, block in blocks:
+            self._params[start : start + block.size] = block
+        self._work = np.zeros(work)
+        header = [
+            _chainstep.PLAN_VERSION,
+            n_stages,
+            layout.n_exo,
+            offset,
+            work,
+            memory_offset,
+            layout.depth,
+        ]
+        self._plan = np.array(header + [v for r in records for v in r], dtype=np.int64)
+
+    def step(
+        self, state: ChainState, exo_prev: np.ndarray, y_wb: np.ndarray, enabled: bool = True
+    ) -> float:
+        """Advance the chain by one row, in place on ``state``.
+
+        Parameters
+        ----------
+        state : ChainState
+            From :meth:`GreyBoxChain.start`; ``out_mean``/``out_var`` then hold this row's
+            stage outputs and their variances.
+        exo_prev : ndarray, shape (n_exo,), float64, C-contiguous
+            Exogenous inputs of the previous row.
+        y_wb : ndarray, shape (Q,), float64, C-contiguous
+            White-box predictions of this row.
+        enabled : bool
+            ``False`` passes the white-box through (for A/B runs) while keeping the memory
+            consistent with it.
+
+        Returns
+        -------
+        float
+            The domain score (1.0 when no corrector ran).
+        """
+        return _chainstep.step(
+            self._plan, self._params, self._work, state.values, exo_prev, y_wb, enabled
+        )

@@ -1,0 +1,332 @@
+"""Named correction terms: physics the white-box left out, applied where it enters.
+
+A term corrects the white-box where the physics enters, step by step, the way a co-simulation
+master would apply it (:class:`fmu_greybox.model.whitebox.NamedModel` steps a white-box with its
+terms):
+
+* at an FMU **input**, from the recorded input (:meth:`Term.on_input`): a gain, an offset, a
+  deadband or a delay of a command, applied once per communication step; or fed back from the
+  FMU outputs (``feedback`` terms): a missing force from a velocity, a supply pressure drooping
+  with a flow. Feedback terms are explicit couplings, so the runner splits each communication
+  step into ``substeps`` FMU steps (the recorded input held) and recomputes them at each: a stiff
+  feedback such as a Coulomb force around zero velocity then neither chatters nor lags;
+* as FMU **parameter** values set before initialisation (:meth:`Term.parameters`);
+* at the FMU **outputs** the sensors see (:meth:`Term.on_output`): a sensor delay.
+
+A term acts on the stages from its ``entry`` stage on: stages before it keep the plain white-box
+outputs. A term entering after the first stage models physics between two stages (e.g. a dead
+zone between a valve's spool and its metering edges): the named model runs one FMU instance per
+distinct entry stage and takes each observed output from the instance of its stage.
+
+Terms are small dataclasses, picklable, and round-trip through :meth:`Term.to_dict` /
+:func:`term_from_dict` so that a later run (training, the co-simulation master, an exported
+FMU) can rebuild them from ``diagnosis.json`` or a model folder.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field, fields
+
+import numpy as np
+
+
+class DelayLine:
+    """A fractional delay of a vector signal sampled every step (linear interpolation).
+
+    Before ``delay`` has elapsed the first value holds (the system rests before the start).
+
+    Parameters
+    ----------
+    steps : float
+        Delay in samples (>= 0).
+    width : int
+        Length of the vector.
+    """
+
+    def __init__(self, steps: float, width: int) -> None:
+        self.whole = math.floor(steps)
+        self.frac = float(steps - self.whole)
+        self.size = self.whole + 2
+        self.buffer = np.zeros((self.size, width))
+        self.count = 0
+        self.head = -1
+
+    def memory(self) -> np.ndarray:
+        """Everything the line remembers, as one float64 vector (for FMU state)."""
+        return np.concatenate([[self.count, self.head], self.buffer.ravel()])
+
+    def restore(self, memory: np.ndarray) -> None:
+        """Take back what :meth:`memory` returned."""
+        self.count, self.head = int(memory[0]), int(memory[1])
+        self.buffer[:] = np.reshape(memory[2:], self.buffer.shape)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """Push this step's value and return the delayed one (a new array)."""
+        self.head = (self.head + 1) % self.size
+        if self.count == 0:
+            self.buffer[:] = x
+        else:
+            self.buffer[self.head] = x
+        self.count += 1
+        newer = self.buffer[(self.head - self.whole) % self.size]
+        older = self.buffer[(self.head - self.whole - 1) % self.size]
+        return newer + self.frac * (older - newer)
+
+
+@dataclass
+class Term:
+    """Base class of the correction terms (every hook does nothing unless overridden).
+
+    Attributes
+    ----------
+    entry : int
+        Index of the first stage the term acts on (0: every stage).
+    """
+
+    entry: int = field(default=0, kw_only=True)
+
+    #: Vocabulary identifier of the effect the term models (DESIGN.md section 5).
+    effect = ""
+    #: Whether :meth:`on_input` / :meth:`on_output` do anything (the runner skips the others).
+    acts_on_inputs = False
+    acts_on_outputs = False
+    #: Whether :meth:`on_input` reads the FMU outputs (then it is applied at every sub-step).
+    feedback = False
+
+    def parameters(self) -> dict[str, float]:
+        """FMU parameter values this term sets before initialisation."""
+        return {}
+
+    def needs(self) -> tuple[str, ...]:
+        """FMU outputs the term reads in :meth:`on_input`."""
+        return ()
+
+    def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
+        """Resolve names to positions and reset any memory before a run."""
+
+    def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
+        """Correct this step's FMU inputs ``u`` in place, given the outputs ``y`` at its start."""
+
+    def on_output(self, y: np.ndarray) -> None:
+        """Correct the outputs the sensors report, in place, after a step."""
+
+    def memory(self) -> np.ndarray:
+        """What the term remembers between steps, as one float64 vector (empty if nothing);
+        valid after :meth:`bind`."""
+        line = getattr(self, "_line", None)
+        return line.memory() if line is not None else np.zeros(0)
+
+    def restore(self, memory: np.ndarray) -> None:
+        """Take back what :meth:`memory` returned."""
+        line = getattr(self, "_line", None)
+        if line is not None:
+            line.restore(memory)
+
+    def to_dict(self) -> dict:
+        """The term as plain data (``kind`` names the class)."""
+        return {"kind": type(self).__name__, **asdict(self)}
+
+
+@dataclass
+class ParameterChange(Term):
+    """A mis-set FMU parameter: ``name`` takes ``value``."""
+
+    name: str = ""
+    value: float = 0.0
+    effect = "parameter_mismatch"
+
+    def parameters(self) -> dict[str, float]:
+        return {self.name: self.value}
+
+
+@dataclass
+class _InputTerm(Term):
+    """A term acting on one FMU input."""
+
+    input: str = ""
+    acts_on_inputs = True
+
+    def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
+        self._i = list(inputs).index(self.input)
+
+
+@dataclass
+class InputGain(_InputTerm):
+    """The input acts ``1 + gain`` times as strongly as recorded."""
+
+    gain: float = 0.0
+    effect = "gain_error"
+
+    def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
+        u[self._i] *= 1.0 + self.gain
+
+
+@dataclass
+class InputOffset(_InputTerm):
+    """A constant ``offset`` is added to the input (a null bias)."""
+
+    offset: float = 0.0
+    effect = "offset"
+
+    def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
+        u[self._i] += self.offset
+
+
+@dataclass
+class InputDeadband(_InputTerm):
+    """Inputs within ``+/- width`` of zero act as zero; larger ones lose ``width``."""
+
+    width: float = 0.0
+    effect = "deadband"
+
+    def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
+        x = u[self._i]
+        u[self._i] = math.copysign(max(abs(x) - self.width, 0.0), x)
+
+
+@dataclass
+class InputDelay(_InputTerm):
+    """The input acts ``delay`` seconds late."""
+
+    delay: float = 0.0
+    effect = "time_delay"
+
+    def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
+        super().bind(inputs, outputs, dt)
+        self._line = DelayLine(max(self.delay, 0.0) / dt, 1)
+        self._x = np.empty(1)
+
+    def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
+        self._x[0] = u[self._i]
+        u[self._i] = self._line(self._x)[0]
+
+
+@dataclass
+class _FeedbackInput(_InputTerm):
+    """An input term computed from one FMU output of the previous (sub-)step."""
+
+    source: str = ""
+    feedback = True
+
+    def needs(self) -> tuple[str, ...]:
+        return (self.source,)
+
+    def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
+        super().bind(inputs, outputs, dt)
+        self._o = list(outputs).index(self.source)
+
+    def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
+        u[self._i] += self.value(float(y[self._o]))
+
+    def value(self, x: float) -> float:
+        """What is added to the input for the source output at ``x``."""
+        raise NotImplementedError
+
+
+@dataclass
+class CoulombForce(_FeedbackInput):
+    """A force ``force * tanh(v / smoothing)`` added to a force input (``v``: the source)."""
+
+    force: float = 0.0
+    smoothing: float = 1e-3
+    effect = "coulomb_friction"
+
+    def value(self, x: float) -> float:
+        return self.force * math.tanh(x / self.smoothing)
+
+
+@dataclass
+class ViscousForce(_FeedbackInput):
+    """A force ``coefficient * v`` added to a force input."""
+
+    coefficient: float = 0.0
+    effect = "viscous_friction"
+
+    def value(self, x: float) -> float:
+        return self.coefficient * x
+
+
+@dataclass
+class StribeckForce(_FeedbackInput):
+    """A breakaway force ``force * exp(-(v / velocity)^2) * tanh(v / smoothing)``."""
+
+    force: float = 0.0
+    velocity: float = 1e-2
+    smoothing: float = 1e-3
+    effect = "stribeck_friction"
+
+    def value(self, x: float) -> float:
+        return self.force * math.exp(-((x / self.velocity) ** 2)) * math.tanh(x / self.smoothing)
+
+
+@dataclass
+class FlowDroop(_FeedbackInput):
+    """A pressure input drops by ``resistance * Q`` (``Q``: the source flow)."""
+
+    resistance: float = 0.0
+    effect = "supply_pressure_droop"
+
+    def value(self, x: float) -> float:
+        return -self.resistance * x
+
+
+@dataclass
+class SensorDelay(Term):
+    """The sensors of ``outputs`` report their values ``delay`` seconds late (those of them
+    that a run reads)."""
+
+    outputs: tuple[str, ...] = ()
+    delay: float = 0.0
+    effect = "time_delay"
+    acts_on_outputs = True
+
+    def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
+        self._j = np.array([j for j, n in enumerate(outputs) if n in self.outputs], dtype=int)
+        self._line = DelayLine(max(self.delay, 0.0) / dt, self._j.size)
+
+    def on_output(self, y: np.ndarray) -> None:
+        y[self._j] = self._line(y[self._j])
+
+    def to_dict(self) -> dict:
+        return {**super().to_dict(), "outputs": list(self.outputs)}
+
+
+TERM_KINDS: dict[str, type[Term]] = {
+    cls.__name__: cls
+    for cls in (
+        ParameterChange,
+        InputGain,
+        InputOffset,
+        InputDeadband,
+        InputDelay,
+        CoulombForce,
+        ViscousForce,
+        StribeckForce,
+        FlowDroop,
+        SensorDelay,
+    )
+}
+
+
+def term_from_dict(data: Mapping) -> Term:
+    """Rebuild a term from :meth:`Term.to_dict` output.
+
+    Raises
+    ------
+    ValueError
+        For an unknown ``kind`` or field.
+    """
+    data = dict(data)
+    kind = data.pop("kind", None)
+    cls = TERM_KINDS.get(kind)
+    if cls is None:
+        raise ValueError(f"unknown term kind {kind!r}; known: {', '.join(TERM_KINDS)}")
+    known = {f.name for f in fields(cls)}
+    unknown = set(data) - known
+    if unknown:
+        raise ValueError(f"term {kind} has no field(s) {', '.join(sorted(unknown))}")
+    if "outputs" in data:
+        data["outputs"] = tuple(data["outputs"])
+    return cls(**data)

@@ -1,0 +1,153 @@
+"""A recording seen through a project: stage targets, exogenous inputs, white-box predictions.
+
+Training, validation and diagnosis all start from the same arrays; this module makes them once,
+running the white-box FMU open-loop over the recorded inputs.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from fmu_greybox.data.recording import Recording, load_recording
+from fmu_greybox.errors import ConfigError, RecordingError
+from fmu_greybox.fmi.archive import FmuArchive
+from fmu_greybox.fmi.binding import InputBinding, bind_inputs, check_unit
+from fmu_greybox.fmi.builtin import resolve_fmu
+from fmu_greybox.model.chain import GreyBoxChain
+from fmu_greybox.model.terms import Term
+from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS, simulate_with_terms
+from fmu_greybox.project.config import ProjectConfig
+
+
+@dataclass
+class ProjectData:
+    """Arrays of one recording, arranged for the chain.
+
+    Attributes
+    ----------
+    recording : Recording
+        The recording.
+    binding : InputBinding
+        How the FMU's inputs are fed.
+    exo : ndarray, shape (n, n_exo)
+        Exogenous inputs (columns as ``chain.exo_names``).
+    outputs : ndarray, shape (n, Q)
+        Recorded stage targets.
+    y_wb : ndarray, shape (n, Q)
+        White-box predictions of the stage targets (with the named terms, if any).
+    """
+
+    recording: Recording
+    binding: InputBinding
+    exo: np.ndarray
+    outputs: np.ndarray
+    y_wb: np.ndarray
+
+    @property
+    def n_samples(self) -> int:
+        """Number of rows."""
+        return self.exo.shape[0]
+
+
+def load_project_recording(config: ProjectConfig, override: str | Path | None = None) -> Recording:
+    """The recording named on the command line, or else the project's default one.
+
+    Raises
+    ------
+    ConfigError
+        If neither is given.
+    """
+    path = Path(override) if override is not None else config.recording
+    if path is None:
+        raise ConfigError(
+            "no recording given; pass --recording FILE or set [recording] path",
+            field="recording.path",
+            path=str(config.path) if config.path else None,
+        )
+    return load_recording(path, time_column=config.time_column, resample=config.resample)
+
+
+def check_step(config: ProjectConfig, recording: Recording) -> None:
+    """The communication step must equal the recording's sample time when both are given."""
+    if config.step is not None and not math.isclose(config.step, recording.dt, rel_tol=1e-6):
+        raise RecordingError(
+            f"sample time {recording.dt:g} s differs from the project's communication step "
+            f"{config.step:g} s; resample the recording ([recording] resample = {config.step:g})"
+            " or change whitebox.step",
+            path=recording.source,
+        )
+
+
+def prepare(
+    config: ProjectConfig,
+    chain: GreyBoxChain,
+    archive: FmuArchive,
+    recording: Recording,
+    progress: bool = False,
+    terms: Sequence[Term] = (),
+    substeps: int = DEFAULT_SUBSTEPS,
+) -> ProjectData:
+    """Check the recording against the project and simulate the white-box over it.
+
+    Parameters
+    ----------
+    config : ProjectConfig
+    chain : GreyBoxChain
+        Defines the exogenous inputs and stage targets.
+    archive : FmuArchive
+        The white-box FMU.
+    recording : Recording
+    progress : bool
+        Show a progress bar during the simulation.
+    terms : sequence of Term
+        Named correction terms folded into the white-box (see
+        :class:`~fmu_greybox.model.whitebox.NamedModel`); ``y_wb`` is then white-box + terms.
+    substeps : int
+        FMU steps per communication step while a feedback term is active.
+
+    Returns
+    -------
+    ProjectData
+    """
+    check_step(config, recording)
+    signals = config.signals
+    columns = [signals[n].column for n in chain.exo_names + chain.target_signals]
+    recording.require(columns, context=f"project {config.name}")
+    for sig in signals.values():
+        if sig.column in recording.signals and sig.variable in archive.variables:
+            check_unit(archive, sig.variable, recording, sig.column)
+    binding = bind_inputs(archive, recording, config.input_mapping(), config.fixed_inputs)
+    y_wb = simulate_with_terms(
+        archive,
+        binding.inputs,
+        binding.matrix(recording),
+        recording.dt,
+        chain.whitebox_outputs,
+        terms,
+        config.parameters,
+        stages=range(len(chain.stages)),
+        start_time=float(recording.time[0]),
+        substeps=substeps,
+        progress=progress,
+    )
+    exo = np.column_stack([recording[signals[n].column] for n in chain.exo_names])
+    outputs = np.column_stack([recording[signals[n].column] for n in chain.target_signals])
+    return ProjectData(recording=recording, binding=binding, exo=exo, outputs=outputs, y_wb=y_wb)
+
+
+def split_row(config: ProjectConfig, n: int) -> int:
+    """Last training row: rows ``0..split`` train, ``split+1..n-1`` are held out."""
+    return max(1, min(n - 2, int(config.train_fraction * n) - 1))
+
+
+def whitebox_path(config: ProjectConfig) -> Path:
+    """The white-box FMU file of a project (built-ins are built on first use)."""
+    spec = config.fmu
+    if not spec.startswith("builtin:"):
+        spec = str(config.resolve_path(spec))
+    return resolve_fmu(spec)

@@ -1,0 +1,97 @@
+"""Pieces of the self-contained HTML reports: page shell, tables, embedded figures.
+
+Every report is one file: figures are embedded as base64 PNGs, the style sheet is inline and
+there is no script, so a report can be mailed, filed with a test campaign or opened offline.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+from collections.abc import Iterable, Sequence
+
+import matplotlib.pyplot as plt
+
+from fmu_greybox.report.plots import png_bytes
+
+STYLE = (
+    "body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222;}"
+    "table{border-collapse:collapse;margin:1em 0;}"
+    "td,th{border:1px solid #bbb;padding:4px 8px;text-align:left;font-size:90%;}"
+    "th{background:#eee;}"
+    ".verdict{background:#f4f4f4;padding:0.5em 1em;border-left:4px solid #555;}"
+    "img{max-width:100%;}code{font-size:85%;word-break:break-all;}"
+)
+
+
+def escape(value: object) -> str:
+    """HTML-escaped text of any value."""
+    return html.escape(str(value))
+
+
+def page(title: str, sections: Iterable[str]) -> str:
+    """A whole HTML document.
+
+    Parameters
+    ----------
+    title : str
+        Title and first heading.
+    sections : iterable of str
+        HTML fragments, in order.
+    """
+    return "\n".join(
+        [
+            "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
+            f"<title>{escape(title)}</title><style>{STYLE}</style></head><body>",
+            f"<h1>{escape(title)}</h1>",
+            *sections,
+            "</body></html>",
+        ]
+    )
+
+
+def verdict(lines: Sequence[str], heading: str = "Verdict") -> str:
+    """The verdict box: one paragraph per line."""
+    body = "".join(f"<p>{escape(line)}</p>" for line in lines)
+    return f"<div class='verdict'><h2>{escape(heading)}</h2>{body}</div>"
+
+
+def table(header: Sequence[str], rows: Iterable[Sequence[object]], raw: bool = False) -> str:
+    """A table; cells are escaped unless ``raw``.
+
+    Parameters
+    ----------
+    header : sequence of str
+    rows : iterable of sequences, each as long as ``header``
+    raw : bool
+        Cells are already HTML.
+    """
+    cell = str if raw else escape
+    parts = ["<table><tr>", *(f"<th>{escape(h)}</th>" for h in header), "</tr>"]
+    for row in rows:
+        parts.append("<tr>" + "".join(f"<td>{cell(c)}</td>" for c in row) + "</tr>")
+    parts.append("</table>")
+    return "".join(parts)
+
+
+def figure(title: str, fig: plt.Figure, caption: str = "") -> str:
+    """A titled figure embedded as PNG (the figure is closed)."""
+    data = base64.b64encode(png_bytes(fig)).decode("ascii")
+    note = f"<p>{escape(caption)}</p>" if caption else ""
+    return (
+        f"<h2>{escape(title)}</h2>{note}"
+        f"<img alt='{escape(title)}' src='data:image/png;base64,{data}'>"
+    )
+
+
+def fmt(value: float | None, digits: int = 3, unit: str = "") -> str:
+    """A number in ``digits`` significant figures (blank for ``None``)."""
+    if value is None:
+        return ""
+    text = f"{value:.{digits}g}"
+    return f"{text} {unit}".strip()
+
+
+def percent(fraction: float | None) -> str:
+    """A signed percentage of a fraction (blank for ``None``)."""
+    return "" if fraction is None else f"{100 * fraction:+.1f} %"

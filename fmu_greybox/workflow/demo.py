@@ -1,0 +1,326 @@
+"""The main job end to end on the built-in default (the ``demo`` command).
+
+On the reference actuator, with nothing but this repository:
+
+1. build the white-box and truth FMUs from their C sources;
+2. record the truth actuator in closed loop with a concealed effect (drawn by the seed from
+   :data:`~fmu_greybox.synth.actuator.TYPICAL_MAGNITUDES` unless given), plus an independent
+   validation
+   recording of the same actuator;
+3. diagnose the training recording, given only the white-box FMU and the project file;
+4. fold the diagnosis' named terms into the white-box, train the grey-box correctors on what
+   remains, and validate the whole corrected model, free-running, on the validation recording;
+5. export the grey-box FMU and run it on an SSP bench in fmpy and in libcosim, checking both
+   against the in-process master;
+6. write ``report.html`` (:mod:`fmu_greybox.report.main`), ``diagnosis.json``, ``metrics.json``
+   and ``summary.json``.
+
+Every file is written atomically; ``summary.json`` and ``report.html`` are written last, so a
+folder without them is an interrupted run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import platform
+import shlex
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fmu_greybox import __version__
+from fmu_greybox.data.recording import Recording, save_recording
+from fmu_greybox.diagnosis import Diagnosis, GreyBoxSettings
+from fmu_greybox.diagnosis.findings import named_physics
+from fmu_greybox.diagnosis.report import diagnosis_payload, write_json
+from fmu_greybox.export.fmu import export_greybox
+from fmu_greybox.export.ssp import BenchAgreement, compare_with_master, make_bench, run_bench
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.builtin import reference_fmus, reference_project
+from fmu_greybox.model.store import file_sha256, load_model, save_model
+from fmu_greybox.model.whitebox import terms_from_findings
+from fmu_greybox.project.config import ProjectConfig, load_config
+from fmu_greybox.report.spectra import FrequencyResponse, stage_responses
+from fmu_greybox.synth.actuator import (
+    TYPICAL_MAGNITUDES,
+    FlightTestProfile,
+    SynthRequest,
+    synthesise,
+)
+from fmu_greybox.workflow.train import train_model, with_inducing
+from fmu_greybox.workflow.validate import Validation, validate_model, write_metrics
+
+Log = Callable[[str], None]
+
+#: Bench runs cover this many 1 ms steps of the validation recording (a power of two keeps the
+#: recording's mean step exactly libcosim's integer-nanosecond step).
+BENCH_STEPS = 4096
+
+
+@dataclass(frozen=True)
+class DemoSettings:
+    """What the demo does.
+
+    Attributes
+    ----------
+    out_dir : Path
+        Folder for everything produced.
+    effects : dict[str, float] or None
+        Concealed truth effects; ``None`` draws one from the seed.
+    seed : int
+        Seed of the effect draw and of the recordings.
+    duration : float
+        Training recording length [s].
+    validation_duration : float
+        Independent validation recording length [s].
+    inducing : int
+        Inducing points per stage.
+    max_iter : int
+        Optimiser iterations per stage.
+    engines : tuple of str
+        Bench engines to run the exported FMU in.
+    """
+
+    out_dir: Path
+    effects: dict[str, float] | None = None
+    seed: int = 0
+    duration: float = 30.0
+    validation_duration: float = 8.0
+    inducing: int = 150
+    max_iter: int = 100
+    engines: tuple[str, ...] = ("fmpy", "libcosim")
+
+
+@dataclass
+class DemoResult:
+    """What the demo produced (the report's content).
+
+    Attributes
+    ----------
+    settings : DemoSettings
+    effects : dict[str, float]
+        The concealed effects.
+    config : ProjectConfig
+    diagnosis : Diagnosis
+    payload : dict
+        ``diagnosis.json``.
+    validation : Validation
+        Free run of the grey-box on the validation recording.
+    model_dir, fmu, ssp : Path
+        Model folder, exported FMU, SSP bench.
+    bench : list of BenchAgreement
+        Per engine: the exported FMU against the in-process master.
+    responses : list of FrequencyResponse
+        Per stage, on the validation run.
+    files : dict[str, Path]
+        Inputs and outputs to hash in the traceability block.
+    timings : dict[str, float]
+        Seconds per step.
+    command : str
+        The command line.
+    """
+
+    settings: DemoSettings
+    effects: dict[str, float]
+    config: ProjectConfig
+    diagnosis: Diagnosis
+    payload: dict[str, Any]
+    validation: Validation
+    model_dir: Path
+    fmu: Path
+    ssp: Path
+    bench: list[BenchAgreement]
+    responses: list[FrequencyResponse]
+    files: dict[str, Path] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+    command: str = ""
+
+    def top_finding_correct(self) -> bool:
+        """The diagnosis' top finding names one of the concealed effects."""
+        findings = self.payload["findings"]
+        if not findings:
+            return False
+        return named_physics(findings[0]) in self.effects
+
+    def traceability(self) -> dict[str, str]:
+        """Hashes of data, FMUs and model; versions; the command line."""
+        rows = {f"sha256 {label}": file_sha256(path) for label, path in self.files.items()}
+        rows["fmu-greybox"] = __version__
+        for package in ("fmpy", "pythonfmu", "libcosimpy", "numpy", "scipy"):
+            try:
+                rows[package] = metadata.version(package)
+            except metadata.PackageNotFoundError:
+                rows[package] = "not installed"
+        rows["python"] = platform.python_version()
+        rows["platform"] = platform.platform()
+        rows["command"] = self.command
+        rows["seed"] = str(self.settings.seed)
+        rows["finished (UTC)"] = datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S")
+        return rows
+
+
+def choose_effect(seed: int) -> dict[str, float]:
+    """One truth effect and a magnitude in the upper half of its typical range, by seed.
+
+    Parameters
+    ----------
+    seed : int
+
+    Returns
+    -------
+    dict[str, float]
+        ``{effect: value}``, the value rounded to two significant figures.
+    """
+    rng = np.random.default_rng(seed)
+    names = sorted(TYPICAL_MAGNITUDES)
+    name = names[int(rng.integers(len(names)))]
+    low, high = TYPICAL_MAGNITUDES[name][0], TYPICAL_MAGNITUDES[name][-1]
+    value = low + (high - low) * rng.uniform(0.5, 1.0)
+    return {name: float(f"{value:.2g}")}
+
+
+def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = False) -> DemoResult:
+    """Run the main job; see the module docstring.
+
+    Parameters
+    ----------
+    settings : DemoSettings
+    log : callable, optional
+        Called with one line per step.
+    progress : bool
+        Show progress bars.
+
+    Returns
+    -------
+    DemoResult
+    """
+    say = log or (lambda _message: None)
+    out = Path(settings.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+    clock = time.perf_counter()
+
+    def step(name: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        timings[name] = round(now - clock, 2)
+        clock = now
+
+    effects = dict(settings.effects) if settings.effects else choose_effect(settings.seed)
+    say("[1/6] building the reference FMUs from fmu_sources/")
+    fmus = reference_fmus()
+    config = load_config(reference_project())
+    step("build")
+
+    label = ", ".join(f"{k}={v:g}" for k, v in effects.items())
+    say(f"[2/6] recording the truth actuator with a concealed effect ({label})")
+    training, validation_rec = _record(fmus, effects, settings, progress)
+    save_recording(training, out / "recording.csv")
+    save_recording(validation_rec, out / "validation.csv")
+    step("record")
+
+    say("[3/6] diagnosing the recording (given only the white-box FMU and the project)")
+    diagnosis = Diagnosis(
+        config, greybox=GreyBoxSettings(), progress=lambda m: say(f"      {m}")
+    ).fit(training)
+    payload = diagnosis_payload(diagnosis, training)
+    write_json(payload, out / "diagnosis.json")
+    step("diagnose")
+
+    terms = terms_from_findings(payload["findings"])
+    on = f"the white-box + {len(terms)} named term(s)" if terms else "the white-box"
+    say(f"[4/6] training the grey-box on {on} ({settings.inducing} inducing points per stage)")
+    model_dir = out / "model"
+    trained = train_model(_training_config(config, settings), training, progress, terms=terms)
+    save_model(trained, model_dir)
+    model = load_model(model_dir)
+    validation = validate_model(model, validation_rec, progress)
+    write_metrics(validation, model, out / "metrics.json")
+    step("train")
+
+    say("[5/6] exporting the grey-box FMU and running it on an SSP bench")
+    fmu = export_greybox(model_dir, out / "greybox.fmu", author="fmu-greybox demo").path
+    bench_rec = validation_rec.slice_time(
+        validation_rec.time[0], validation_rec.time[0] + BENCH_STEPS * model.dt
+    )
+    ssp = make_bench(fmu, bench_rec, out / "bench.ssp")
+    agreements = []
+    for engine in settings.engines:
+        started = time.perf_counter()
+        result = run_bench(ssp, engine)
+        seconds = time.perf_counter() - started
+        save_recording(result, out / f"bench_{engine}.csv")
+        agreements.append(compare_with_master(model, bench_rec, result, engine, seconds))
+    step("export and bench")
+
+    say("[6/6] frequency responses and the report")
+    run = validation.run
+    first_input = config.stages[0].inputs[0]
+    responses = stage_responses(
+        validation_rec[config.signals[first_input].column][run.rows],
+        validation.data.outputs[run.rows],
+        {"white-box": validation.whitebox, "grey-box": run.mean},
+        model.dt,
+        first_input,
+        model.chain.target_signals,
+    )
+    files = {
+        "recording.csv": out / "recording.csv",
+        "validation.csv": out / "validation.csv",
+        "HydraulicActuator.fmu": fmus["HydraulicActuator"],
+        "HydraulicActuatorTruth.fmu": fmus["HydraulicActuatorTruth"],
+        "model/model.json": model_dir / "model.json",
+        "greybox.fmu": fmu,
+        "bench.ssp": ssp,
+    }
+    return DemoResult(
+        settings=settings,
+        effects=effects,
+        config=config,
+        diagnosis=diagnosis,
+        payload=payload,
+        validation=validation,
+        model_dir=model_dir,
+        fmu=fmu,
+        ssp=ssp,
+        bench=agreements,
+        responses=responses,
+        files=files,
+        timings=timings,
+        command=shlex.join(["fmu-greybox", *sys.argv[1:]]),
+    )
+
+
+def _record(
+    fmus: dict[str, Path], effects: dict[str, float], settings: DemoSettings, progress: bool
+) -> tuple[Recording, Recording]:
+    """Training and validation recordings of the truth actuator (different seeds)."""
+    recordings = []
+    with (
+        open_fmu(fmus["HydraulicActuatorTruth"]) as truth,
+        open_fmu(fmus["HydraulicActuator"]) as whitebox,
+    ):
+        for seed, duration in (
+            (settings.seed, settings.duration),
+            (settings.seed + 1_000_003, settings.validation_duration),
+        ):
+            request = SynthRequest(
+                effects=effects, seed=seed, profile=FlightTestProfile(duration=duration)
+            )
+            recordings.append(synthesise(truth, whitebox, request, progress=progress))
+    return recordings[0], recordings[1]
+
+
+def _training_config(config: ProjectConfig, settings: DemoSettings) -> ProjectConfig:
+    """The project with the demo's inducing points and iteration cap."""
+    config = with_inducing(config, settings.inducing)
+    gp = dataclasses.replace(config.gp, max_iter=settings.max_iter)
+    raw = {**config.raw, "gp": {**config.raw.get("gp", {}), "max_iter": settings.max_iter}}
+    return dataclasses.replace(config, gp=gp, raw=raw)

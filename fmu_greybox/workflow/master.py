@@ -1,0 +1,119 @@
+"""The co-simulation master: the white-box FMU and the stage correctors, stepped together.
+
+Each communication step does what a bench does: set the FMU's inputs, ``fmi2DoStep``, read the
+white-box outputs (with the model's named terms, if any: :meth:`GreyBoxModel.whitebox`), then
+run the stage correctors in autoregressive order, each fed its own and the earlier stages'
+corrected outputs (free run). The FMU advances by the model's communication step, as the
+exported FMU does. Rows up to ``start`` only advance the FMU and provide the chain's initial
+memory: from the recording by default, or from the white-box outputs
+(``memory_from="whitebox"``), which is what an exported grey-box FMU does since it has no
+recording.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.model.store import GreyBoxModel
+from fmu_greybox.project.data import ProjectData
+
+#: Where :func:`run_master` can take the chain's initial memory from.
+MEMORY_SOURCES = ("recorded", "whitebox")
+
+
+@dataclass
+class MasterRun:
+    """What the master produced over the rows it predicted.
+
+    Attributes
+    ----------
+    rows : ndarray of int, shape (m,)
+        Recording rows predicted (``start + 1 .. n - 1``).
+    time : ndarray, shape (m,)
+        Their times [s].
+    whitebox : ndarray, shape (m, Q)
+        White-box stage outputs (with the model's named terms, if any): what the correctors
+        start from.
+    mean, std : ndarray, shape (m, Q)
+        Grey-box stage outputs and their standard deviations.
+    """
+
+    rows: np.ndarray
+    time: np.ndarray
+    whitebox: np.ndarray
+    mean: np.ndarray
+    std: np.ndarray
+
+
+def run_master(
+    model: GreyBoxModel,
+    data: ProjectData,
+    start: int,
+    progress: bool = False,
+    memory_from: str = "recorded",
+) -> MasterRun:
+    """Step the white-box FMU and the chain over a recording, one communication step at a time.
+
+    Parameters
+    ----------
+    model : GreyBoxModel
+        The trained grey-box.
+    data : ProjectData
+        The recording arranged for the chain (its ``y_wb`` is not used: the FMU is stepped
+        here).
+    start : int
+        Last row whose recorded outputs initialise the chain's memory.
+    progress : bool
+        Show a progress bar.
+    memory_from : {"recorded", "whitebox"}
+        Initial memory from the recorded outputs of rows ``..start`` or from the white-box
+        outputs of those rows (zero residual memory: what an exported grey-box FMU does).
+
+    Returns
+    -------
+    MasterRun
+    """
+    if memory_from not in MEMORY_SOURCES:
+        raise ValueError(f"memory_from={memory_from!r} is not one of {', '.join(MEMORY_SOURCES)}")
+    chain = model.chain
+    u = data.binding.matrix(data.recording)
+    n = u.shape[0]
+    history = chain.history
+    m = n - start - 1
+    wb = np.empty((n, len(chain.stages)))
+    mean = np.empty((m, len(chain.stages)))
+    var = np.empty_like(mean)
+    with (
+        open_fmu(model.whitebox_fmu) as archive,
+        model.whitebox(
+            archive,
+            data.binding.inputs,
+            chain.whitebox_outputs,
+            dict(zip(data.binding.inputs, u[0], strict=True)),
+            float(data.recording.time[0]),
+            instance_name="greybox_master",
+        ) as fmu,
+    ):
+        wb[0] = fmu.outputs()
+        plan = chain.plan()
+        exo = np.ascontiguousarray(data.exo, dtype=np.float64)
+        state = None
+        for j in tqdm(range(1, n), disable=not progress, desc="free run", unit="step", leave=False):
+            wb[j] = fmu.step(u[j - 1])
+            if j == start + 1:
+                first = max(0, start - history + 1)
+                known = data.outputs if memory_from == "recorded" else wb
+                rows = slice(first, start + 1)
+                state = chain.start(known[rows], wb[rows], exo[rows])
+            if state is not None:
+                plan.step(state, exo[j - 1], wb[j])
+                mean[j - start - 1] = state.out_mean
+                var[j - start - 1] = state.out_var
+    rows = np.arange(start + 1, n)
+    return MasterRun(
+        rows=rows, time=data.recording.time[rows], whitebox=wb[rows], mean=mean, std=np.sqrt(var)
+    )

@@ -1,0 +1,113 @@
+"""Train the grey-box of a project on a recording (the ``train`` command)."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+
+import numpy as np
+from tqdm import tqdm
+
+from fmu_greybox.data.recording import Recording
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.model.chain import GreyBoxChain
+from fmu_greybox.model.store import GreyBoxModel, file_sha256
+from fmu_greybox.model.terms import Term
+from fmu_greybox.model.whitebox import check_terms
+from fmu_greybox.project.config import ProjectConfig
+from fmu_greybox.project.data import prepare, split_row, whitebox_path
+
+
+def with_inducing(config: ProjectConfig, inducing: int | None) -> ProjectConfig:
+    """The project with another number of inducing points (``None`` keeps it)."""
+    if inducing is None:
+        return config
+    gp = dataclasses.replace(config.gp, inducing=inducing)
+    raw = {**config.raw, "gp": {**config.raw.get("gp", {}), "inducing": inducing}}
+    return dataclasses.replace(config, gp=gp, raw=raw)
+
+
+def train_model(
+    config: ProjectConfig,
+    recording: Recording,
+    progress: bool = False,
+    target_mode: str | None = None,
+    terms: Sequence[Term] = (),
+) -> GreyBoxModel:
+    """Simulate the white-box over the recording and fit every stage's corrector.
+
+    The leading ``config.train_fraction`` of the recording trains; the rest stays held out for
+    ``validate``.
+
+    Parameters
+    ----------
+    config : ProjectConfig
+    recording : Recording
+    progress : bool
+        Show progress bars (simulation, then one per stage's optimisation).
+    target_mode : str, optional
+        Overrides ``config.gp.target``.
+    terms : sequence of Term
+        Named correction terms (from a diagnosis) folded into the white-box first: the
+        correctors then learn what white-box + terms leave, and the model carries the terms.
+
+    Returns
+    -------
+    GreyBoxModel
+    """
+    started = time.perf_counter()
+    fmu_path = whitebox_path(config)
+    chain = GreyBoxChain(config, target_mode)
+    with open_fmu(fmu_path) as archive:
+        config.check_against_fmu(archive)
+        check_terms(terms, archive, len(chain.stages))
+        data = prepare(config, chain, archive, recording, progress, terms)
+    split = split_row(config, data.n_samples)
+    rows = slice(0, split + 1)
+    bars: dict[str, tqdm] = {}
+
+    def report(stage: str, iteration: int, bound: float) -> None:
+        bar = bars.get(stage)
+        if bar is None:
+            bar = bars[stage] = tqdm(
+                total=config.gp.max_iter,
+                desc=f"train {stage}",
+                unit="it",
+                leave=False,
+                disable=not progress,
+            )
+        bar.update(1)
+        bar.set_postfix(bound=f"{bound:.4g}")
+
+    chain.fit(data.exo[rows], data.y_wb[rows], data.outputs[rows], progress=report)
+    for bar in bars.values():
+        bar.close()
+    free_run_check = chain.check_free_run(data.exo[rows], data.y_wb[rows], data.outputs[rows])
+    training = {
+        "recording_sha256": recording.sha256(),
+        "recording_source": str(recording.source),
+        "n_samples": data.n_samples,
+        "train_rows": split + 1,
+        "dt": recording.dt,
+        "target_std": {
+            name: float(np.std(data.outputs[rows, q])) for q, name in enumerate(chain.stage_names)
+        },
+        "target_unit": {s.name: config.signals[s.config.target].unit for s in chain.stages},
+        "bounds": {
+            s.name: float(c.bound_) for s, c in zip(chain.stages, chain.correctors_, strict=True)
+        },
+        "free_run_check": free_run_check,
+        "target_selection": chain.selection_,
+        "whitebox_source": str(fmu_path),
+        "whitebox_sha256": file_sha256(fmu_path),
+        "seconds": round(time.perf_counter() - started, 2),
+    }
+    return GreyBoxModel(
+        config=config,
+        chain=chain,
+        whitebox_fmu=fmu_path,
+        dt=recording.dt,
+        training=training,
+        terms=list(terms),
+    )
