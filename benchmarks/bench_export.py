@@ -95,7 +95,6 @@ def export(rec, inducing: int, folder: Path) -> Path:
     config = dataclasses.replace(
         config,
         gp=dataclasses.replace(config.gp, max_iter=5),
-        raw={**config.raw, "gp": {**config.raw["gp"], "max_iter": 5}},
     )
     save_model(train_model(config, rec), folder / f"model{inducing}")
     return export_greybox(folder / f"model{inducing}", folder / f"greybox{inducing}.fmu").path

@@ -14,6 +14,8 @@ if ! command -v chromium >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; 
       $sudo_ apt-get install -y -qq --no-install-recommends chromium >/dev/null; } \
     || echo "could not install chromium; the report rendering test will fail in CI" >&2
 fi
+# the package as a user installs it: wheel, fresh venv, a short run away from the checkout
+bash scripts/wheel_check.sh
 status=0
 .venv/bin/python -m pytest -q "$@" || status=$?
 if [ "$status" -eq 5 ]; then

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import tomllib
 from pathlib import Path
 
@@ -141,3 +142,13 @@ def test_unknown_fmu_variables_are_named(raw: dict, whitebox_fmu: Path) -> None:
         broken["whitebox"]["parameters"] = {"bulk_modulu": 1e9}
         with pytest.raises(ConfigError, match=r"whitebox\.parameters\.bulk_modulu"):
             parse_config(broken, REFERENCE).check_against_fmu(archive)
+
+
+@pytest.mark.parametrize("name", ["hydraulic_actuator.toml", "positioner.toml"])
+def test_project_tables_are_derived_from_the_typed_fields(name):
+    """One source of truth: the stored tables round-trip, and a replaced setting is stored."""
+    config = load_config(ROOT / "bench_configs" / name)
+    assert parse_config(config.to_dict(), config.path) == config
+    changed = dataclasses.replace(config, gp=dataclasses.replace(config.gp, inducing=7))
+    assert changed.to_dict()["gp"]["inducing"] == 7
+    assert parse_config(changed.to_dict(), config.path).gp.inducing == 7

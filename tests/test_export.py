@@ -72,7 +72,6 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
         config = dataclasses.replace(
             config,
             gp=dataclasses.replace(config.gp, max_iter=30),
-            raw={**config.raw, "gp": {**config.raw["gp"], "max_iter": 30}},
         )
         training = synth_recording(5.0, seed=11)
         save_model(train_model(config, training), folder / "model")

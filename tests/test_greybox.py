@@ -15,6 +15,7 @@ from fmu_greybox.cli import main
 from fmu_greybox.data.recording import save_recording
 from fmu_greybox.errors import ModelFormatError
 from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.model.store import MANIFEST, load_model, save_model
 from fmu_greybox.project.config import parse_config
 from fmu_greybox.project.data import prepare, split_row
@@ -71,6 +72,21 @@ def test_teacher_forced_rows_are_aligned(model, data) -> None:
     else:
         assert row[names.index("RAM.r[k-1]")] == residual[j - 1]
         assert target == residual[j]
+
+
+def test_fit_keeps_its_settings_and_sets_all_fitted_state(data) -> None:
+    """fit re-chooses an 'auto' target on every call and does the free-run check itself."""
+    raw = tomllib.loads(REFERENCE.read_text())
+    raw["gp"].update(inducing=8, max_iter=3, target="auto")
+    chain = GreyBoxChain(parse_config(raw, REFERENCE))
+    rows = slice(0, 800)
+    for _ in range(2):
+        chain.fit(data.exo[rows], data.y_wb[rows], data.outputs[rows])
+        assert set(chain.selection_) == set(chain.stage_names)
+        assert {s.target_mode for s in chain.stages} <= {"residual", "increment"}
+        assert set(chain.free_run_check_) == set(chain.stage_names)
+        assert chain.active_.tolist() == [c["active"] for c in chain.free_run_check_.values()]
+    assert chain.target_mode == "auto" and chain.config.gp.target == "auto"
 
 
 def test_master_equals_array_free_run(model, data) -> None:

@@ -217,7 +217,7 @@ def write_entry(folder: Path, module: str, slave_module: str, slave_class: str) 
     Path
         ``folder / f"{module}.py"``.
     """
-    source = (Path(__file__).parent / "fmu_entry.py").read_text(encoding="utf-8")
+    source = (Path(__file__).parent / "runtime.py").read_text(encoding="utf-8")
     entry = folder / f"{module}.py"
     entry.write_text(
         f"{source}\n\n{slave_class} = load_slave({slave_module!r}, {slave_class!r})\n",

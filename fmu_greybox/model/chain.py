@@ -1,9 +1,10 @@
 """The autoregressive grey-box: stage correctors chained in the paper's order.
 
 :class:`GreyBoxChain` owns the stage layouts and their sparse-GP correctors. It is trained by
-teacher forcing (:meth:`GreyBoxChain.fit`) and run one communication step at a time
-(:meth:`GreyBoxChain.step`), the same code serving the co-simulation master, the array-based
-free run used for validation, and the exported FMU.
+teacher forcing (:meth:`GreyBoxChain.fit`) and run one communication step at a time by its compiled plan
+(:meth:`GreyBoxChain.plan`, :class:`~fmu_greybox.model.chain_step.ChainPlan`), the same step
+serving the co-simulation master, the array-based free run used for validation, and the
+exported FMU.
 """
 
 from __future__ import annotations
@@ -38,24 +39,38 @@ class GreyBoxChain:
         Stages, signals and GP settings.
     target_mode : str, optional
         Overrides ``config.gp.target``.
+    check_tail : float or None
+        Share of the training rows :meth:`fit` free-runs at its end to pass through the stages
+        whose corrector loses to their white-box there (``None``: keep every corrector).
 
     Attributes
     ----------
     stages : list of StageLayout
-        In autoregressive order.
+        In autoregressive order; derived from the settings, with the target mode each stage
+        was fitted with once :meth:`fit` has chosen it (``"auto"`` resolved).
     exo_names : list of str
         Signals forming the chain's exogenous vector (union of the stages' inputs).
     correctors_ : list of SparseGPR
         Fitted correctors, one per stage (after :meth:`fit` or loading).
     active_ : ndarray of bool, shape (Q,)
         Stages whose corrector is used; a stage found to free-run worse than its white-box on
-        the tail of its training data is passed through (see :meth:`check_free_run`).
+        the tail of its training data is passed through (see :meth:`fit`).
+    free_run_check_ : dict
+        Stage -> ``{"wb_rmse", "gb_rmse", "active"}`` of that check (empty without it).
+    selection_ : dict
+        Stage -> free-run RMSE of each candidate target and the one chosen, for stages whose
+        target is ``"auto"``.
     feature_bounds_ : list of ndarray, each shape (2, D_q)
         Per stage, the training range of each feature (widened by :data:`RANGE_MARGIN`);
         features are clipped to it when the chain steps, so a free run never extrapolates.
     """
 
-    def __init__(self, config: ProjectConfig, target_mode: str | None = None) -> None:
+    def __init__(
+        self,
+        config: ProjectConfig,
+        target_mode: str | None = None,
+        check_tail: float | None = SELECTION_TAIL,
+    ) -> None:
         mode = target_mode or config.gp.target
         if mode not in (*TARGET_MODES, AUTO):
             raise ConfigError(
@@ -63,20 +78,11 @@ class GreyBoxChain:
             )
         self.config = config
         self.target_mode = mode
+        self.check_tail = check_tail
         self.exo_names: list[str] = []
         for stage in config.stages:
             self.exo_names += [s for s in stage.inputs if s not in self.exo_names]
-        names = [s.name for s in config.stages]
-        self.stages = [
-            StageLayout(
-                config=s,
-                target_mode=s.target_mode or mode,
-                exo_index=np.array([self.exo_names.index(i) for i in s.inputs], dtype=int),
-                stage_index=q,
-                feed_index=np.array([names.index(f) for f in s.feeds_from], dtype=int),
-            )
-            for q, s in enumerate(config.stages)
-        ]
+        self.stages = self._layouts()
         self.layout = SourceLayout(
             n_exo=len(self.exo_names),
             n_stages=len(self.stages),
@@ -85,6 +91,22 @@ class GreyBoxChain:
         self.correctors_: list[SparseGPR | None] = []
         self.feature_bounds_: list[np.ndarray | None] = []
         self.active_ = np.ones(len(self.stages), dtype=bool)
+        self.free_run_check_: dict[str, dict[str, float]] = {}
+        self.selection_: dict[str, dict[str, float]] = {}
+
+    def _layouts(self) -> list[StageLayout]:
+        """The stage layouts as the settings give them (target ``"auto"`` not yet chosen)."""
+        names = [s.name for s in self.config.stages]
+        return [
+            StageLayout(
+                config=s,
+                target_mode=s.target_mode or self.target_mode,
+                exo_index=np.array([self.exo_names.index(i) for i in s.inputs], dtype=int),
+                stage_index=q,
+                feed_index=np.array([names.index(f) for f in s.feeds_from], dtype=int),
+            )
+            for q, s in enumerate(self.config.stages)
+        ]
 
     # ------------------------------------------------------------------ names
     @property
@@ -129,7 +151,11 @@ class GreyBoxChain:
         trained both as ``residual`` and ``increment`` on the leading rows, each free-run with
         the stages before it over the last :data:`SELECTION_TAIL` of the rows, and takes
         ``increment`` only where that free run's RMSE is lower by more than
-        :data:`SELECTION_MARGIN`; then it is trained on all rows.
+        :data:`SELECTION_MARGIN`; then it is trained on all rows. Last, unless ``check_tail``
+        is ``None``, the chain is free-run over that share of the rows and every stage that
+        does not beat its white-box there is passed through (:attr:`active_`), so the grey-box
+        is never knowingly worse than the model it corrects. The settings given to the
+        constructor are not changed: a refit chooses ``"auto"`` targets again.
 
         Parameters
         ----------
@@ -148,15 +174,19 @@ class GreyBoxChain:
         GreyBoxChain
             ``self``, with :attr:`correctors_` set.
         """
+        self.stages = self._layouts()
         q_count = len(self.stages)
         self.correctors_ = [None] * q_count
         self.feature_bounds_ = [None] * q_count
-        self.active_[:] = True
-        self.selection_: dict[str, dict[str, float]] = {}
+        self.active_ = np.ones(q_count, dtype=bool)
+        self.selection_ = {}
+        self.free_run_check_ = {}
         for q, stage in enumerate(self.stages):
             if stage.target_mode == AUTO:
                 stage.target_mode = self._choose_target(q, exo, y_wb, outputs, progress)
             self._fit_stage(q, exo, y_wb, outputs, progress, stage.name)
+        if self.check_tail is not None:
+            self.free_run_check_ = self._check_free_run(exo, y_wb, outputs, self.check_tail)
         return self
 
     def _fit_stage(
@@ -271,15 +301,14 @@ class GreyBoxChain:
         """
         return ChainPlan(self)
 
-    def check_free_run(
-        self, exo: np.ndarray, y_wb: np.ndarray, outputs: np.ndarray, tail: float = 0.2
+    def _check_free_run(
+        self, exo: np.ndarray, y_wb: np.ndarray, outputs: np.ndarray, tail: float
     ) -> dict[str, dict[str, float]]:
         """Free-run the last ``tail`` of the training rows; pass through stages that lose.
 
         A corrector trained by teacher forcing can still drift when it is fed its own
         predictions. Each stage is compared with its white-box on the free run; a stage whose
-        RMSE is not below the white-box's is deactivated (its output is the white-box's), so
-        the grey-box is never knowingly worse than the model it corrects.
+        RMSE is not below the white-box's is deactivated (its output is the white-box's).
 
         Parameters
         ----------

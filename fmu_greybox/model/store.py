@@ -192,7 +192,7 @@ def save_model(model: GreyBoxModel, out_dir: str | Path) -> Path:
             "format_version": FORMAT_VERSION,
             "tool": f"fmu-greybox {__version__}",
             "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-            "project": model.config.raw,
+            "project": model.config.to_dict(),
             "target_mode": model.chain.target_mode,
             "dt": model.dt,
             "stages": stages,

@@ -13,7 +13,7 @@ import math
 import sys
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -177,8 +177,10 @@ class ProjectConfig:
         Corrector settings.
     train_fraction : float
         Leading share of a recording used for training; the rest is held out.
-    raw : mapping
-        The parsed TOML as read (stored in model directories to rebuild the project).
+
+    The typed fields are the only source of truth: :meth:`to_dict` derives the TOML tables from
+    them (stored in model folders, read back with :func:`parse_config`), and a changed project
+    is made with :func:`dataclasses.replace`.
     """
 
     path: Path | None
@@ -194,7 +196,33 @@ class ProjectConfig:
     stages: tuple[StageConfig, ...]
     gp: GPConfig = field(default_factory=GPConfig)
     train_fraction: float = 0.95
-    raw: Mapping[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The project as TOML tables, such that ``parse_config(c.to_dict(), c.path) == c``.
+
+        Returns
+        -------
+        dict
+            ``name``, ``whitebox``, ``recording``, ``signals``, ``stages``, ``gp`` and ``split``
+            tables (unset optional values left out, as TOML has no null).
+        """
+        whitebox = {"fmu": self.fmu, "step": self.step}
+        whitebox |= {"parameters": dict(self.parameters), "fixed_inputs": dict(self.fixed_inputs)}
+        recording = {
+            "path": str(self.recording) if self.recording is not None else None,
+            "time_column": self.time_column,
+            "resample": self.resample,
+        }
+        return {
+            "format_version": FORMAT_VERSION,
+            "name": self.name,
+            "whitebox": _without_none(whitebox),
+            "recording": _without_none(recording),
+            "signals": {n: _fields(s, skip=("name",)) for n, s in self.signals.items()},
+            "stages": [_fields(s) for s in self.stages],
+            "gp": _fields(self.gp),
+            "split": {"train_fraction": self.train_fraction},
+        }
 
     def stage(self, name: str) -> StageConfig:
         """The stage called ``name``."""
@@ -345,7 +373,6 @@ def parse_config(raw: Mapping[str, Any], path: Path | None = None) -> ProjectCon
         stages=stages,
         gp=_gp(reader, reader.table(raw, "gp")),
         train_fraction=train_fraction,
-        raw=raw,
     )
     if rec_path is not None:
         object.__setattr__(config, "recording", config.resolve_path(rec_path))
@@ -581,6 +608,16 @@ def _gp(reader: _Reader, table: Mapping[str, Any]) -> GPConfig:
     if gp.feeds not in FEED_SOURCES:
         reader.fail("gp.feeds", f"{gp.feeds!r} is not one of {', '.join(FEED_SOURCES)}")
     return gp
+
+
+def _without_none(table: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in table.items() if v is not None}
+
+
+def _fields(item: Any, skip: tuple[str, ...] = ()) -> dict[str, Any]:
+    """A frozen settings dataclass as a TOML table (tuples as lists, ``None`` left out)."""
+    table = {f.name: getattr(item, f.name) for f in fields(item) if f.name not in skip}
+    return _without_none({k: list(v) if isinstance(v, tuple) else v for k, v in table.items()})
 
 
 def _did_you_mean(name: str, choices: Any) -> str:

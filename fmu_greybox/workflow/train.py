@@ -23,9 +23,7 @@ def with_inducing(config: ProjectConfig, inducing: int | None) -> ProjectConfig:
     """The project with another number of inducing points (``None`` keeps it)."""
     if inducing is None:
         return config
-    gp = dataclasses.replace(config.gp, inducing=inducing)
-    raw = {**config.raw, "gp": {**config.raw.get("gp", {}), "inducing": inducing}}
-    return dataclasses.replace(config, gp=gp, raw=raw)
+    return dataclasses.replace(config, gp=dataclasses.replace(config.gp, inducing=inducing))
 
 
 def train_model(
@@ -83,7 +81,6 @@ def train_model(
     chain.fit(data.exo[rows], data.y_wb[rows], data.outputs[rows], progress=report)
     for bar in bars.values():
         bar.close()
-    free_run_check = chain.check_free_run(data.exo[rows], data.y_wb[rows], data.outputs[rows])
     training = {
         "recording_sha256": recording.sha256(),
         "recording_source": str(recording.source),
@@ -97,7 +94,7 @@ def train_model(
         "bounds": {
             s.name: float(c.bound_) for s, c in zip(chain.stages, chain.correctors_, strict=True)
         },
-        "free_run_check": free_run_check,
+        "free_run_check": chain.free_run_check_,
         "target_selection": chain.selection_,
         "whitebox_source": str(fmu_path),
         "whitebox_sha256": file_sha256(fmu_path),
