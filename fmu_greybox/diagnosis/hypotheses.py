@@ -91,7 +91,7 @@ class Hypothesis(ABC):
     lower: tuple[float, ...] = field(default=(-math.inf,), kw_only=True)
     upper: tuple[float, ...] = field(default=(math.inf,), kw_only=True)
 
-    #: Vocabulary identifier (DESIGN.md section 5).
+    #: Vocabulary identifier (docs/diagnosis.md).
     effect = ""
     #: Names of the magnitudes.
     names: ClassVar[tuple[str, ...]] = ("value",)

@@ -1,10 +1,10 @@
 """The autoregressive grey-box: stage correctors chained in the paper's order.
 
 :class:`GreyBoxChain` owns the stage layouts and their sparse-GP correctors. It is trained by
-teacher forcing (:meth:`GreyBoxChain.fit`) and run one communication step at a time by its compiled plan
-(:meth:`GreyBoxChain.plan`, :class:`~fmu_greybox.model.chain_step.ChainPlan`), the same step
-serving the co-simulation master, the array-based free run used for validation, and the
-exported FMU.
+teacher forcing (:meth:`GreyBoxChain.fit`) and run one communication step at a time by its
+compiled plan (:meth:`GreyBoxChain.plan`, :class:`~fmu_greybox.model.chain_step.ChainPlan`),
+the same step serving the co-simulation master, the array-based free run used for validation,
+and the exported FMU.
 """
 
 from __future__ import annotations

@@ -27,16 +27,25 @@ largest kernel correlation between the features and an inducing point.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
 from fmu_greybox import _chainstep
+from fmu_greybox.gp import SparseGPR
 from fmu_greybox.gp.linalg import aligned_zeros
-from fmu_greybox.model.stage import SourceLayout
+from fmu_greybox.model.stage import SourceLayout, StageLayout
 
-if TYPE_CHECKING:
-    from fmu_greybox.model.chain import GreyBoxChain
+
+class FittedChain(Protocol):
+    """What a plan reads of a fitted chain (:class:`~fmu_greybox.model.chain.GreyBoxChain`
+    has it; this module does not import the chain, which imports it)."""
+
+    layout: SourceLayout
+    stages: list[StageLayout]
+    active_: np.ndarray
+    correctors_: list[SparseGPR | None]
+    feature_bounds_: list[np.ndarray | None]
 
 #: Target mode codes of the compiled step (``MODE_*`` in chainstep.c).
 MODE_CODES = {"residual": 0, "increment": 1, "output": 2}
@@ -130,11 +139,12 @@ class ChainPlan:
 
     Parameters
     ----------
-    chain : GreyBoxChain
-        Fitted (or loaded): every stage has a corrector and a feature range.
+    chain : FittedChain
+        A :class:`~fmu_greybox.model.chain.GreyBoxChain`, fitted (or loaded): every stage has
+        a corrector and a feature range.
     """
 
-    def __init__(self, chain: GreyBoxChain) -> None:
+    def __init__(self, chain: FittedChain) -> None:
         layout = chain.layout
         n_stages = layout.n_stages
         records, blocks, offset = [], [], 0

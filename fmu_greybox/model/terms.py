@@ -87,7 +87,7 @@ class Term:
 
     entry: int = field(default=0, kw_only=True)
 
-    #: Vocabulary identifier of the effect the term models (DESIGN.md section 5).
+    #: Vocabulary identifier of the effect the term models (docs/diagnosis.md).
     effect = ""
     #: Whether :meth:`on_input` / :meth:`on_output` do anything (the runner skips the others).
     acts_on_inputs = False

@@ -32,7 +32,7 @@ from fmu_greybox.model.terms import Term, term_from_dict
 DEFAULT_SUBSTEPS = 4
 #: Largest number of runs :func:`simulate_with_terms` keeps in a cache.
 CACHE_SIZE = 8
-#: Effects that are verdicts, not terms (DESIGN.md section 5).
+#: Effects that are verdicts, not terms (docs/diagnosis.md).
 VERDICTS = ("none", "unexplained")
 
 

@@ -321,4 +321,5 @@ def _record(
 def _training_config(config: ProjectConfig, settings: DemoSettings) -> ProjectConfig:
     """The project with the demo's inducing points and iteration cap."""
     config = with_inducing(config, settings.inducing)
-    return dataclasses.replace(config, gp=dataclasses.replace(config.gp, max_iter=settings.max_iter))
+    gp = dataclasses.replace(config.gp, max_iter=settings.max_iter)
+    return dataclasses.replace(config, gp=gp)
