@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from fmu_greybox.diagnosis import Diagnosis
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import reference_fmus
-from fmu_greybox.fmi.simulate import simulate_recording
+from fmu_greybox.model.simulate import simulate_recording
 from fmu_greybox.project.config import load_config
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, parse_effects, synthesise
 

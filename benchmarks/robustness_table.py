@@ -44,7 +44,7 @@ from fmu_greybox.errors import FmuGreyboxError  # noqa: E402
 from fmu_greybox.fmi.archive import open_fmu  # noqa: E402
 from fmu_greybox.fmi.builtin import reference_fmus  # noqa: E402
 from fmu_greybox.fmi.instance import FmuInstance  # noqa: E402
-from fmu_greybox.fmi.simulate import simulate_recording  # noqa: E402
+from fmu_greybox.model.simulate import simulate_recording  # noqa: E402
 from fmu_greybox.model.store import (  # noqa: E402
     MANIFEST,
     MANIFEST_HASH,

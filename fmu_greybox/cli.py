@@ -250,7 +250,7 @@ def simulate(
     """
     from fmu_greybox.data.recording import load_recording, save_recording
     from fmu_greybox.fmi.builtin import resolve_fmu
-    from fmu_greybox.fmi.simulate import simulate_recording
+    from fmu_greybox.model.simulate import simulate_recording
 
     options = {
         "mapping": _pairs(mapping, "--map", numeric=False),

@@ -31,7 +31,7 @@ from fmu_greybox.export.fmu import export_greybox
 from fmu_greybox.export.runtime import LOGGER, runtime_message
 from fmu_greybox.export.slave import MODEL_FOLDER, check_python
 from fmu_greybox.fmi.archive import open_fmu
-from fmu_greybox.fmi.simulate import simulate_recording
+from fmu_greybox.model.simulate import simulate_recording
 from fmu_greybox.model.store import MANIFEST, GreyBoxModel, file_sha256, load_model, save_model
 from fmu_greybox.project.config import load_config
 from fmu_greybox.project.data import prepare

@@ -29,9 +29,10 @@ from fmu_greybox.data.recording import save_recording
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.export.fmu import export_greybox
 from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.model.simulate import simulate_with_terms
 from fmu_greybox.model.store import load_model, save_model
 from fmu_greybox.model.terms import CoulombForce, InputDelay, InputGain, SensorDelay
-from fmu_greybox.model.whitebox import NamedModel, check_terms, read_terms, simulate_with_terms
+from fmu_greybox.model.whitebox import NamedModel, check_terms, read_terms
 from fmu_greybox.project.config import load_config
 from fmu_greybox.workflow.train import train_model, with_inducing
 

@@ -17,7 +17,7 @@ from fmu_greybox.errors import ConfigError, FmuArchiveError
 from fmu_greybox.fmi import builtin
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.build import SOURCES_DIR, build_model_pair, load_variable_table
-from fmu_greybox.fmi.simulate import simulate_recording
+from fmu_greybox.model.simulate import simulate_recording
 from fmu_greybox.project.config import load_config
 from fmu_greybox.synth.positioner import synthesise_positioner
 

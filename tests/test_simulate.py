@@ -9,8 +9,8 @@ import pytest
 
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError, FmuError, RecordingError, UnitMismatchError
-from fmu_greybox.fmi.archive import open_fmu
-from fmu_greybox.fmi.simulate import real_outputs, simulate_recording
+from fmu_greybox.fmi.archive import open_fmu, real_outputs
+from fmu_greybox.model.simulate import simulate_recording
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 
 

@@ -12,8 +12,8 @@ import pytest
 
 from fmu_greybox.data.recording import Recording, load_recording, save_recording
 from fmu_greybox.errors import ConfigError
-from fmu_greybox.fmi.archive import FmuArchive, open_fmu
-from fmu_greybox.fmi.simulate import real_outputs, simulate_recording
+from fmu_greybox.fmi.archive import FmuArchive, open_fmu, real_outputs
+from fmu_greybox.model.simulate import simulate_recording
 from fmu_greybox.synth.actuator import (
     SENSOR_NOISE,
     FlightTestProfile,

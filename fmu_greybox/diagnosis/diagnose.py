@@ -39,11 +39,10 @@ from fmu_greybox.diagnosis.runner import Experiment, Simulator
 from fmu_greybox.diagnosis.select import ForwardSelection
 from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.errors import ConfigError
-from fmu_greybox.fmi.archive import FmuArchive, open_fmu
-from fmu_greybox.fmi.simulate import real_outputs
+from fmu_greybox.fmi.archive import FmuArchive, open_fmu, real_outputs
 from fmu_greybox.model.chain import GreyBoxChain
+from fmu_greybox.model.simulate import simulate_with_terms
 from fmu_greybox.model.terms import ViscousForce
-from fmu_greybox.model.whitebox import simulate_with_terms
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import check_step, whitebox_path
 from fmu_greybox.workflow.metrics import improvement, rmse

@@ -23,8 +23,8 @@ from fmu_greybox.diagnosis.signals import SignalMap, noise_level
 from fmu_greybox.errors import FmuError
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.fmi.binding import bind_inputs
+from fmu_greybox.model.simulate import simulate_with_terms
 from fmu_greybox.model.terms import Term
-from fmu_greybox.model.whitebox import simulate_with_terms
 from fmu_greybox.project.config import ProjectConfig
 
 

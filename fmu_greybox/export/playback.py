@@ -6,7 +6,7 @@ on an
 SSP bench from a recording. Its resources hold ``recording.csv`` (time and signals, 17
 significant digits) and ``fmu_runtime.json`` (names, units, the CSV's SHA-256).
 
-Timing follows :mod:`fmu_greybox.fmi.simulate`: row ``k`` holds the input that acts over
+Timing follows :mod:`fmu_greybox.model.simulate`: row ``k`` holds the input that acts over
 ``[t_k, t_k+1)``, so the outputs at time ``t`` are those of the last row with ``t_k <= t``
 (sample and hold; the first row before the recording, the last one after it). After
 ``fmi2DoStep(t, h)`` the outputs are those at ``t + h``, which a master passes on to the inputs

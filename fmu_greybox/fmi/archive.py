@@ -157,6 +157,13 @@ class FmuArchive:
         self.close()
 
 
+def real_outputs(archive: FmuArchive) -> list[str]:
+    """Names of the FMU's Real outputs, in declaration order."""
+    return [
+        v.name for v in archive.variables.values() if v.causality == "output" and v.type == "Real"
+    ]
+
+
 def open_fmu(path: str | Path) -> FmuArchive:
     """Check, extract and describe an FMI 2.0 co-simulation FMU.
 

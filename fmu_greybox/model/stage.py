@@ -1,6 +1,6 @@
 """One stage of the autoregressive grey-box: its features and its training dataset.
 
-Timing (see :mod:`fmu_greybox.fmi.simulate`): the prediction of the stage output at row ``j`` uses
+Timing (see :mod:`fmu_greybox.model.simulate`): the prediction of the stage output at row ``j`` uses
 
 * the exogenous inputs of row ``j - 1`` (the inputs that acted over the last step),
 * the white-box prediction of the stage's output at row ``j``,

@@ -5,9 +5,10 @@ stage of the terms one FMU instance, stepped with the terms that act from that s
 :mod:`fmu_greybox.model.terms`), each observed output read from the instance of its stage. Without
 terms it is the plain white-box, one instance, at the cost of one function call more.
 
-The diagnosis simulates hypotheses with it (:func:`simulate_with_terms`), training computes the
-correctors' white-box predictions with it, and the co-simulation master and the exported FMU step
-it, so a model trained on white-box + named terms runs on the same numbers everywhere.
+The diagnosis simulates hypotheses with it
+(:func:`~fmu_greybox.model.simulate.simulate_with_terms`), training computes the correctors'
+white-box predictions with it, and the co-simulation master and the exported FMU step it, so a
+model trained on white-box + named terms runs on the same numbers everywhere.
 """
 
 from __future__ import annotations
@@ -21,7 +22,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.fmi.archive import FmuArchive
@@ -30,8 +30,6 @@ from fmu_greybox.model.terms import Term, term_from_dict
 
 #: FMU steps per communication step while a feedback term is active.
 DEFAULT_SUBSTEPS = 4
-#: Largest number of runs :func:`simulate_with_terms` keeps in a cache.
-CACHE_SIZE = 8
 #: Effects that are verdicts, not terms (docs/diagnosis.md).
 VERDICTS = ("none", "unexplained")
 
@@ -138,9 +136,10 @@ class _Part:
 class NamedModel:
     """The white-box FMU with named correction terms, one communication step at a time.
 
-    Timing as :func:`fmu_greybox.fmi.simulate.run_open_loop`: :meth:`outputs` after construction is
-    row 0; :meth:`step` applies the (corrected) inputs of row ``k`` and returns row ``k + 1``. A
-    feedback term computes its correction from the outputs at the start of each sub-step.
+    Timing as :func:`fmu_greybox.model.simulate.run_open_loop`: :meth:`outputs` after
+    construction is row 0; :meth:`step` applies the (corrected) inputs of row ``k`` and returns
+    row ``k + 1``. A feedback term computes its correction from the outputs at the start of each
+    sub-step.
 
     Parameters
     ----------
@@ -265,78 +264,6 @@ class NamedModel:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def simulate_with_terms(
-    archive: FmuArchive,
-    inputs: Sequence[str],
-    u: np.ndarray,
-    dt: float,
-    outputs: Sequence[str],
-    terms: Sequence[Term] = (),
-    parameters: Mapping[str, float] | None = None,
-    stages: Sequence[int] | None = None,
-    start_time: float = 0.0,
-    substeps: int = DEFAULT_SUBSTEPS,
-    cache: dict | None = None,
-    progress: bool = False,
-) -> np.ndarray:
-    """Run the white-box open-loop over recorded inputs with correction terms applied.
-
-    Parameters
-    ----------
-    archive, inputs, dt, outputs, terms, parameters, stages, start_time, substeps
-        As :class:`NamedModel`.
-    u : ndarray, shape (n, len(inputs))
-        Recorded inputs.
-    cache : dict, optional
-        Results of earlier runs by (terms, outputs, rows, stages): a run whose active terms,
-        outputs and length match one in it is not repeated (the stages before a late-entering
-        term usually match the plain run). Bounded to :data:`CACHE_SIZE` entries.
-    progress : bool
-        Show a progress bar.
-
-    Returns
-    -------
-    ndarray, shape (n, len(outputs))
-        Row 0 the initial outputs, row ``k + 1`` those after applying ``u[k]``.
-
-    Raises
-    ------
-    FmuError
-        If the FMU fails (e.g. a correction drives it out of its valid range).
-    """
-    stages = list(stages) if stages is not None else [0] * len(outputs)
-    levels = sorted({0, *(t.entry for t in terms)})
-    y = np.empty((u.shape[0], len(outputs)))
-    for i, level in enumerate(levels):
-        upper = levels[i + 1] if i + 1 < len(levels) else math.inf
-        columns = [j for j, s in enumerate(stages) if level <= s < upper]
-        if not columns:
-            continue
-        active = [t for t in terms if t.entry <= level]
-        names = [outputs[j] for j in columns]
-        key = (repr([t.to_dict() for t in active]), tuple(names), u.shape[0])
-        if cache is not None and key in cache:
-            y[:, columns] = cache[key]
-            continue
-        start = dict(zip(inputs, u[0], strict=True))
-        with NamedModel(
-            archive, inputs, names, dt, active, [level] * len(names), parameters, start,
-            start_time, substeps,
-        ) as model:
-            y[0, columns] = model.outputs()
-            rows = tqdm(
-                range(u.shape[0] - 1), disable=not progress, desc="simulate", unit="step",
-                leave=False,
-            )
-            for k in rows:
-                y[k + 1, columns] = model.step(u[k])
-        if cache is not None:
-            while len(cache) >= CACHE_SIZE:
-                cache.pop(next(iter(cache)))
-            cache[key] = y[:, columns].copy()
-    return y
 
 
 def terms_from_findings(findings: Sequence[Mapping[str, Any]]) -> list[Term]:

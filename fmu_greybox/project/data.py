@@ -19,8 +19,9 @@ from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.fmi.binding import InputBinding, bind_inputs, check_unit
 from fmu_greybox.fmi.builtin import resolve_fmu
 from fmu_greybox.model.chain import GreyBoxChain
+from fmu_greybox.model.simulate import simulate_with_terms
 from fmu_greybox.model.terms import Term
-from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS, simulate_with_terms
+from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS
 from fmu_greybox.project.config import ProjectConfig
 
 

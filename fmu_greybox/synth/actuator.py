@@ -22,9 +22,8 @@ from tqdm import tqdm
 
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError
-from fmu_greybox.fmi.archive import FmuArchive, FmuVariable
+from fmu_greybox.fmi.archive import FmuArchive, FmuVariable, real_outputs
 from fmu_greybox.fmi.instance import FmuInstance
-from fmu_greybox.fmi.simulate import real_outputs
 
 #: Standard deviation of each sensor's white noise at ``noise = 1`` [SI units of the signal].
 SENSOR_NOISE: dict[str, float] = {

@@ -22,9 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from fmu_greybox.data.recording import Recording
-from fmu_greybox.fmi.archive import FmuArchive
+from fmu_greybox.fmi.archive import FmuArchive, real_outputs
 from fmu_greybox.fmi.instance import FmuInstance
-from fmu_greybox.fmi.simulate import real_outputs
 from fmu_greybox.synth.actuator import check_effects, coloured_noise, pilot_reference
 
 INPUTS = ("motor_voltage", "load_force")

@@ -4,10 +4,13 @@ Each communication step does what a bench does: set the FMU's inputs, ``fmi2DoSt
 white-box outputs (with the model's named terms, if any: :meth:`GreyBoxModel.whitebox`), then
 run the stage correctors in autoregressive order, each fed its own and the earlier stages'
 corrected outputs (free run). The FMU advances by the model's communication step, as the
-exported FMU does. Rows up to ``start`` only advance the FMU and provide the chain's initial
-memory: from the recording by default, or from the white-box outputs
-(``memory_from="whitebox"``), which is what an exported grey-box FMU does since it has no
-recording.
+exported FMU does. The white-box does not see the corrected outputs, so the master steps it
+through the white-box's one loop (:func:`~fmu_greybox.model.simulate.run_open_loop`) and then
+the chain through its own (:meth:`~fmu_greybox.model.chain.GreyBoxChain.free_run`): the numbers
+are those of stepping both together, row by row. Rows up to ``start`` only advance the FMU and
+provide the chain's initial memory: from the recording by default, or from the white-box
+outputs (``memory_from="whitebox"``), which is what an exported grey-box FMU does since it has
+no recording.
 """
 
 from __future__ import annotations
@@ -15,9 +18,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from tqdm import tqdm
 
 from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.model.simulate import run_open_loop
 from fmu_greybox.model.store import GreyBoxModel
 from fmu_greybox.project.data import ProjectData
 
@@ -82,11 +85,6 @@ def run_master(
     chain = model.chain
     u = data.binding.matrix(data.recording)
     n = u.shape[0]
-    history = chain.history
-    m = n - start - 1
-    wb = np.empty((n, len(chain.stages)))
-    mean = np.empty((m, len(chain.stages)))
-    var = np.empty_like(mean)
     with (
         open_fmu(model.whitebox_fmu) as archive,
         model.whitebox(
@@ -98,22 +96,9 @@ def run_master(
             instance_name="greybox_master",
         ) as fmu,
     ):
-        wb[0] = fmu.outputs()
-        plan = chain.plan()
-        exo = np.ascontiguousarray(data.exo, dtype=np.float64)
-        state = None
-        for j in tqdm(range(1, n), disable=not progress, desc="free run", unit="step", leave=False):
-            wb[j] = fmu.step(u[j - 1])
-            if j == start + 1:
-                first = max(0, start - history + 1)
-                known = data.outputs if memory_from == "recorded" else wb
-                rows = slice(first, start + 1)
-                state = chain.start(known[rows], wb[rows], exo[rows])
-            if state is not None:
-                plan.step(state, exo[j - 1], wb[j])
-                mean[j - start - 1] = state.out_mean
-                var[j - start - 1] = state.out_var
+        wb = run_open_loop(fmu, u, progress)
+    known = data.outputs if memory_from == "recorded" else wb
+    mean, std = chain.free_run(data.exo, wb, known, start)
     rows = np.arange(start + 1, n)
-    return MasterRun(
-        rows=rows, time=data.recording.time[rows], whitebox=wb[rows], mean=mean, std=np.sqrt(var)
-    )
+    time = data.recording.time[rows]
+    return MasterRun(rows=rows, time=time, whitebox=wb[rows], mean=mean, std=std)

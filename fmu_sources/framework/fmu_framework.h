@@ -7,7 +7,7 @@
  * fmi2DoStep. It knows nothing about any particular model.
  *
  * A model is one folder holding
- *   variables.toml  the variable table; the builder (fmu_greybox.fmu_build) generates from it
+ *   variables.toml  the variable table; the builder (fmu_greybox.fmi.build) generates from it
  *                   fmu_variables.h / fmu_variables.c (value references, storage indices,
  *                   start values) and modelDescription.xml;
  *   config.h        N_STATES and, optionally, MODEL_HAS_MEMORY with a ModelMemory struct
