@@ -8,15 +8,24 @@ import pytest
 from fmu_greybox.fmi.instance import FmuInstance
 from fmu_greybox.model.simulate import simulate_with_terms
 from fmu_greybox.model.terms import (
+    TERM_KINDS,
     CoulombForce,
     DelayLine,
     FlowDroop,
+    ForceOffset,
     InputDeadband,
     InputDelay,
     InputGain,
+    InputHysteresis,
+    InputLag,
     InputOffset,
+    InputSaturation,
     ParameterChange,
+    SensorChannelDelay,
     SensorDelay,
+    SensorGain,
+    SensorOffset,
+    SpringForce,
     StribeckForce,
     ViscousForce,
     term_from_dict,
@@ -139,10 +148,119 @@ def test_cache_returns_the_same_run(archive, inputs) -> None:
         StribeckForce(input="f", source="v", force=900.0, velocity=0.01, smoothing=1e-3),
         FlowDroop(input="p", source="q", resistance=1e10),
         SensorDelay(outputs=("a", "b"), delay=0.003),
+        ForceOffset(input="f", offset=120.0),
+        InputSaturation(input="u", lower=-4.0, upper=5.0),
+        InputHysteresis(input="u", width=0.2),
+        InputLag(input="u", tau=0.004),
+        CoulombForce(input="f", source="x", force=-500.0, asymmetry=100.0, rate=True),
+        SpringForce(input="f", source="x", coefficient=-2e5, rest=0.01),
+        SensorGain(output="a", gain=0.03),
+        SensorOffset(output="a", offset=1e-4),
+        SensorChannelDelay(output="b", delay=0.002),
     ],
 )
 def test_terms_round_trip_through_plain_data(term) -> None:
     assert term_from_dict(term.to_dict()) == term
+
+
+def test_every_term_kind_has_a_round_trip_case() -> None:
+    """A new kind must be added to the round-trip cases above (and to the native FMU)."""
+    cases = test_terms_round_trip_through_plain_data.pytestmark[0].args[1]
+    assert {type(t).__name__ for t in cases} == set(TERM_KINDS)
+
+
+def test_saturation_and_force_offset_equal_modified_recordings(archive, inputs) -> None:
+    changed = inputs.copy()
+    changed[:, 0] = np.clip(inputs[:, 0], -1.0, 1.5)
+    changed[:, 2] += 800.0
+    terms = [
+        InputSaturation(input="valve_current", lower=-1.0, upper=1.5),
+        ForceOffset(input="load_force", offset=800.0),
+    ]
+    y = simulate_with_terms(archive, INPUTS, inputs, DT, OUTPUTS, terms)
+    np.testing.assert_allclose(y, plain(archive, changed), rtol=0, atol=1e-12)
+
+
+def play(x: np.ndarray, width: float) -> np.ndarray:
+    """The play operator written out: the acting value follows within +/- width / 2."""
+    out = np.empty_like(x)
+    acting = x[0]
+    for k, v in enumerate(x):
+        if v - acting > width / 2:
+            acting = v - width / 2
+        elif acting - v > width / 2:
+            acting = v + width / 2
+        out[k] = acting
+    return out
+
+
+def test_hysteresis_and_lag_equal_modified_recordings(archive, inputs) -> None:
+    hysteretic = inputs.copy()
+    hysteretic[:, 0] = play(inputs[:, 0], 0.6)
+    y = simulate_with_terms(
+        archive, INPUTS, inputs, DT, OUTPUTS, [InputHysteresis(input="valve_current", width=0.6)]
+    )
+    np.testing.assert_allclose(y, plain(archive, hysteretic), rtol=0, atol=1e-12)
+
+    tau = 0.005
+    lagged = inputs.copy()
+    alpha = 1.0 - np.exp(-DT / tau)
+    for k in range(1, len(lagged)):
+        lagged[k, 0] = lagged[k - 1, 0] + alpha * (inputs[k, 0] - lagged[k - 1, 0])
+    y = simulate_with_terms(
+        archive, INPUTS, inputs, DT, OUTPUTS, [InputLag(input="valve_current", tau=tau)]
+    )
+    np.testing.assert_allclose(y, plain(archive, lagged), rtol=0, atol=1e-12)
+
+
+def test_sensor_channel_faults_change_one_output_only(archive, inputs) -> None:
+    base = plain(archive, inputs)
+    terms = [
+        SensorGain(output="ram_position", gain=0.04),
+        SensorOffset(output="itfv_pressure", offset=2e4),
+        SensorChannelDelay(output="spool_position", delay=3 * DT),
+    ]
+    y = simulate_with_terms(archive, INPUTS, inputs, DT, OUTPUTS, terms)
+    np.testing.assert_allclose(y[:, 1], 1.04 * base[:, 1], rtol=1e-14, atol=0)
+    np.testing.assert_allclose(y[:, 2], base[:, 2] + 2e4, rtol=1e-14, atol=0)
+    np.testing.assert_allclose(y[3:, 0], base[:-3, 0], rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(y[:, 3], base[:, 3])
+
+
+def test_sensor_faults_do_not_reach_the_physics(archive, inputs) -> None:
+    """A feedback term reads the FMU's own output, not what a faulty sensor reports."""
+    friction = CoulombForce(input="load_force", source="ram_velocity", force=2000.0)
+    faulty = SensorGain(output="ram_velocity", gain=0.5)
+    alone = simulate_with_terms(archive, INPUTS, inputs, DT, OUTPUTS, [friction])
+    both = simulate_with_terms(archive, INPUTS, inputs, DT, OUTPUTS, [friction, faulty])
+    np.testing.assert_array_equal(both[:, :3], alone[:, :3])
+    np.testing.assert_allclose(both[:, 3], 1.5 * alone[:, 3], rtol=1e-14)
+
+
+def test_rate_of_a_position_stands_in_for_a_velocity(archive, inputs) -> None:
+    """Viscous damping from the rate of the ram position matches damping from its velocity."""
+    by_velocity = ViscousForce(input="load_force", source="ram_velocity", coefficient=1e5)
+    by_rate = ViscousForce(input="load_force", source="ram_position", coefficient=1e5, rate=True)
+    base = plain(archive, inputs)
+    ref = simulate_with_terms(archive, INPUTS, inputs, DT, OUTPUTS, [by_velocity])
+    y = simulate_with_terms(archive, INPUTS, inputs, DT, OUTPUTS, [by_rate])
+    effect = np.max(np.abs(ref[:, 1] - base[:, 1]))
+    assert effect > 1e-4
+    assert np.max(np.abs(y[:, 1] - ref[:, 1])) < 0.01 * effect
+
+
+def test_spring_pulls_towards_rest(archive, inputs) -> None:
+    """A stiff spring on the ram holds it nearer its rest position than the plain model."""
+    base = plain(archive, inputs)
+    spring = SpringForce(input="load_force", source="ram_position", coefficient=2e6)
+    y = simulate_with_terms(archive, INPUTS, inputs, DT, OUTPUTS, [spring])
+    assert np.std(y[:, 1]) < 0.8 * np.std(base[:, 1])
+
+
+def test_asymmetric_coulomb_differs_by_direction() -> None:
+    term = CoulombForce(input="f", source="v", force=500.0, asymmetry=100.0, smoothing=1e-3)
+    assert term.value(1.0) == pytest.approx(600.0)
+    assert term.value(-1.0) == pytest.approx(-400.0)
 
 
 def test_unknown_term_kind_is_refused() -> None:

@@ -5,13 +5,18 @@ master would apply it (:class:`fmu_greybox.model.whitebox.NamedModel` steps a wh
 terms):
 
 * at an FMU **input**, from the recorded input (:meth:`Term.on_input`): a gain, an offset, a
-  deadband or a delay of a command, applied once per communication step; or fed back from the
-  FMU outputs (``feedback`` terms): a missing force from a velocity, a supply pressure drooping
-  with a flow. Feedback terms are explicit couplings, so the runner splits each communication
-  step into ``substeps`` FMU steps (the recorded input held) and recomputes them at each: a stiff
-  feedback such as a Coulomb force around zero velocity then neither chatters nor lags;
+  deadband, a saturation, a play (hysteresis), a first-order lag or a delay of a command, a
+  constant force on a force input, applied once per communication step; or fed back from the
+  FMU outputs (``feedback`` terms): a missing force from a velocity (or from the rate of a
+  position, where the FMU has no velocity output) or from a position (a spring), a supply
+  pressure drooping with a flow. Feedback terms are explicit couplings, so the runner splits
+  each communication step into ``substeps`` FMU steps (the recorded input held) and recomputes
+  them at each: a stiff feedback such as a Coulomb force around zero velocity then neither
+  chatters nor lags;
 * as FMU **parameter** values set before initialisation (:meth:`Term.parameters`);
-* at the FMU **outputs** the sensors see (:meth:`Term.on_output`): a sensor delay.
+* at the FMU **outputs** the sensors see (:meth:`Term.on_output`): a delay of every sensor, or
+  one sensor channel delayed, scaled or biased. What the sensors report is what the stages see;
+  feedback terms read the FMU's own outputs, untouched by sensor faults.
 
 A term acts on the stages from its ``entry`` stage on: stages before it keep the plain white-box
 outputs. A term entering after the first stage models physics between two stages (e.g. a dead
@@ -20,7 +25,9 @@ distinct entry stage and takes each observed output from the instance of its sta
 
 Terms are small dataclasses, picklable, and round-trip through :meth:`Term.to_dict` /
 :func:`term_from_dict` so that a later run (training, the co-simulation master, an exported
-FMU) can rebuild them from ``diagnosis.json`` or a model folder.
+FMU) can rebuild them from ``diagnosis.json`` or a model folder. The native grey-box FMU
+implements every kind in :data:`TERM_KINDS` in C with the same arithmetic; a term's memory
+(:meth:`Term.memory`) is part of the FMU state.
 """
 
 from __future__ import annotations
@@ -104,7 +111,11 @@ class Term:
         return ()
 
     def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
-        """Resolve names to positions and reset any memory before a run."""
+        """Resolve names to positions and reset any memory before a run.
+
+        ``dt`` is the time between two calls of the term: the communication step, or the
+        sub-step for ``feedback`` terms.
+        """
 
     def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
         """Correct this step's FMU inputs ``u`` in place, given the outputs ``y`` at its start."""
@@ -175,6 +186,78 @@ class InputOffset(_InputTerm):
 
 
 @dataclass
+class ForceOffset(InputOffset):
+    """A constant force ``offset`` on a force input (a load the white-box leaves out)."""
+
+    effect = "force_offset"
+
+
+@dataclass
+class InputSaturation(_InputTerm):
+    """The input is limited to ``[lower, upper]`` (an amplifier that saturates; symmetric when
+    ``lower == -upper``)."""
+
+    lower: float = -math.inf
+    upper: float = math.inf
+    effect = "saturation"
+
+    def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
+        u[self._i] = min(max(u[self._i], self.lower), self.upper)
+
+
+@dataclass
+class InputHysteresis(_InputTerm):
+    """A play of total ``width`` between the recorded input and what acts: the acting value
+    moves only when the input pulls it beyond ``width / 2`` (backlash in a command path,
+    hysteresis of a valve). The acting value starts at the first input."""
+
+    width: float = 0.0
+    effect = "hysteresis"
+
+    def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
+        super().bind(inputs, outputs, dt)
+        self._acting = math.nan
+
+    def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
+        x, half = float(u[self._i]), 0.5 * abs(self.width)
+        acting = x if math.isnan(self._acting) else self._acting
+        self._acting = min(max(acting, x - half), x + half)
+        u[self._i] = self._acting
+
+    def memory(self) -> np.ndarray:
+        return np.array([self._acting])
+
+    def restore(self, memory: np.ndarray) -> None:
+        self._acting = float(memory[0])
+
+
+@dataclass
+class InputLag(_InputTerm):
+    """The input acts through a first-order lag of time constant ``tau`` [s] (exact for an
+    input held over the step); the lag starts settled at the first input."""
+
+    tau: float = 0.0
+    effect = "lag"
+
+    def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
+        super().bind(inputs, outputs, dt)
+        self._alpha = 1.0 - math.exp(-dt / self.tau) if self.tau > 0.0 else 1.0
+        self._acting = math.nan
+
+    def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
+        x = float(u[self._i])
+        acting = x if math.isnan(self._acting) else self._acting
+        self._acting = acting + self._alpha * (x - acting)
+        u[self._i] = self._acting
+
+    def memory(self) -> np.ndarray:
+        return np.array([self._acting])
+
+    def restore(self, memory: np.ndarray) -> None:
+        self._acting = float(memory[0])
+
+
+@dataclass
 class InputDeadband(_InputTerm):
     """Inputs within ``+/- width`` of zero act as zero; larger ones lose ``width``."""
 
@@ -205,9 +288,15 @@ class InputDelay(_InputTerm):
 
 @dataclass
 class _FeedbackInput(_InputTerm):
-    """An input term computed from one FMU output of the previous (sub-)step."""
+    """An input term computed from one FMU output of the previous (sub-)step.
+
+    With ``rate`` the term reads the rate of change of the source instead of the source itself
+    (a velocity from a position output, for an FMU that has none): the difference of the source
+    over the last sub-step divided by the sub-step, zero at the first call.
+    """
 
     source: str = ""
+    rate: bool = False
     feedback = True
 
     def needs(self) -> tuple[str, ...]:
@@ -216,9 +305,22 @@ class _FeedbackInput(_InputTerm):
     def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
         super().bind(inputs, outputs, dt)
         self._o = list(outputs).index(self.source)
+        self._h = dt
+        self._last = math.nan
 
     def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
-        u[self._i] += self.value(float(y[self._o]))
+        x = float(y[self._o])
+        if self.rate:
+            last, self._last = self._last, x
+            x = 0.0 if math.isnan(last) else (x - last) / self._h
+        u[self._i] += self.value(x)
+
+    def memory(self) -> np.ndarray:
+        return np.array([self._last]) if self.rate else np.zeros(0)
+
+    def restore(self, memory: np.ndarray) -> None:
+        if self.rate:
+            self._last = float(memory[0])
 
     def value(self, x: float) -> float:
         """What is added to the input for the source output at ``x``."""
@@ -227,14 +329,18 @@ class _FeedbackInput(_InputTerm):
 
 @dataclass
 class CoulombForce(_FeedbackInput):
-    """A force ``force * tanh(v / smoothing)`` added to a force input (``v``: the source)."""
+    """A force ``(force + asymmetry * sign(v)) * tanh(v / smoothing)`` added to a force input
+    (``v``: the source): ``force + asymmetry`` while ``v > 0``, ``force - asymmetry`` while
+    ``v < 0`` (friction stronger in one direction)."""
 
     force: float = 0.0
     smoothing: float = 1e-3
+    asymmetry: float = 0.0
     effect = "coulomb_friction"
 
     def value(self, x: float) -> float:
-        return self.force * math.tanh(x / self.smoothing)
+        t = math.tanh(x / self.smoothing)
+        return self.force * t + self.asymmetry * abs(t)
 
 
 @dataclass
@@ -259,6 +365,19 @@ class StribeckForce(_FeedbackInput):
 
     def value(self, x: float) -> float:
         return self.force * math.exp(-((x / self.velocity) ** 2)) * math.tanh(x / self.smoothing)
+
+
+@dataclass
+class SpringForce(_FeedbackInput):
+    """A force ``coefficient * (x - rest)`` added to a force input (``x``: a position source;
+    a spring or a structural stiffness the white-box leaves out)."""
+
+    coefficient: float = 0.0
+    rest: float = 0.0
+    effect = "stiffness"
+
+    def value(self, x: float) -> float:
+        return self.coefficient * (x - self.rest)
 
 
 @dataclass
@@ -293,19 +412,85 @@ class SensorDelay(Term):
         return {**super().to_dict(), "outputs": list(self.outputs)}
 
 
+@dataclass
+class _SensorChannel(Term):
+    """A fault of the sensor of one output (no effect on a run that does not read it)."""
+
+    output: str = ""
+    acts_on_outputs = True
+
+    def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
+        self._j = list(outputs).index(self.output) if self.output in outputs else -1
+
+    def on_output(self, y: np.ndarray) -> None:
+        if self._j >= 0:
+            y[self._j] = self.sensed(float(y[self._j]))
+
+    def sensed(self, x: float) -> float:
+        """What the sensor reports when the output is ``x``."""
+        raise NotImplementedError
+
+
+@dataclass
+class SensorGain(_SensorChannel):
+    """The sensor reports ``1 + gain`` times the output."""
+
+    gain: float = 0.0
+    effect = "sensor_gain"
+
+    def sensed(self, x: float) -> float:
+        return x * (1.0 + self.gain)
+
+
+@dataclass
+class SensorOffset(_SensorChannel):
+    """The sensor reports the output plus ``offset``."""
+
+    offset: float = 0.0
+    effect = "sensor_offset"
+
+    def sensed(self, x: float) -> float:
+        return x + self.offset
+
+
+@dataclass
+class SensorChannelDelay(_SensorChannel):
+    """The sensor of one output reports ``delay`` seconds late (the others on time)."""
+
+    delay: float = 0.0
+    effect = "sensor_delay"
+
+    def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
+        super().bind(inputs, outputs, dt)
+        self._line = DelayLine(max(self.delay, 0.0) / dt, 1)
+        self._x = np.empty(1)
+
+    def sensed(self, x: float) -> float:
+        self._x[0] = x
+        return float(self._line(self._x)[0])
+
+
 TERM_KINDS: dict[str, type[Term]] = {
     cls.__name__: cls
     for cls in (
         ParameterChange,
         InputGain,
         InputOffset,
+        ForceOffset,
+        InputSaturation,
+        InputHysteresis,
+        InputLag,
         InputDeadband,
         InputDelay,
         CoulombForce,
         ViscousForce,
         StribeckForce,
+        SpringForce,
         FlowDroop,
         SensorDelay,
+        SensorGain,
+        SensorOffset,
+        SensorChannelDelay,
     )
 }
 

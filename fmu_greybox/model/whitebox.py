@@ -82,7 +82,8 @@ class _Part:
 
     def _start(self) -> None:
         for term in self.terms:
-            term.bind(self.instance.input_names, self.instance.output_names, self.dt)
+            every = self.dt / self.substeps if term.feedback else self.dt
+            term.bind(self.instance.input_names, self.instance.output_names, every)
         self.current = self.instance.read_outputs().copy()
         self._sensed[:] = self.current
         for term in self.after:
