@@ -116,14 +116,23 @@ def fmpy_loop(fmu: Path, u: np.ndarray) -> Clock:
     """Time the FMU2Slave loop over the input rows ``u``."""
     description = read_model_description(str(fmu))
     refs = {v.name: v.valueReference for v in description.modelVariables}
-    reals = [v.valueReference for v in description.modelVariables
-             if v.causality == "output" and v.type == "Real"]
-    bools = [v.valueReference for v in description.modelVariables
-             if v.causality == "output" and v.type == "Boolean"]
+    reals = [
+        v.valueReference
+        for v in description.modelVariables
+        if v.causality == "output" and v.type == "Real"
+    ]
+    bools = [
+        v.valueReference
+        for v in description.modelVariables
+        if v.causality == "output" and v.type == "Boolean"
+    ]
     with tempfile.TemporaryDirectory() as folder:
-        slave = FMU2Slave(guid=description.guid, unzipDirectory=extract(str(fmu), folder),
-                          modelIdentifier=description.coSimulation.modelIdentifier,
-                          instanceName="bench")
+        slave = FMU2Slave(
+            guid=description.guid,
+            unzipDirectory=extract(str(fmu), folder),
+            modelIdentifier=description.coSimulation.modelIdentifier,
+            instanceName="bench",
+        )
         slave.instantiate()
         slave.setupExperiment(startTime=0.0)
         slave.enterInitializationMode()
@@ -266,8 +275,14 @@ def equivalence(model_dir: Path, fmu: Path, folder: Path) -> dict[str, float]:
     for name in INPUTS:
         signal[name] = rec[name]
     names = [n + s for n in model.chain.whitebox_outputs for s in ("", "_std", "_wb")]
-    result = simulate_fmu(str(fmu), stop_time=rec.time[-1], step_size=rec.dt,
-                          output_interval=rec.dt, input=signal, output=names)
+    result = simulate_fmu(
+        str(fmu),
+        stop_time=rec.time[-1],
+        step_size=rec.dt,
+        output_interval=rec.dt,
+        input=signal,
+        output=names,
+    )
     figures = {"fmpy simulate_fmu": worst(lambda n: result[n][1:], reference)}
     bench = make_bench(fmu, rec, folder / "bench.ssp")
     cosim = run_bench(bench, "libcosim")
@@ -306,12 +321,16 @@ def breakdown(fmu: Path, u: np.ndarray) -> dict[str, float]:
 def main() -> None:
     """Run the benchmark and print the figures."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--inducing", default="50,100,200,400",
-                        help="inducing points per stage, comma separated")
+    parser.add_argument(
+        "--inducing", default="50,100,200,400", help="inducing points per stage, comma separated"
+    )
     parser.add_argument("--steps", type=int, default=3000, help="communication steps per run")
     parser.add_argument("--repeats", type=int, default=3, help="runs per figure (best kept)")
-    parser.add_argument("--equivalence", action="store_true",
-                        help="also compare fmpy, fmpy SSP and libcosim with the master")
+    parser.add_argument(
+        "--equivalence",
+        action="store_true",
+        help="also compare fmpy, fmpy SSP and libcosim with the master",
+    )
     parser.add_argument("--json", action="store_true", help="print a final JSON line")
     args = parser.parse_args()
     sizes = [int(m) for m in args.inducing.split(",")]
@@ -323,43 +342,66 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         whitebox = reference_fmus()["HydraulicActuator"]
-        bare = {"fmpy": best(fmpy_loop, whitebox, u, args.repeats),
-                "libcosim": best(libcosim_run, whitebox, u, args.repeats),
-                "libcosim 1 core": best(libcosim_one_core, whitebox, u, args.repeats)}
+        bare = {
+            "fmpy": best(fmpy_loop, whitebox, u, args.repeats),
+            "libcosim": best(libcosim_run, whitebox, u, args.repeats),
+            "libcosim 1 core": best(libcosim_one_core, whitebox, u, args.repeats),
+        }
         for m in sizes:
             fmu = export(rec, m, tmp)
-            rows.append({
-                "inducing": m,
-                "fmpy": best(fmpy_loop, fmu, u, args.repeats),
-                "libcosim": best(libcosim_run, fmu, u, args.repeats),
-                "libcosim 1 core": best(libcosim_one_core, fmu, u, args.repeats),
-                "in-process": best(in_process, fmu, u, args.repeats),
-                "breakdown": breakdown(fmu, u),
-            })
+            rows.append(
+                {
+                    "inducing": m,
+                    "fmpy": best(fmpy_loop, fmu, u, args.repeats),
+                    "libcosim": best(libcosim_run, fmu, u, args.repeats),
+                    "libcosim 1 core": best(libcosim_one_core, fmu, u, args.repeats),
+                    "in-process": best(in_process, fmu, u, args.repeats),
+                    "breakdown": breakdown(fmu, u),
+                }
+            )
             if args.equivalence and not figures:
                 figures = equivalence(tmp / f"model{m}", fmu, tmp)
-    print(f"grey-box FMU of the three-stage actuator, {len(u)} steps of 1 ms, CPU time per step "
-          f"(wall in brackets), best of {args.repeats} runs")
-    print(f"white-box FMU alone: fmpy {bare['fmpy']['cpu_us']:.1f} us "
-          f"({bare['fmpy']['wall_us']:.1f}), libcosim {bare['libcosim']['cpu_us']:.1f} us "
-          f"({bare['libcosim']['wall_us']:.1f})")
-    print(f"{'M/stage':>8} {'engine':>15} {'us/step':>9} {'(wall)':>9} {'x white-box':>12} "
-          f"{'< 100 us':>9}")
+    print(
+        f"grey-box FMU of the three-stage actuator, {len(u)} steps of 1 ms, CPU time per step "
+        f"(wall in brackets), best of {args.repeats} runs"
+    )
+    print(
+        f"white-box FMU alone: fmpy {bare['fmpy']['cpu_us']:.1f} us "
+        f"({bare['fmpy']['wall_us']:.1f}), libcosim {bare['libcosim']['cpu_us']:.1f} us "
+        f"({bare['libcosim']['wall_us']:.1f})"
+    )
+    print(
+        f"{'M/stage':>8} {'engine':>15} {'us/step':>9} {'(wall)':>9} {'x white-box':>12} "
+        f"{'< 100 us':>9}"
+    )
     for row in rows:
         for engine in ("fmpy", "libcosim", "libcosim 1 core", "in-process"):
             cpu, wall = row[engine]["cpu_us"], row[engine]["wall_us"]
             ratio = f"{cpu / bare[engine]['cpu_us']:12.1f}" if engine in bare else f"{'':12}"
-            print(f"{row['inducing']:8d} {engine:>15} {cpu:9.1f} {wall:9.1f} {ratio} "
-                  f"{'yes' if cpu < TARGET_US else 'no':>9}")
+            print(
+                f"{row['inducing']:8d} {engine:>15} {cpu:9.1f} {wall:9.1f} {ratio} "
+                f"{'yes' if cpu < TARGET_US else 'no':>9}"
+            )
         pieces = ", ".join(f"{name} {us:.1f}" for name, us in row["breakdown"].items())
         print(f"{'':8} {'':>15} in-process breakdown [us]: {pieces}")
     for engine, difference in figures.items():
-        print(f"equivalence, M = {sizes[0]}: {engine:18} max |FMU - master| / range = "
-              f"{difference:.2e}")
+        print(
+            f"equivalence, M = {sizes[0]}: {engine:18} max |FMU - master| / range = "
+            f"{difference:.2e}"
+        )
     if args.json:
-        print(json.dumps({"steps": len(u), "repeats": args.repeats, "target_us": TARGET_US,
-                          "whitebox_us_per_step": bare, "greybox_us_per_step": rows,
-                          "equivalence": figures}))
+        print(
+            json.dumps(
+                {
+                    "steps": len(u),
+                    "repeats": args.repeats,
+                    "target_us": TARGET_US,
+                    "whitebox_us_per_step": bare,
+                    "greybox_us_per_step": rows,
+                    "equivalence": figures,
+                }
+            )
+        )
 
 
 if __name__ == "__main__":

@@ -28,8 +28,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from fmu_greybox.fmi.build import REFERENCE_MODEL_DIR, build_fmu
 
 OUTPUTS = (
-    "spool_position", "ram_position", "itfv_pressure", "ram_velocity", "load_flow",
-    "relief_flow", "pressure_a", "pressure_b", "spool_velocity", "supply_flow",
+    "spool_position",
+    "ram_position",
+    "itfv_pressure",
+    "ram_velocity",
+    "load_flow",
+    "relief_flow",
+    "pressure_a",
+    "pressure_b",
+    "spool_velocity",
+    "supply_flow",
 )
 STEP = 1e-3  # s
 
@@ -42,9 +50,12 @@ def current(t: np.ndarray) -> np.ndarray:
 def _slave(fmu: Path, folder: str, name: str) -> tuple[FMU2Slave, dict[str, int]]:
     description = read_model_description(str(fmu))
     refs = {v.name: v.valueReference for v in description.modelVariables}
-    slave = FMU2Slave(guid=description.guid, unzipDirectory=folder,
-                      modelIdentifier=description.coSimulation.modelIdentifier,
-                      instanceName=name)
+    slave = FMU2Slave(
+        guid=description.guid,
+        unzipDirectory=folder,
+        modelIdentifier=description.coSimulation.modelIdentifier,
+        instanceName=name,
+    )
     slave.instantiate()
     slave.setupExperiment(startTime=0.0)
     slave.enterInitializationMode()
@@ -71,13 +82,19 @@ def bench_loop(fmu: Path, folder: str, steps: int) -> float:
 def bench_simulate_fmu(fmu: Path, steps: int) -> float:
     """Wall time [s] of fmpy's simulate_fmu (includes loading and unpacking the FMU)."""
     t = np.arange(steps + 1) * STEP
-    signal = np.zeros(t.size, dtype=[(name, float) for name in (
-        "time", "valve_current", "supply_pressure", "load_force", "engage")])
+    signal = np.zeros(
+        t.size,
+        dtype=[
+            (name, float)
+            for name in ("time", "valve_current", "supply_pressure", "load_force", "engage")
+        ],
+    )
     signal["time"], signal["valve_current"] = t, current(t)
     signal["supply_pressure"], signal["engage"] = 20.7e6, 1.0
     start = time.perf_counter()
-    simulate_fmu(str(fmu), stop_time=steps * STEP, output_interval=STEP, input=signal,
-                 output=list(OUTPUTS))
+    simulate_fmu(
+        str(fmu), stop_time=steps * STEP, output_interval=STEP, input=signal, output=list(OUTPUTS)
+    )
     return time.perf_counter() - start
 
 
@@ -110,19 +127,34 @@ def main() -> None:
             "C only": bench_c_only(fmu, folder, args.steps),
         }
     simulated = args.steps * STEP
-    print(f"{fmu.name}: {args.steps} samples, communication step {STEP * 1e3:g} ms "
-          f"({simulated:g} s simulated)")
+    print(
+        f"{fmu.name}: {args.steps} samples, communication step {STEP * 1e3:g} ms "
+        f"({simulated:g} s simulated)"
+    )
     print(f"{'':16} {'wall [s]':>9} {'us/step':>9} {'real-time factor':>17} {'x C only':>9}")
     for name, wall in walls.items():
-        print(f"{name:16} {wall:9.3f} {wall / args.steps * 1e6:9.2f} {simulated / wall:17.1f} "
-              f"{wall / walls['C only']:9.2f}")
+        print(
+            f"{name:16} {wall:9.3f} {wall / args.steps * 1e6:9.2f} {simulated / wall:17.1f} "
+            f"{wall / walls['C only']:9.2f}"
+        )
     if args.json:
-        print(json.dumps({
-            "fmu": fmu.name, "samples": args.steps, "step_size": STEP,
-            "results": {name: {"wall_s": wall, "us_per_step": wall / args.steps * 1e6,
-                               "real_time_factor": simulated / wall}
-                        for name, wall in walls.items()},
-        }))
+        print(
+            json.dumps(
+                {
+                    "fmu": fmu.name,
+                    "samples": args.steps,
+                    "step_size": STEP,
+                    "results": {
+                        name: {
+                            "wall_s": wall,
+                            "us_per_step": wall / args.steps * 1e6,
+                            "real_time_factor": simulated / wall,
+                        }
+                        for name, wall in walls.items()
+                    },
+                }
+            )
+        )
 
 
 if __name__ == "__main__":

@@ -140,9 +140,7 @@ def run_experiment(
         paper = ", ".join(f"{k} {100 * v:.1f}%" for k, v in PAPER[name].items())
         print(f"paper: {paper}", flush=True)
     keys = ("wb_rmse", "named_rmse", "gb_rmse", "wb_nrmse", "gb_nrmse", "improvement")
-    return {
-        stage: {k: row[k] for k in keys if k in row} for stage, row in result.table.items()
-    }
+    return {stage: {k: row[k] for k in keys if k in row} for stage, row in result.table.items()}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -706,5 +706,8 @@ def diagnose(
         return
     for line in payload["verdict"]:
         click.echo(line)
-    _info(ctx, f"wrote {out_dir / 'diagnosis.json'} and {out_dir / 'report.html'} "
-               f"({payload['timings']['total']} s)")
+    _info(
+        ctx,
+        f"wrote {out_dir / 'diagnosis.json'} and {out_dir / 'report.html'} "
+        f"({payload['timings']['total']} s)",
+    )

@@ -30,8 +30,16 @@ from fmpy.model_description import ModelDescription
 from fmu_greybox.fmi.build import build_reference_fmus
 
 OUTPUTS = (
-    "spool_position", "ram_position", "itfv_pressure", "ram_velocity", "load_flow",
-    "relief_flow", "pressure_a", "pressure_b", "spool_velocity", "supply_flow",
+    "spool_position",
+    "ram_position",
+    "itfv_pressure",
+    "ram_velocity",
+    "load_flow",
+    "relief_flow",
+    "pressure_a",
+    "pressure_b",
+    "spool_velocity",
+    "supply_flow",
 )
 INPUTS = ("valve_current", "supply_pressure", "load_force", "engage")
 
@@ -47,14 +55,20 @@ def unpacked(fmu: Path) -> tuple[ModelDescription, str, dict[str, int]]:
     return description, folder, refs
 
 
-def instantiate_fmu(fmu: Path, name: str = "actuator",
-                    parameters: Mapping[str, float] | None = None,
-                    inputs: Mapping[str, float] | None = None) -> tuple[FMU2Slave, dict[str, int]]:
+def instantiate_fmu(
+    fmu: Path,
+    name: str = "actuator",
+    parameters: Mapping[str, float] | None = None,
+    inputs: Mapping[str, float] | None = None,
+) -> tuple[FMU2Slave, dict[str, int]]:
     """An initialised fmpy slave of ``fmu`` at t = 0 and the value references by name."""
     description, folder, refs = unpacked(fmu)
-    slave = FMU2Slave(guid=description.guid, unzipDirectory=folder,
-                      modelIdentifier=description.coSimulation.modelIdentifier,
-                      instanceName=name)
+    slave = FMU2Slave(
+        guid=description.guid,
+        unzipDirectory=folder,
+        modelIdentifier=description.coSimulation.modelIdentifier,
+        instanceName=name,
+    )
     slave.instantiate()
     try:
         slave.setupExperiment(startTime=0.0)
@@ -69,11 +83,15 @@ def instantiate_fmu(fmu: Path, name: str = "actuator",
     return slave, refs
 
 
-def simulate_fmu_loop(fmu: Path, stop_time: float, step_size: float = 1e-3,
-                      inputs: Mapping[str, Signal] | None = None,
-                      parameters: Mapping[str, float] | None = None,
-                      outputs: tuple[str, ...] = OUTPUTS,
-                      name: str = "actuator") -> dict[str, np.ndarray]:
+def simulate_fmu_loop(
+    fmu: Path,
+    stop_time: float,
+    step_size: float = 1e-3,
+    inputs: Mapping[str, Signal] | None = None,
+    parameters: Mapping[str, float] | None = None,
+    outputs: tuple[str, ...] = OUTPUTS,
+    name: str = "actuator",
+) -> dict[str, np.ndarray]:
     """Run ``fmu`` over [0, stop_time] and return time, the inputs and the outputs.
 
     Time points are ``k * step_size`` and each step is ``t[k+1] - t[k]``, as in fmpy's
@@ -94,8 +112,9 @@ def simulate_fmu_loop(fmu: Path, stop_time: float, step_size: float = 1e-3,
         for k in range(n):
             if input_refs:
                 slave.setReal(input_refs, [float(v[k]) for v in signals.values()])
-            slave.doStep(currentCommunicationPoint=time[k],
-                         communicationStepSize=time[k + 1] - time[k])
+            slave.doStep(
+                currentCommunicationPoint=time[k], communicationStepSize=time[k + 1] - time[k]
+            )
             result[k + 1] = slave.getReal(output_refs)
     finally:
         slave.terminate()

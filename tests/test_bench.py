@@ -70,8 +70,11 @@ def test_playback_fmu_plays_the_recording(validation: Recording, tmp_path: Path)
     fmu = build_playback_fmu(validation, tmp_path / "playback.fmu")
     assert validate_fmu(str(fmu)) == []
     result = simulate_fmu(
-        str(fmu), stop_time=validation.time[-1], step_size=validation.dt,
-        output_interval=validation.dt, output=list(validation.names),
+        str(fmu),
+        stop_time=validation.time[-1],
+        step_size=validation.dt,
+        output_interval=validation.dt,
+        output=list(validation.names),
     )
     for name in validation.names:
         np.testing.assert_array_equal(result[name], validation[name], err_msg=name)
@@ -89,8 +92,12 @@ def test_bench_is_a_valid_ssp_wiring_the_playback(bench: Path, validation: Recor
     assert layout.stop == pytest.approx(validation.time[-1])
     assert {"out_of_domain", "ram_position_std"} <= set(layout.outputs["greybox"])
     with zipfile.ZipFile(bench) as archive:
-        assert {SSD_FILE, "resources/greybox.fmu", "resources/whitebox.fmu",
-                "resources/playback.fmu"} <= set(archive.namelist())
+        assert {
+            SSD_FILE,
+            "resources/greybox.fmu",
+            "resources/whitebox.fmu",
+            "resources/playback.fmu",
+        } <= set(archive.namelist())
 
 
 def test_libcosim_gives_the_masters_outputs(
@@ -135,8 +142,9 @@ def test_fmpy_ssp_gives_the_masters_outputs(
     assert_matches_master(result.signals, run, prefix="greybox.")
     for q, name in enumerate(STAGE_OUTPUTS):
         assert_close(result[f"whitebox.{name}"], run.whitebox[:, q], f"whitebox.{name}")
-    np.testing.assert_array_equal(result["playback.valve_current"],
-                                  validation["valve_current"][1 : run.rows.size + 1])
+    np.testing.assert_array_equal(
+        result["playback.valve_current"], validation["valve_current"][1 : run.rows.size + 1]
+    )
 
 
 def test_cosim_command_writes_every_output(bench: Path, tmp_path: Path) -> None:
@@ -147,34 +155,53 @@ def test_cosim_command_writes_every_output(bench: Path, tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     results = load_recording(out)
     assert results.n_samples == 200
-    assert {"greybox.ram_position", "greybox.ram_position_std", "greybox.out_of_domain",
-            "whitebox.ram_position", "playback.load_force"} <= set(results.names)
+    assert {
+        "greybox.ram_position",
+        "greybox.ram_position_std",
+        "greybox.out_of_domain",
+        "whitebox.ram_position",
+        "playback.load_force",
+    } <= set(results.names)
     assert results.units["greybox.ram_position"] == "m"
 
 
-def test_export_command_writes_a_bench(model_dir: Path, validation: Recording,
-                                       tmp_path: Path) -> None:
+def test_export_command_writes_a_bench(
+    model_dir: Path, validation: Recording, tmp_path: Path
+) -> None:
     recording = save_recording(validation, tmp_path / "rec.csv")
-    result = CliRunner().invoke(main, [
-        "export", str(model_dir), "--out", str(tmp_path / "gb.fmu"), "--ssp",
-        str(tmp_path / "bench.ssp"), "--recording", str(recording), "--greybox-only",
-    ])
+    result = CliRunner().invoke(
+        main,
+        [
+            "export",
+            str(model_dir),
+            "--out",
+            str(tmp_path / "gb.fmu"),
+            "--ssp",
+            str(tmp_path / "bench.ssp"),
+            "--recording",
+            str(recording),
+            "--greybox-only",
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert set(read_layout(tmp_path / "bench.ssp").components) == {"playback", "greybox"}
 
 
-def test_bench_needs_every_input_recorded(greybox_fmu: Path, validation: Recording,
-                                          tmp_path: Path) -> None:
+def test_bench_needs_every_input_recorded(
+    greybox_fmu: Path, validation: Recording, tmp_path: Path
+) -> None:
     missing = validation.select([n for n in validation.names if n != "load_force"])
     with pytest.raises(BenchError, match="load_force"):
         make_bench(greybox_fmu, missing, tmp_path / "b.ssp")
     assert not (tmp_path / "b.ssp").exists()
 
 
-def test_bench_refuses_another_sample_time(greybox_fmu: Path, validation: Recording,
-                                           tmp_path: Path) -> None:
+def test_bench_refuses_another_sample_time(
+    greybox_fmu: Path, validation: Recording, tmp_path: Path
+) -> None:
     coarse = Recording(
-        time=validation.time[::2], signals={n: v[::2] for n, v in validation.signals.items()},
+        time=validation.time[::2],
+        signals={n: v[::2] for n, v in validation.signals.items()},
         units=validation.units,
     )
     with pytest.raises(BenchError, match="resample"):

@@ -182,11 +182,19 @@ def test_buffers_of_the_wrong_kind_are_refused_with_their_name() -> None:
         plan.step(state, exo[399], wb[400, :2].copy())
     short = ChainState(chain.layout, [1, 1, 1])
     with pytest.raises(ValueError, match="state holds"):
-        _chainstep.step(plan._plan, plan._params, plan._work, short.values[:-1], exo[399],
-                        wb[400], True)
+        _chainstep.step(
+            plan._plan, plan._params, plan._work, short.values[:-1], exo[399], wb[400], True
+        )
     with pytest.raises(TypeError, match="state: a C-contiguous writable"):
-        _chainstep.step(plan._plan, plan._params, plan._work, bytes(8 * state.values.size),
-                        exo[399], wb[400], True)
+        _chainstep.step(
+            plan._plan,
+            plan._params,
+            plan._work,
+            bytes(8 * state.values.size),
+            exo[399],
+            wb[400],
+            True,
+        )
 
 
 @pytest.mark.parametrize("m", [1, 3, 4, 5, 8, 9, 13, 16, 17])

@@ -230,8 +230,17 @@ def test_subprocess_user_error_and_debug_traceback(env: dict[str, str], tmp_path
 
 def test_every_command_has_examples_and_usage_errors_exit_2() -> None:
     runner = CliRunner()
-    commands = [["fmu", "build"], ["synth"], ["simulate"], ["train"], ["validate"], ["demo"],
-                ["export"], ["cosim"], ["diagnose"]]
+    commands = [
+        ["fmu", "build"],
+        ["synth"],
+        ["simulate"],
+        ["train"],
+        ["validate"],
+        ["demo"],
+        ["export"],
+        ["cosim"],
+        ["diagnose"],
+    ]
     for command in commands:
         help_text = runner.invoke(main, [*command, "--help"])
         assert help_text.exit_code == 0, command

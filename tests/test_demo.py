@@ -28,8 +28,7 @@ from fmu_greybox.workflow.demo import choose_effect
 
 #: A clear fault, so the test can require the diagnosis to name it.
 EFFECT = "coulomb_friction=900"
-SMALL = ("--duration", "10", "--validation-duration", "4.2", "--inducing", "20",
-         "--max-iter", "15")
+SMALL = ("--duration", "10", "--validation-duration", "4.2", "--inducing", "20", "--max-iter", "15")
 
 
 @pytest.fixture(scope="module")
@@ -46,9 +45,17 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
 
 def test_demo_writes_every_output(demo: tuple[Path, dict]) -> None:
     out = demo[0]
-    for name in ("report.html", "diagnosis.json", "summary.json", "metrics.json",
-                 "greybox.fmu", "bench.ssp", "recording.csv", "validation.csv",
-                 "model/model.json"):
+    for name in (
+        "report.html",
+        "diagnosis.json",
+        "summary.json",
+        "metrics.json",
+        "greybox.fmu",
+        "bench.ssp",
+        "recording.csv",
+        "validation.csv",
+        "model/model.json",
+    ):
         assert (out / name).is_file(), name
     assert json.loads((out / "summary.json").read_text())["concealed_effects"] == {
         "coulomb_friction": 900.0
@@ -110,11 +117,25 @@ def run_chromium(page: Path, tmp_path: Path, *args: str) -> subprocess.Completed
         if os.environ.get("CI"):
             pytest.fail("Chromium is missing: the test command installs Debian's 'chromium'")
         pytest.skip("Chromium not installed (apt-get install chromium)")
-    flags = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-             "--disable-background-networking", "--disable-component-update", "--disable-sync",
-             f"--user-data-dir={tmp_path / 'profile'}", "--hide-scrollbars"]
-    return subprocess.run([browser, *flags, *args, page.as_uri()], capture_output=True,
-                          text=True, timeout=120, check=False)
+    flags = [
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        f"--user-data-dir={tmp_path / 'profile'}",
+        "--hide-scrollbars",
+    ]
+    return subprocess.run(
+        [browser, *flags, *args, page.as_uri()],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
 
 
 def test_report_renders_in_headless_chromium(demo: tuple[Path, dict], tmp_path: Path) -> None:
@@ -153,9 +174,7 @@ def test_a_failed_demo_writes_no_report(tmp_path: Path, monkeypatch: pytest.Monk
 
     monkeypatch.setattr(demo_module, "run_bench", broken_bench)
     out = tmp_path / "out"
-    result = CliRunner().invoke(
-        main, ["-q", "demo", "--out", str(out), "--effect", EFFECT, *SMALL]
-    )
+    result = CliRunner().invoke(main, ["-q", "demo", "--out", str(out), "--effect", EFFECT, *SMALL])
     assert result.exit_code == 1
     assert "simulated failure" in result.stderr and "Traceback" not in result.output
     assert (out / "diagnosis.json").is_file()  # steps done before the failure are kept
@@ -167,7 +186,7 @@ def test_choose_effect_is_deterministic_and_typical() -> None:
     assert drawn == [choose_effect(seed) for seed in range(40)]
     assert len({next(iter(d)) for d in drawn}) >= 5
     for d in drawn:
-        (name, value), = d.items()
+        ((name, value),) = d.items()
         low, high = TYPICAL_MAGNITUDES[name][0], TYPICAL_MAGNITUDES[name][-1]
         assert low <= value <= high * 1.01
 
@@ -184,8 +203,9 @@ def test_frequency_response_of_a_known_filter() -> None:
     z = np.exp(-2j * np.pi * r.freq * dt)
     exact = (1 - a) * z / (1 - a * z)
     np.testing.assert_allclose(np.abs(r.response["recording"]), np.abs(exact), rtol=0.02)
-    np.testing.assert_allclose(np.angle(r.response["recording"][1:50]),
-                               np.angle(exact[1:50]), atol=0.02)
+    np.testing.assert_allclose(
+        np.angle(r.response["recording"][1:50]), np.angle(exact[1:50]), atol=0.02
+    )
     assert r.coherence["recording"].min() > 0.99
     assert r.band_error_db("grey-box") == pytest.approx(0.0, abs=1e-9)
     assert r.band_error_db("white-box") == pytest.approx(20 * np.log10(2), rel=1e-6)

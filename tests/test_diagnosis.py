@@ -57,15 +57,25 @@ def test_five_effects_at_once_are_all_named(whitebox_fmu, truth_fmu) -> None:
     3000 training rows. One at a time on top of the others fixed, the leakage does not pay (the
     offset kept first absorbed part of its drift) and the delay hides in the fast part of the
     residual; the joint refinement and the raw-residual screen must still name all five."""
-    effects = {"offset": 0.2, "coulomb_friction": 600.0, "internal_leakage": 2e-12,
-               "compliance": 0.3, "time_delay": 0.002}
+    effects = {
+        "offset": 0.2,
+        "coulomb_friction": 600.0,
+        "internal_leakage": 2e-12,
+        "compliance": 0.3,
+        "time_delay": 0.002,
+    }
     recording = actuator_recording(whitebox_fmu, truth_fmu, effects, seed=2, duration=4.299)
     raw = tomllib.loads(ACTUATOR.read_text())
     raw["split"]["train_fraction"] = 3000.5 / 4300
     diagnosis = Diagnosis(parse_config(raw, ACTUATOR), greybox=None).fit(recording)
     named = {named_physics(f.to_dict()): f for f in diagnosis.findings_}
-    assert set(named) == {"offset", "coulomb_friction", "internal_leakage", "compliance",
-                          "time_delay"}
+    assert set(named) == {
+        "offset",
+        "coulomb_friction",
+        "internal_leakage",
+        "compliance",
+        "time_delay",
+    }
     assert named["offset"].magnitude["value"] == pytest.approx(0.2, rel=0.1)
     assert named["coulomb_friction"].magnitude["value"] == pytest.approx(600.0, rel=0.1)
     assert named["time_delay"].magnitude["value"] == pytest.approx(0.002, rel=0.1)
@@ -146,8 +156,9 @@ def test_mis_set_parameter_is_calibrated_through_the_positioner(
         open_fmu(paths["ElectroMechanicalPositionerTruth"]) as truth,
         open_fmu(paths["ElectroMechanicalPositioner"]) as whitebox,
     ):
-        recording = synthesise_positioner(truth, whitebox, effects, seed=seed, duration=8.0,
-                                          noise=1.0)
+        recording = synthesise_positioner(
+            truth, whitebox, effects, seed=seed, duration=8.0, noise=1.0
+        )
     diagnosis = Diagnosis(load_config(CONFIGS / "positioner.toml"), greybox=None).fit(recording)
     top = diagnosis.findings_[0].to_dict()
     assert (top["effect"], top["parameter"]) == ("parameter_mismatch", parameter)

@@ -121,9 +121,7 @@ def test_parameter_ranges_follow_the_fmu_declaration() -> None:
         efficiency = fmu.variables["transmission_efficiency"]
         assert (efficiency.minimum, efficiency.maximum) == (None, 1.0)
         assert fmu.variables["viscous_friction"].minimum == 0.0
-        ranges = {
-            h.name: (h.lower[0], h.upper[0]) for h in _parameter_hypotheses(fmu, {})
-        }
+        ranges = {h.name: (h.lower[0], h.upper[0]) for h in _parameter_hypotheses(fmu, {})}
     assert ranges["transmission_efficiency"] == pytest.approx((-0.9, 1.0 / 0.9 - 1.0))
     assert ranges["viscous_friction"] == pytest.approx(PARAMETER_RANGE)
     # a negative set value: its declared minimum bounds the relative change from above

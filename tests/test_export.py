@@ -207,7 +207,9 @@ def test_interface_is_a_drop_in_replacement(greybox_fmu: Path, model_dir: Path) 
         assert greybox.variable("out_of_domain").type == "Boolean"
         enabled = greybox.variable("correction_enabled")
         assert (enabled.type, enabled.causality, enabled.variability) == (
-            "Boolean", "parameter", "tunable"
+            "Boolean",
+            "parameter",
+            "tunable",
         )
         cosim = greybox.model_description.coSimulation
         assert cosim.canGetAndSetFMUstate and cosim.canSerializeFMUstate
@@ -284,9 +286,7 @@ def test_restored_state_continues_identically(greybox_fmu: Path, validation: Rec
     second.close()
 
 
-def test_instances_in_one_process_are_independent(
-    greybox_fmu: Path, validation: Recording
-) -> None:
+def test_instances_in_one_process_are_independent(greybox_fmu: Path, validation: Recording) -> None:
     u = input_rows(validation)[:300]
     v = u.copy()
     v[:, 0] *= -0.5  # another valve current
@@ -389,8 +389,9 @@ def test_missing_package_is_reported_not_crashed(greybox_fmu: Path, tmp_path: Pa
         "except Exception as exc:\n"
         "    print('REFUSED', exc)\n"
     )
-    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
-                          timeout=120)
+    done = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=120
+    )
     assert done.returncode == 0, done.stderr
     assert "REFUSED" in done.stdout
     assert "scipy" in done.stderr and "pip install" in done.stderr

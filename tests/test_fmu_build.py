@@ -24,8 +24,15 @@ from fmu_greybox.fmi.build import (
 )
 
 TRUTH_EFFECTS = (
-    "gain_error", "offset", "deadband", "coulomb_friction", "stribeck_friction",
-    "internal_leakage", "compliance", "supply_pressure_droop", "time_delay",
+    "gain_error",
+    "offset",
+    "deadband",
+    "coulomb_friction",
+    "stribeck_friction",
+    "internal_leakage",
+    "compliance",
+    "supply_pressure_droop",
+    "time_delay",
 )
 
 
@@ -35,8 +42,12 @@ def test_archive_layout_and_validation(fmu_dir: Path, identifier: str) -> None:
     folder, extension = fmi2_platform()
     with zipfile.ZipFile(fmu) as archive:
         names = set(archive.namelist())
-    assert names == {"modelDescription.xml", f"binaries/{folder}/{identifier}{extension}",
-                     "documentation/README.md", "documentation/index.html"}
+    assert names == {
+        "modelDescription.xml",
+        f"binaries/{folder}/{identifier}{extension}",
+        "documentation/README.md",
+        "documentation/index.html",
+    }
     assert validate_fmu(str(fmu)) == []
     assert not list(fmu_dir.glob(".*"))  # no temporary left behind
 
@@ -65,24 +76,30 @@ def test_interface(fmu_dir: Path, identifier: str) -> None:
         assert all(float(by_name[name].start) == 0.0 for name in effects)
     else:
         assert effects == []
-    assert {by_name[n].unit for n in ("valve_current", "supply_pressure", "load_force",
-                                       "engage")} == {"mA", "Pa", "N", "1"}
+    assert {
+        by_name[n].unit for n in ("valve_current", "supply_pressure", "load_force", "engage")
+    } == {"mA", "Pa", "N", "1"}
 
 
-def test_models_share_value_references_and_differ_in_guid(whitebox_fmu: Path,
-                                                          truth_fmu: Path) -> None:
+def test_models_share_value_references_and_differ_in_guid(
+    whitebox_fmu: Path, truth_fmu: Path
+) -> None:
     white, _, white_refs = unpacked(whitebox_fmu)
     truth, _, truth_refs = unpacked(truth_fmu)
     assert white.guid != truth.guid
     assert all(truth_refs[name] == vr for name, vr in white_refs.items())
-    assert set(truth_refs) - set(white_refs) == {*TRUTH_EFFECTS, "stribeck_velocity",
-                                                 "friction_smoothing_velocity"}
+    assert set(truth_refs) - set(white_refs) == {
+        *TRUTH_EFFECTS,
+        "stribeck_velocity",
+        "friction_smoothing_velocity",
+    }
 
 
 def test_model_structure_declares_direct_feedthrough(whitebox_fmu: Path) -> None:
     description, _, _ = unpacked(whitebox_fmu)
-    feedthrough = {u.variable.name: sorted(d.name for d in u.dependencies)
-                   for u in description.outputs}
+    feedthrough = {
+        u.variable.name: sorted(d.name for d in u.dependencies) for u in description.outputs
+    }
     assert feedthrough["load_flow"] == ["engage", "supply_pressure"]
     assert feedthrough["supply_flow"] == ["engage", "supply_pressure"]
     assert feedthrough["ram_position"] == []
@@ -261,16 +278,20 @@ def test_a_second_model_builds_from_one_folder(tmp_path: Path) -> None:
 
     fmu = build_fmu(folder, tmp_path / "out")
     assert validate_fmu(str(fmu)) == []
-    result = simulate_fmu(str(fmu), stop_time=1.0, output_interval=0.01,
-                          output=["position", "steps"])
+    result = simulate_fmu(
+        str(fmu), stop_time=1.0, output_interval=0.01, output=["position", "steps"]
+    )
     np.testing.assert_allclose(result["position"], np.cos(2.0 * result["time"]), atol=1e-8)
     assert result["steps"][-1] == 1000
 
     description = read_model_description(str(fmu))
     refs = {v.name: v.valueReference for v in description.modelVariables}
-    slave = FMU2Slave(guid=description.guid,
-                      unzipDirectory=extract(str(fmu), unzipdir=str(tmp_path / "unpacked")),
-                      modelIdentifier="Oscillator", instanceName="oscillator")
+    slave = FMU2Slave(
+        guid=description.guid,
+        unzipDirectory=extract(str(fmu), unzipdir=str(tmp_path / "unpacked")),
+        modelIdentifier="Oscillator",
+        instanceName="oscillator",
+    )
     slave.instantiate()
     slave.setupExperiment(startTime=0.0)
     slave.enterInitializationMode()
@@ -285,4 +306,3 @@ def test_a_second_model_builds_from_one_folder(tmp_path: Path) -> None:
     assert slave.getInteger([refs["steps"]]) == [500]
     slave.terminate()
     slave.freeInstance()
-

@@ -59,8 +59,12 @@ def test_entry_namespace_outlives_its_holders(tmp_path: Path) -> None:
         tmp_path / "playback.fmu",
     )
     done = subprocess.run(
-        [sys.executable, "-c", PROBE, str(fmu)], capture_output=True, text=True, timeout=120,
-        check=False, cwd=tmp_path,
+        [sys.executable, "-c", PROBE, str(fmu)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+        cwd=tmp_path,
     )
     assert done.returncode == 0, done.stderr[-2000:]
     facts = json.loads(done.stdout.strip().splitlines()[-1])

@@ -41,8 +41,9 @@ def _libcosim_run(fmu: Path, parameters: dict[str, float]) -> np.ndarray:
 
 def _fmpy_run(instantiate, fmu: Path, parameters: dict[str, float]) -> np.ndarray:
     """The same run with fmpy's FMU2Slave on libcosim's time grid (integer nanoseconds)."""
-    slave, refs = instantiate(fmu, name="ram", parameters=parameters,
-                              inputs={"valve_current": 4.0, "load_force": 2000.0})
+    slave, refs = instantiate(
+        fmu, name="ram", parameters=parameters, inputs={"valve_current": 4.0, "load_force": 2000.0}
+    )
     time = [k * STEP_NS / 1e9 for k in range(STEPS + 1)]
     output_refs = [refs[name] for name in OUTPUTS]
     rows = []
@@ -56,12 +57,16 @@ def _fmpy_run(instantiate, fmu: Path, parameters: dict[str, float]) -> np.ndarra
     return np.array(rows)
 
 
-@pytest.mark.parametrize(("model", "parameters"), [
-    ("whitebox", {}),
-    ("truth", {"coulomb_friction": 400.0, "time_delay": 0.003, "supply_pressure_droop": 1e10}),
-])
-def test_libcosim_matches_fmpy(instantiate, whitebox_fmu: Path, truth_fmu: Path, model: str,
-                               parameters: dict[str, float]) -> None:
+@pytest.mark.parametrize(
+    ("model", "parameters"),
+    [
+        ("whitebox", {}),
+        ("truth", {"coulomb_friction": 400.0, "time_delay": 0.003, "supply_pressure_droop": 1e10}),
+    ],
+)
+def test_libcosim_matches_fmpy(
+    instantiate, whitebox_fmu: Path, truth_fmu: Path, model: str, parameters: dict[str, float]
+) -> None:
     fmu = whitebox_fmu if model == "whitebox" else truth_fmu
     cosim = _libcosim_run(fmu, parameters)
     reference = _fmpy_run(instantiate, fmu, parameters)

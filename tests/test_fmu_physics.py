@@ -21,16 +21,26 @@ HALVING_TOLERANCE_WHITEBOX = 1e-4
 HALVING_TOLERANCE_TRUTH = 1e-3
 
 ALL_EFFECTS = {
-    "gain_error": 0.05, "offset": 0.2, "deadband": 1e-5, "coulomb_friction": 600.0,
-    "stribeck_friction": 400.0, "internal_leakage": 5e-13, "compliance": 0.2,
-    "supply_pressure_droop": 2e10, "time_delay": 0.002,
+    "gain_error": 0.05,
+    "offset": 0.2,
+    "deadband": 1e-5,
+    "coulomb_friction": 600.0,
+    "stribeck_friction": 400.0,
+    "internal_leakage": 5e-13,
+    "compliance": 0.2,
+    "supply_pressure_droop": 2e10,
+    "time_delay": 0.002,
 }
 
 
 def multisine_current(t: np.ndarray) -> np.ndarray:
     """Valve current [mA] exciting the valve and the hydraulic resonance."""
-    return (4.0 * np.sin(2 * np.pi * 1.3 * t) + 2.5 * np.sin(2 * np.pi * 7.1 * t + 0.4)
-            + 1.5 * np.sin(2 * np.pi * 23.0 * t + 1.0) + 1.0 * np.sin(2 * np.pi * 61.0 * t + 2.0))
+    return (
+        4.0 * np.sin(2 * np.pi * 1.3 * t)
+        + 2.5 * np.sin(2 * np.pi * 7.1 * t + 0.4)
+        + 1.5 * np.sin(2 * np.pi * 23.0 * t + 1.0)
+        + 1.0 * np.sin(2 * np.pi * 61.0 * t + 2.0)
+    )
 
 
 def sine_load(t: np.ndarray) -> np.ndarray:
@@ -38,16 +48,28 @@ def sine_load(t: np.ndarray) -> np.ndarray:
     return 8000.0 * np.sin(2 * np.pi * 0.7 * t)
 
 
-@pytest.mark.parametrize(("model", "tolerance"), [("whitebox", HALVING_TOLERANCE_WHITEBOX),
-                                                  ("truth", HALVING_TOLERANCE_TRUTH)])
-def test_halving_solver_step_changes_little(simulate, whitebox_fmu: Path, truth_fmu: Path,
-                                            model: str, tolerance: float) -> None:
+@pytest.mark.parametrize(
+    ("model", "tolerance"),
+    [("whitebox", HALVING_TOLERANCE_WHITEBOX), ("truth", HALVING_TOLERANCE_TRUTH)],
+)
+def test_halving_solver_step_changes_little(
+    simulate, whitebox_fmu: Path, truth_fmu: Path, model: str, tolerance: float
+) -> None:
     fmu, effects = (whitebox_fmu, {}) if model == "whitebox" else (truth_fmu, ALL_EFFECTS)
     inputs = {"valve_current": multisine_current, "load_force": sine_load}
     coarse = simulate(fmu, 2.0, inputs=inputs, parameters={**effects, "solver_step": 1e-4})
     fine = simulate(fmu, 2.0, inputs=inputs, parameters={**effects, "solver_step": 5e-5})
-    for name in ("spool_position", "ram_position", "itfv_pressure", "ram_velocity", "load_flow",
-                 "pressure_a", "pressure_b", "spool_velocity", "supply_flow"):
+    for name in (
+        "spool_position",
+        "ram_position",
+        "itfv_pressure",
+        "ram_velocity",
+        "load_flow",
+        "pressure_a",
+        "pressure_b",
+        "spool_velocity",
+        "supply_flow",
+    ):
         spread = np.ptp(fine[name])
         assert np.max(np.abs(coarse[name] - fine[name])) <= tolerance * spread, name
 
@@ -110,8 +132,12 @@ def test_spool_limited_to_stroke(simulate, whitebox_fmu: Path) -> None:
 
 def test_hydraulic_natural_frequency_is_about_100_hz(simulate, whitebox_fmu: Path) -> None:
     # a load step on the blocked ram (valve at null) rings at the hydraulic natural frequency
-    run = simulate(whitebox_fmu, 0.2, step_size=1e-4,
-                   inputs={"load_force": lambda t: np.where(t >= 0.01, 2000.0, 0.0)})
+    run = simulate(
+        whitebox_fmu,
+        0.2,
+        step_size=1e-4,
+        inputs={"load_force": lambda t: np.where(t >= 0.01, 2000.0, 0.0)},
+    )
     ringing = run["ram_velocity"][run["time"] > 0.012]
     crossings = np.flatnonzero(np.diff(np.sign(ringing - ringing.mean())))
     frequency = 1.0 / (2 * 1e-4 * np.mean(np.diff(crossings)))
@@ -130,10 +156,17 @@ def test_tunable_parameter_acts_between_steps(instantiate, whitebox_fmu: Path) -
     slave.freeInstance()
 
 
-@pytest.mark.parametrize(("name", "value"), [("ram_mass", 0.0), ("valve_damping", -0.1),
-                                             ("solver_step", -1e-4),
-                                             ("initial_ram_position", 0.06)])
-def test_invalid_parameters_are_refused(instantiate, whitebox_fmu: Path, name: str,
-                                        value: float) -> None:
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [
+        ("ram_mass", 0.0),
+        ("valve_damping", -0.1),
+        ("solver_step", -1e-4),
+        ("initial_ram_position", 0.06),
+    ],
+)
+def test_invalid_parameters_are_refused(
+    instantiate, whitebox_fmu: Path, name: str, value: float
+) -> None:
     with pytest.raises(FMICallException, match="fmi2ExitInitializationMode"):
         instantiate(whitebox_fmu, name=f"bad-{name}", parameters={name: value})

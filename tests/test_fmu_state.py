@@ -32,10 +32,12 @@ def _step(slave, refs: dict[str, int], t0: float, n: int) -> np.ndarray:
 
 
 @pytest.mark.parametrize(("model", "parameters"), [("whitebox", {}), ("truth", EFFECTS)])
-def test_get_set_state_reproduces_bitwise(instantiate, whitebox_fmu: Path, truth_fmu: Path,
-                                          model: str, parameters: dict) -> None:
-    slave, refs = instantiate(whitebox_fmu if model == "whitebox" else truth_fmu,
-                              parameters=parameters)
+def test_get_set_state_reproduces_bitwise(
+    instantiate, whitebox_fmu: Path, truth_fmu: Path, model: str, parameters: dict
+) -> None:
+    slave, refs = instantiate(
+        whitebox_fmu if model == "whitebox" else truth_fmu, parameters=parameters
+    )
     _step(slave, refs, 0.0, 200)
     state = slave.getFMUstate()
     first = _step(slave, refs, 0.2, 300)
@@ -54,7 +56,8 @@ def test_get_set_state_reproduces_bitwise(instantiate, whitebox_fmu: Path, truth
 
 
 def test_serialized_state_moves_to_another_instance_of_the_same_fmu_only(
-        instantiate, whitebox_fmu: Path, truth_fmu: Path) -> None:
+    instantiate, whitebox_fmu: Path, truth_fmu: Path
+) -> None:
     source, refs = instantiate(whitebox_fmu, name="source")
     _step(source, refs, 0.0, 100)
     state = source.getFMUstate()
@@ -73,13 +76,17 @@ def test_serialized_state_moves_to_another_instance_of_the_same_fmu_only(
         slave.freeInstance()
 
 
-def test_instances_are_independent(instantiate, simulate, whitebox_fmu: Path,
-                                   truth_fmu: Path) -> None:
+def test_instances_are_independent(
+    instantiate, simulate, whitebox_fmu: Path, truth_fmu: Path
+) -> None:
     currents = {"a": 1.0, "b": -3.0, "c": 6.0}
-    slaves = {name: instantiate(whitebox_fmu, name=name, inputs={"valve_current": i})
-              for name, i in currents.items()}
-    truth, truth_refs = instantiate(truth_fmu, name="truth", parameters=EFFECTS,
-                                    inputs={"valve_current": 2.0})
+    slaves = {
+        name: instantiate(whitebox_fmu, name=name, inputs={"valve_current": i})
+        for name, i in currents.items()
+    }
+    truth, truth_refs = instantiate(
+        truth_fmu, name="truth", parameters=EFFECTS, inputs={"valve_current": 2.0}
+    )
     interleaved = {name: [] for name in currents}
     for k in range(300):  # step all in lockstep, the truth model in between
         for name, (slave, refs) in slaves.items():
@@ -137,16 +144,23 @@ def test_state_machine_refuses_misuse(instantiate, whitebox_fmu: Path) -> None:
 
 def test_simulate_fmu_agrees_with_step_loop(simulate, whitebox_fmu: Path) -> None:
     time = np.array([k * H for k in range(1001)])
-    signals = np.zeros(time.size, dtype=[("time", float), ("valve_current", float),
-                                         ("load_force", float)])
+    signals = np.zeros(
+        time.size, dtype=[("time", float), ("valve_current", float), ("load_force", float)]
+    )
     signals["time"] = time
     signals["valve_current"] = current(time)
     signals["load_force"] = 3000.0 * np.sin(2 * np.pi * 1.5 * time)
-    fmpy_run = simulate_fmu(str(whitebox_fmu), stop_time=1.0, output_interval=H, input=signals,
-                            output=list(OUTPUTS))
-    loop = simulate(whitebox_fmu, 1.0, inputs={"valve_current": current,
-                                               "load_force": lambda t: 3000.0 * np.sin(
-                                                   2 * np.pi * 1.5 * t)})
+    fmpy_run = simulate_fmu(
+        str(whitebox_fmu), stop_time=1.0, output_interval=H, input=signals, output=list(OUTPUTS)
+    )
+    loop = simulate(
+        whitebox_fmu,
+        1.0,
+        inputs={
+            "valve_current": current,
+            "load_force": lambda t: 3000.0 * np.sin(2 * np.pi * 1.5 * t),
+        },
+    )
     assert np.array_equal(fmpy_run["time"], loop["time"])
     for name in OUTPUTS:
         spread = np.ptp(loop[name])

@@ -38,8 +38,9 @@ def small_config(inducing: int = 40, max_iter: int = 40, train_fraction: float =
 @pytest.fixture(scope="module")
 def recording(whitebox_fmu: Path, truth_fmu: Path):
     with open_fmu(truth_fmu) as truth, open_fmu(whitebox_fmu) as whitebox:
-        request = SynthRequest(effects={"gain_error": 0.1}, seed=3, noise=0.0,
-                               profile=FlightTestProfile(duration=4.0))
+        request = SynthRequest(
+            effects={"gain_error": 0.1}, seed=3, noise=0.0, profile=FlightTestProfile(duration=4.0)
+        )
         return synthesise(truth, whitebox, request)
 
 
@@ -110,8 +111,9 @@ def test_steps_equal_a_batch_prediction_of_the_same_features(model, data) -> Non
     X, _ = stage.teacher_forced(chain.layout, data.exo, data.y_wb, seen)
     rows = np.arange(start + 1, data.n_samples)
     low, high = chain.feature_bounds_[0]
-    batch, _ = chain.correctors_[0].predict(np.clip(X[rows - stage.first_row(chain.layout)],
-                                                    low, high))
+    batch, _ = chain.correctors_[0].predict(
+        np.clip(X[rows - stage.first_row(chain.layout)], low, high)
+    )
     level = seen[:, 0] - data.y_wb[:, 0]
     if stage.target_mode == "increment":
         batch = batch + level[rows - 1]
@@ -205,17 +207,45 @@ def test_failed_save_leaves_the_previous_model_intact(model, tmp_path: Path, mon
 def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
     rec = save_recording(recording, tmp_path / "rec.csv")
     runner = CliRunner()
-    result = runner.invoke(main, ["-q", "train", str(REFERENCE), "--recording", str(rec),
-                                  "--inducing", "30", "--out", str(tmp_path / "model")])
+    result = runner.invoke(
+        main,
+        [
+            "-q",
+            "train",
+            str(REFERENCE),
+            "--recording",
+            str(rec),
+            "--inducing",
+            "30",
+            "--out",
+            str(tmp_path / "model"),
+        ],
+    )
     assert result.exit_code == 0, result.output
-    result = runner.invoke(main, ["validate", str(REFERENCE), "--model", str(tmp_path / "model"),
-                                  "--recording", str(rec), "--out", str(tmp_path / "val")])
+    result = runner.invoke(
+        main,
+        [
+            "validate",
+            str(REFERENCE),
+            "--model",
+            str(tmp_path / "model"),
+            "--recording",
+            str(rec),
+            "--out",
+            str(tmp_path / "val"),
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert "EHV" in result.output and "improvement" in result.output
     metrics = json.loads((tmp_path / "val" / "metrics.json").read_text())
     for stage in ("EHV", "RAM", "ITFV"):
-        assert set(metrics["stages"][stage]) == {"wb_rmse", "gb_rmse", "wb_nrmse", "gb_nrmse",
-                                                 "improvement"}
+        assert set(metrics["stages"][stage]) == {
+            "wb_rmse",
+            "gb_rmse",
+            "wb_nrmse",
+            "gb_nrmse",
+            "improvement",
+        }
     png = (tmp_path / "val" / "traces.png").read_bytes()
     assert png.startswith(b"\x89PNG") and len(png) > 10_000
 

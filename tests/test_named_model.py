@@ -55,8 +55,15 @@ def stepped(model: NamedModel, u: np.ndarray) -> np.ndarray:
 
 
 def named(archive, u: np.ndarray) -> NamedModel:
-    return NamedModel(archive, INPUTS, OUTPUTS, DT, terms(), [0, 1, 2],
-                      start_values=dict(zip(INPUTS, u[0], strict=True)))
+    return NamedModel(
+        archive,
+        INPUTS,
+        OUTPUTS,
+        DT,
+        terms(),
+        [0, 1, 2],
+        start_values=dict(zip(INPUTS, u[0], strict=True)),
+    )
 
 
 def test_stepping_equals_the_batch_run_and_differs_from_plain(
@@ -118,9 +125,15 @@ def test_diagnosis_files_that_are_no_diagnosis_are_refused(tmp_path: Path) -> No
     bad.write_text(json.dumps({"findings": [{"effect": "offset", "terms": [{"kind": "Eval"}]}]}))
     with pytest.raises(ConfigError, match="unknown term kind 'Eval'"):
         read_terms(bad)
-    good = {"findings": [{"effect": "gain_error", "terms": [InputGain(input="valve_current",
-                                                                      gain=0.05).to_dict()]},
-                         {"effect": "unexplained", "terms": []}]}
+    good = {
+        "findings": [
+            {
+                "effect": "gain_error",
+                "terms": [InputGain(input="valve_current", gain=0.05).to_dict()],
+            },
+            {"effect": "unexplained", "terms": []},
+        ]
+    }
     bad.write_text(json.dumps(good))
     assert read_terms(bad) == [InputGain(input="valve_current", gain=0.05)]
 
@@ -135,8 +148,13 @@ def termed(tmp_path_factory: pytest.TempPathFactory) -> dict:
     model = train_model(config, recording, terms=terms())
     save_model(model, folder / "model")
     fmu = export_greybox(folder / "model", folder / "greybox.fmu", author="tests").path
-    return {"model_dir": folder / "model", "fmu": fmu, "validation": synth_recording(1.0, 22),
-            "recording": recording, "folder": folder}
+    return {
+        "model_dir": folder / "model",
+        "fmu": fmu,
+        "validation": synth_recording(1.0, 22),
+        "recording": recording,
+        "folder": folder,
+    }
 
 
 def test_a_model_carries_its_terms_through_save_load_and_into_the_master(termed) -> None:
@@ -145,16 +163,22 @@ def test_a_model_carries_its_terms_through_save_load_and_into_the_master(termed)
     validation = termed["validation"]
     run = master_run(termed["model_dir"], validation)
     with open_fmu(model.whitebox_fmu) as archive:
-        expected = simulate_with_terms(archive, INPUTS, input_rows(validation), DT, OUTPUTS,
-                                       terms(), stages=[0, 1, 2])
+        expected = simulate_with_terms(
+            archive, INPUTS, input_rows(validation), DT, OUTPUTS, terms(), stages=[0, 1, 2]
+        )
     np.testing.assert_array_equal(run.whitebox, expected[1:])
 
 
 def test_exported_fmu_with_terms_gives_the_masters_outputs(termed) -> None:
     fmu, validation = termed["fmu"], termed["validation"]
     assert validate_fmu(str(fmu)) == []
-    result = simulate_fmu(str(fmu), stop_time=validation.time[-1], step_size=DT,
-                          output_interval=DT, input=input_signal(validation))
+    result = simulate_fmu(
+        str(fmu),
+        stop_time=validation.time[-1],
+        step_size=DT,
+        output_interval=DT,
+        input=input_signal(validation),
+    )
     run = master_run(termed["model_dir"], validation)
     for q, name in enumerate(STAGE_OUTPUTS):
         assert_close(result[name][1:], run.mean[:, q], name)
@@ -164,7 +188,10 @@ def test_exported_fmu_with_terms_gives_the_masters_outputs(termed) -> None:
         xml = archive.read("modelDescription.xml")
     annotated = etree.fromstring(xml).findall(".//GreyBox/NamedTerm")
     assert [(t.get("effect"), t.get("stage")) for t in annotated] == [
-        ("time_delay", "EHV"), ("coulomb_friction", "EHV"), ("time_delay", "RAM")]
+        ("time_delay", "EHV"),
+        ("coulomb_friction", "EHV"),
+        ("time_delay", "RAM"),
+    ]
 
 
 def test_exported_fmu_state_with_terms_restores_identically(termed) -> None:
@@ -184,15 +211,32 @@ def test_exported_fmu_state_with_terms_restores_identically(termed) -> None:
 
 def test_train_command_folds_a_diagnosis_terms(termed, tmp_path: Path) -> None:
     diagnosis = tmp_path / "diagnosis.json"
-    diagnosis.write_text(json.dumps({"findings": [
-        {"effect": "coulomb_friction", "terms": [terms()[1].to_dict()]},
-        {"effect": "none", "terms": []},
-    ]}))
+    diagnosis.write_text(
+        json.dumps(
+            {
+                "findings": [
+                    {"effect": "coulomb_friction", "terms": [terms()[1].to_dict()]},
+                    {"effect": "none", "terms": []},
+                ]
+            }
+        )
+    )
     recording = save_recording(termed["recording"], tmp_path / "rec.csv")
-    result = CliRunner().invoke(main, [
-        "train", str(ROOT / "bench_configs" / "hydraulic_actuator.toml"), "--recording",
-        str(recording), "--inducing", "10", "--terms", str(diagnosis), "--out",
-        str(tmp_path / "model")])
+    result = CliRunner().invoke(
+        main,
+        [
+            "train",
+            str(ROOT / "bench_configs" / "hydraulic_actuator.toml"),
+            "--recording",
+            str(recording),
+            "--inducing",
+            "10",
+            "--terms",
+            str(diagnosis),
+            "--out",
+            str(tmp_path / "model"),
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert "named terms: coulomb_friction" in result.output
     assert load_model(tmp_path / "model").terms == [terms()[1]]

@@ -25,8 +25,14 @@ MODEL_DIR = SOURCES_DIR / "ElectroMechanicalPositioner"
 CONFIG = Path(__file__).resolve().parents[1] / "bench_configs" / "positioner.toml"
 WHITEBOX, TRUTH = "ElectroMechanicalPositioner", "ElectroMechanicalPositionerTruth"
 INPUTS = ("motor_voltage", "load_force")
-OUTPUTS = ("motor_current", "motor_speed", "position", "velocity", "transmission_deflection",
-           "transmission_force")
+OUTPUTS = (
+    "motor_current",
+    "motor_speed",
+    "position",
+    "velocity",
+    "transmission_deflection",
+    "transmission_force",
+)
 EFFECTS = ("gain_error", "offset", "coulomb_friction", "viscous_friction_extra", "backlash")
 
 # Start values of the white-box parameters (variables.toml).
@@ -44,8 +50,13 @@ FREE_MOUNT = {"mount_stiffness": 0.0}  # steady speed under constant voltage
 HALVING_TOLERANCE_WHITEBOX = 3e-4
 HALVING_TOLERANCE_TRUTH = 3e-3
 
-ALL_EFFECTS = {"gain_error": 0.05, "offset": 0.3, "coulomb_friction": 80.0,
-               "viscous_friction_extra": 300.0, "backlash": 2e-5}
+ALL_EFFECTS = {
+    "gain_error": 0.05,
+    "offset": 0.3,
+    "coulomb_friction": 80.0,
+    "viscous_friction_extra": 300.0,
+    "backlash": 2e-5,
+}
 
 
 @pytest.fixture(scope="module")
@@ -54,20 +65,24 @@ def fmus(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     return build_model_pair(MODEL_DIR, tmp_path_factory.mktemp("positioner"))
 
 
-def run(fmu: Path, stop_time: float, parameters: dict | None = None,
-        **inputs: object) -> dict[str, np.ndarray]:
+def run(
+    fmu: Path, stop_time: float, parameters: dict | None = None, **inputs: object
+) -> dict[str, np.ndarray]:
     """Simulate at 1 ms communication steps; inputs are constants or functions of time."""
-    return simulate_fmu_loop(fmu, stop_time, inputs=inputs, parameters=parameters,
-                             outputs=OUTPUTS, name="positioner")
+    return simulate_fmu_loop(
+        fmu, stop_time, inputs=inputs, parameters=parameters, outputs=OUTPUTS, name="positioner"
+    )
 
 
 def busy_inputs() -> dict:
     """Multi-sine voltage up to 61 Hz and a sine load: both directions, driving and back-driven."""
     return {
-        "motor_voltage": lambda t: (12 * np.sin(2 * np.pi * 1.3 * t)
-                                    + 6 * np.sin(2 * np.pi * 7.1 * t + 0.4)
-                                    + 4 * np.sin(2 * np.pi * 23 * t + 1.0)
-                                    + 2 * np.sin(2 * np.pi * 61 * t + 2.0)),
+        "motor_voltage": lambda t: (
+            12 * np.sin(2 * np.pi * 1.3 * t)
+            + 6 * np.sin(2 * np.pi * 7.1 * t + 0.4)
+            + 4 * np.sin(2 * np.pi * 23 * t + 1.0)
+            + 2 * np.sin(2 * np.pi * 61 * t + 2.0)
+        ),
         "load_force": lambda t: 600 * np.sin(2 * np.pi * 0.7 * t),
     }
 
@@ -88,12 +103,17 @@ def test_validates_and_declares_its_interface(fmus: dict[str, Path], identifier:
     description = read_model_description(str(fmu))
     variables = {v.name: v for v in description.modelVariables}
     assert [v.name for v in description.modelVariables if v.causality == "input"] == list(INPUTS)
-    assert [v.name for v in description.modelVariables if v.causality == "output"] == \
-        list(OUTPUTS)
+    assert [v.name for v in description.modelVariables if v.causality == "output"] == list(OUTPUTS)
     assert {name: variables[name].unit for name in (*INPUTS, *OUTPUTS)} == {
-        "motor_voltage": "V", "load_force": "N", "motor_current": "A", "motor_speed": "rad/s",
-        "position": "m", "velocity": "m/s", "transmission_deflection": "m",
-        "transmission_force": "N"}
+        "motor_voltage": "V",
+        "load_force": "N",
+        "motor_current": "A",
+        "motor_speed": "rad/s",
+        "position": "m",
+        "velocity": "m/s",
+        "transmission_deflection": "m",
+        "transmission_force": "N",
+    }
     assert all(v.unit for v in description.modelVariables)
     effects = [name for name in EFFECTS if name in variables]
     assert effects == (list(EFFECTS) if identifier == TRUTH else [])
@@ -101,13 +121,18 @@ def test_validates_and_declares_its_interface(fmus: dict[str, Path], identifier:
 
 
 def test_truth_only_variables_do_not_collide(fmus: dict[str, Path]) -> None:
-    white = {v.name: v.valueReference for v in read_model_description(
-        str(fmus[WHITEBOX])).modelVariables}
-    truth = {v.name: v.valueReference for v in read_model_description(
-        str(fmus[TRUTH])).modelVariables}
+    white = {
+        v.name: v.valueReference for v in read_model_description(str(fmus[WHITEBOX])).modelVariables
+    }
+    truth = {
+        v.name: v.valueReference for v in read_model_description(str(fmus[TRUTH])).modelVariables
+    }
     assert all(truth[name] == vr for name, vr in white.items())
-    assert set(truth) - set(white) == {*EFFECTS, "friction_smoothing_velocity",
-                                       "backlash_smoothing"}
+    assert set(truth) - set(white) == {
+        *EFFECTS,
+        "friction_smoothing_velocity",
+        "backlash_smoothing",
+    }
 
 
 def test_readme_documents_every_variable() -> None:
@@ -120,15 +145,23 @@ def test_project_file_matches_the_fmu(fmus: dict[str, Path]) -> None:
     config = load_config(CONFIG)
     assert config.fmu == "builtin:ElectroMechanicalPositioner"
     assert [(s.name, s.target, s.feeds_from) for s in config.stages] == [
-        ("MOTOR", "motor_current", ()), ("DRIVE", "position", ("MOTOR",))]
+        ("MOTOR", "motor_current", ()),
+        ("DRIVE", "position", ("MOTOR",)),
+    ]
     assert {s.role for s in config.signals.values()} == {
-        "voltage", "force", "current", "velocity", "position"}
+        "voltage",
+        "force",
+        "current",
+        "velocity",
+        "position",
+    }
     with open_fmu(fmus[WHITEBOX]) as archive:
         config.check_against_fmu(archive)
 
 
-def test_builtin_names_resolve_to_the_cache(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
-                                            fmus: dict[str, Path]) -> None:
+def test_builtin_names_resolve_to_the_cache(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, fmus: dict[str, Path]
+) -> None:
     monkeypatch.setenv("FMU_GREYBOX_CACHE", str(tmp_path))
     cache = builtin.cache_dir()
     cache.mkdir(parents=True)
@@ -153,38 +186,43 @@ def test_steady_speed_under_constant_voltage(fmus: dict[str, Path], voltage: flo
     # nut back): the mesh friction flips, the motor receives r F_t (1 - loss).
     efficiency = 1.0 + LOSS if voltage > 0 else 1.0 - LOSS
     speed = (voltage - R * RATIO * efficiency * load / KT) / (
-        KE + R * RATIO**2 * efficiency * VISCOUS / KT)
+        KE + R * RATIO**2 * efficiency * VISCOUS / KT
+    )
     force = VISCOUS * RATIO * speed + load
     assert voltage < 0 < force or voltage > 0  # the -10 V case is back-driven indeed
     assert final(result, "motor_speed") == pytest.approx(speed, rel=1e-6)
-    assert final(result, "motor_current") == pytest.approx(RATIO * efficiency * force / KT,
-                                                           rel=1e-6)
+    assert final(result, "motor_current") == pytest.approx(
+        RATIO * efficiency * force / KT, rel=1e-6
+    )
     assert final(result, "transmission_force") == pytest.approx(force, rel=1e-6)
 
 
 @pytest.mark.parametrize(("gear_ratio", "screw_lead"), [(3.0, 4.0e-3), (5.0, 1.0e-2)])
-def test_gear_and_screw_kinematics(fmus: dict[str, Path], gear_ratio: float,
-                                   screw_lead: float) -> None:
+def test_gear_and_screw_kinematics(
+    fmus: dict[str, Path], gear_ratio: float, screw_lead: float
+) -> None:
     parameters = {**FREE_MOUNT, "gear_ratio": gear_ratio, "screw_lead": screw_lead}
     result = run(fmus[WHITEBOX], 0.3, parameters, motor_voltage=8.0)
     ratio = screw_lead / (2 * math.pi * gear_ratio)
-    assert final(result, "velocity") / final(result, "motor_speed") == pytest.approx(ratio,
-                                                                                    rel=1e-9)
+    assert final(result, "velocity") / final(result, "motor_speed") == pytest.approx(
+        ratio, rel=1e-9
+    )
     # Steady motion: the deflection rate is zero, the spring alone carries the force.
     assert final(result, "transmission_force") == pytest.approx(
-        STIFFNESS * final(result, "transmission_deflection"), rel=1e-9)
+        STIFFNESS * final(result, "transmission_deflection"), rel=1e-9
+    )
 
 
 def test_position_integrates_velocity(fmus: dict[str, Path]) -> None:
     result = run(fmus[WHITEBOX], 2.0, **busy_inputs())
     time, velocity = result["time"], result["velocity"]
-    integral = np.concatenate(([0.0], np.cumsum(0.5 * np.diff(time) * (velocity[1:]
-                                                                        + velocity[:-1]))))
+    integral = np.concatenate(
+        ([0.0], np.cumsum(0.5 * np.diff(time) * (velocity[1:] + velocity[:-1])))
+    )
     assert np.max(np.abs(integral - result["position"])) < 1e-3 * np.ptp(result["position"])
     # Nut travel r * integral(omega) minus load travel is the transmission deflection.
     speed = result["motor_speed"]
-    nut = RATIO * np.concatenate(([0.0], np.cumsum(0.5 * np.diff(time) * (speed[1:]
-                                                                          + speed[:-1]))))
+    nut = RATIO * np.concatenate(([0.0], np.cumsum(0.5 * np.diff(time) * (speed[1:] + speed[:-1]))))
     deflection = result["transmission_deflection"]
     assert np.max(np.abs(nut - result["position"] - deflection)) < 0.1 * np.ptp(deflection)
 
@@ -201,14 +239,16 @@ def test_end_stop_holds_the_load(fmus: dict[str, Path]) -> None:
     assert np.max(result["position"]) == 0.05 and final(result, "velocity") == 0.0
     # Stalled at the stop: the motor pushes with its stall torque.
     assert final(result, "motor_current") == pytest.approx(28.0 / R, rel=1e-6)
-    assert final(result, "transmission_force") == pytest.approx(KT * 28.0 / (R * RATIO),
-                                                                rel=1e-6)
+    assert final(result, "transmission_force") == pytest.approx(KT * 28.0 / (R * RATIO), rel=1e-6)
 
 
-@pytest.mark.parametrize(("model", "tolerance"), [(WHITEBOX, HALVING_TOLERANCE_WHITEBOX),
-                                                  (TRUTH, HALVING_TOLERANCE_TRUTH)])
-def test_halving_solver_step_changes_little(fmus: dict[str, Path], model: str,
-                                            tolerance: float) -> None:
+@pytest.mark.parametrize(
+    ("model", "tolerance"),
+    [(WHITEBOX, HALVING_TOLERANCE_WHITEBOX), (TRUTH, HALVING_TOLERANCE_TRUTH)],
+)
+def test_halving_solver_step_changes_little(
+    fmus: dict[str, Path], model: str, tolerance: float
+) -> None:
     effects = ALL_EFFECTS if model == TRUTH else {}
     coarse = run(fmus[model], 2.0, {**effects, "solver_step": 1e-4}, **busy_inputs())
     fine = run(fmus[model], 2.0, {**effects, "solver_step": 5e-5}, **busy_inputs())
@@ -234,8 +274,7 @@ def test_truth_with_effects_off_is_the_whitebox(fmus: dict[str, Path]) -> None:
 def test_gain_error_scales_the_torque(fmus: dict[str, Path]) -> None:
     white = run(fmus[WHITEBOX], 0.6, STIFF_MOUNT, motor_voltage=2.0)
     truth = run(fmus[TRUTH], 0.6, {**STIFF_MOUNT, "gain_error": 0.1}, motor_voltage=2.0)
-    assert final(truth, "motor_current") == pytest.approx(final(white, "motor_current"),
-                                                          rel=1e-6)
+    assert final(truth, "motor_current") == pytest.approx(final(white, "motor_current"), rel=1e-6)
     assert final(truth, "position") == pytest.approx(1.1 * final(white, "position"), rel=1e-6)
 
 
@@ -248,13 +287,20 @@ def test_offset_drives_the_motor_at_zero_voltage(fmus: dict[str, Path]) -> None:
 
 
 @pytest.mark.parametrize("voltage", [10.0, -10.0])
-def test_coulomb_friction_acts_as_a_load_opposing_motion(fmus: dict[str, Path],
-                                                         voltage: float) -> None:
+def test_coulomb_friction_acts_as_a_load_opposing_motion(
+    fmus: dict[str, Path], voltage: float
+) -> None:
     friction = 100.0
-    truth = run(fmus[TRUTH], 0.3, {**FREE_MOUNT, "coulomb_friction": friction},
-                motor_voltage=voltage)
-    white = run(fmus[WHITEBOX], 0.3, FREE_MOUNT, motor_voltage=voltage,
-                load_force=math.copysign(friction, voltage))
+    truth = run(
+        fmus[TRUTH], 0.3, {**FREE_MOUNT, "coulomb_friction": friction}, motor_voltage=voltage
+    )
+    white = run(
+        fmus[WHITEBOX],
+        0.3,
+        FREE_MOUNT,
+        motor_voltage=voltage,
+        load_force=math.copysign(friction, voltage),
+    )
     for name in ("motor_current", "motor_speed", "transmission_force"):
         assert final(truth, name) == pytest.approx(final(white, name), rel=1e-6), name
 
@@ -267,8 +313,7 @@ def test_extra_viscous_friction_adds_to_viscous_friction(fmus: dict[str, Path]) 
 
 
 @pytest.mark.parametrize("voltage", [2.0, -2.0])
-def test_backlash_adds_free_play_to_the_deflection(fmus: dict[str, Path],
-                                                   voltage: float) -> None:
+def test_backlash_adds_free_play_to_the_deflection(fmus: dict[str, Path], voltage: float) -> None:
     backlash = 4e-5
     white = run(fmus[WHITEBOX], 0.6, STIFF_MOUNT, motor_voltage=voltage)
     truth = run(fmus[TRUTH], 0.6, {**STIFF_MOUNT, "backlash": backlash}, motor_voltage=voltage)
@@ -297,8 +342,9 @@ def test_backlash_decouples_motor_and_load_inside_the_gap(fmus: dict[str, Path])
 
 def test_synthesised_recording_tracks_the_reference(fmus: dict[str, Path]) -> None:
     with open_fmu(fmus[TRUTH]) as truth, open_fmu(fmus[WHITEBOX]) as white:
-        recording = synthesise_positioner(truth, white, {"coulomb_friction": 50.0}, seed=3,
-                                          duration=6.0, noise=1.0)
+        recording = synthesise_positioner(
+            truth, white, {"coulomb_friction": 50.0}, seed=3, duration=6.0, noise=1.0
+        )
         with pytest.raises(ConfigError, match="unknown effect 'backlsh'"):
             synthesise_positioner(truth, white, {"backlsh": 1e-5}, 0, 0.1, 0.0)
     assert list(recording.signals) == [*INPUTS, *OUTPUTS]

@@ -29,8 +29,11 @@ TOLERANCE = 1e-9  # of each output's range
 def reference_inputs(time: np.ndarray) -> dict[str, np.ndarray]:
     """The documented input sequence: current step, then multi-sine; constant supply; load step."""
     tau = time - 0.5
-    multisine = (3.0 * np.sin(2 * np.pi * 1.5 * tau) + 1.5 * np.sin(2 * np.pi * 6.0 * tau)
-                 + 0.8 * np.sin(2 * np.pi * 17.0 * tau))
+    multisine = (
+        3.0 * np.sin(2 * np.pi * 1.5 * tau)
+        + 1.5 * np.sin(2 * np.pi * 6.0 * tau)
+        + 0.8 * np.sin(2 * np.pi * 17.0 * tau)
+    )
     current = np.where(time < 0.1, 0.0, np.where(time < 0.5, 2.0, multisine))
     return {
         "valve_current": current,
@@ -60,8 +63,9 @@ def write_reference() -> None:
         run = run_reference(build_fmu(REFERENCE_MODEL_DIR, Path(folder), "HydraulicActuator"))
     columns = ["time", *INPUTS, *OUTPUTS]
     data = np.column_stack([run[name] for name in columns])
-    np.savetxt(REFERENCE_CSV, data, delimiter=",", header=",".join(columns), comments="",
-               fmt="%.12g")
+    np.savetxt(
+        REFERENCE_CSV, data, delimiter=",", header=",".join(columns), comments="", fmt="%.12g"
+    )
 
 
 def test_reference_inputs_are_the_documented_ones() -> None:

@@ -13,15 +13,22 @@ PISTON_AREA = 2.0e-3  # m2
 VALVE_GAIN = 4.0e-5  # m/mA
 LEAKAGE = 2.0e-13  # m3/(s.Pa), white-box leakage_coefficient
 SUPPLY, RETURN = 20.7e6, 3.0e5  # Pa
-SENSED = ("spool_position", "ram_position", "itfv_pressure", "ram_velocity", "pressure_a",
-          "pressure_b")
+SENSED = (
+    "spool_position",
+    "ram_position",
+    "itfv_pressure",
+    "ram_velocity",
+    "pressure_a",
+    "pressure_b",
+)
 
 
 def busy_inputs() -> dict:
     """Inputs visiting every regime: multi-sine, load, end stop with relief, disengagement."""
     return {
         "valve_current": lambda t: np.where(
-            t < 1.0, 3.0 * np.sin(2 * np.pi * 1.7 * t) + 1.2 * np.sin(2 * np.pi * 13.0 * t), 9.0),
+            t < 1.0, 3.0 * np.sin(2 * np.pi * 1.7 * t) + 1.2 * np.sin(2 * np.pi * 13.0 * t), 9.0
+        ),
         "load_force": lambda t: 6000.0 * np.sin(2 * np.pi * 0.9 * t) + np.where(t > 1.5, 38e3, 0),
         "engage": lambda t: np.where((t > 0.6) & (t < 0.8), 0.0, 1.0),
     }
@@ -32,8 +39,9 @@ def steady(run: dict, name: str) -> float:
     return float(np.mean(run[name][-100:]))
 
 
-def test_truth_with_effects_off_is_the_whitebox(simulate, whitebox_fmu: Path,
-                                                truth_fmu: Path) -> None:
+def test_truth_with_effects_off_is_the_whitebox(
+    simulate, whitebox_fmu: Path, truth_fmu: Path
+) -> None:
     white = simulate(whitebox_fmu, 2.5, inputs=busy_inputs())
     truth = simulate(truth_fmu, 2.5, inputs=busy_inputs())
     assert np.max(np.abs(white["relief_flow"])) > 0.0  # the relief valve was visited
@@ -42,13 +50,11 @@ def test_truth_with_effects_off_is_the_whitebox(simulate, whitebox_fmu: Path,
 
 
 def test_gain_error_scales_spool_position(simulate, truth_fmu: Path) -> None:
-    run = simulate(truth_fmu, 0.2, inputs={"valve_current": 3.0},
-                   parameters={"gain_error": 0.1})
+    run = simulate(truth_fmu, 0.2, inputs={"valve_current": 3.0}, parameters={"gain_error": 0.1})
     assert steady(run, "spool_position") == pytest.approx(1.1 * VALVE_GAIN * 3.0, rel=1e-6)
 
 
-def test_offset_moves_spool_at_zero_current(simulate, whitebox_fmu: Path,
-                                            truth_fmu: Path) -> None:
+def test_offset_moves_spool_at_zero_current(simulate, whitebox_fmu: Path, truth_fmu: Path) -> None:
     white = simulate(whitebox_fmu, 0.3)
     truth = simulate(truth_fmu, 0.3, parameters={"offset": 0.5})
     assert steady(white, "spool_position") == 0.0 and steady(white, "ram_velocity") == 0.0
@@ -61,17 +67,18 @@ def test_deadband_blocks_small_openings(simulate, whitebox_fmu: Path, truth_fmu:
     small = simulate(truth_fmu, 0.3, inputs={"valve_current": 0.4}, parameters=deadband)
     assert np.all(small["load_flow"] == 0.0)
     assert np.max(np.abs(small["ram_position"])) < 1e-12
-    assert steady(simulate(whitebox_fmu, 0.3, inputs={"valve_current": 0.4}),
-                  "ram_position") > 1e-3
+    assert steady(simulate(whitebox_fmu, 0.3, inputs={"valve_current": 0.4}), "ram_position") > 1e-3
     white = simulate(whitebox_fmu, 0.3, inputs={"valve_current": 2.0})
     large = simulate(truth_fmu, 0.3, inputs={"valve_current": 2.0}, parameters=deadband)
     opening = (VALVE_GAIN * 2.0 - 2e-5) / (VALVE_GAIN * 2.0)
-    assert steady(large, "load_flow") == pytest.approx(opening * steady(white, "load_flow"),
-                                                       rel=0.01)
+    assert steady(large, "load_flow") == pytest.approx(
+        opening * steady(white, "load_flow"), rel=0.01
+    )
 
 
 def test_coulomb_friction_raises_load_pressure_and_lowers_velocity(
-        simulate, whitebox_fmu: Path, truth_fmu: Path) -> None:
+    simulate, whitebox_fmu: Path, truth_fmu: Path
+) -> None:
     inputs = {"valve_current": 1.0}
     white = simulate(whitebox_fmu, 0.5, inputs=inputs)
     truth = simulate(truth_fmu, 0.5, inputs=inputs, parameters={"coulomb_friction": 1000.0})
@@ -103,8 +110,9 @@ def test_stribeck_friction_adds_breakaway_at_low_speed_only(simulate, truth_fmu:
     assert abs(extra) < 1e-3 * 1500.0 / PISTON_AREA
 
 
-def test_internal_leakage_increases_drift_under_load(simulate, whitebox_fmu: Path,
-                                                     truth_fmu: Path) -> None:
+def test_internal_leakage_increases_drift_under_load(
+    simulate, whitebox_fmu: Path, truth_fmu: Path
+) -> None:
     inputs = {"load_force": lambda t: 10e3 * np.clip(t / 0.1, 0.0, 1.0)}  # valve at null
     white = simulate(whitebox_fmu, 0.5, inputs=inputs)
     truth = simulate(truth_fmu, 0.5, inputs=inputs, parameters={"internal_leakage": 8e-13})
@@ -119,18 +127,19 @@ def _ringing_frequency(run: dict) -> float:
     return 1.0 / (2 * 1e-4 * np.mean(np.diff(crossings)))
 
 
-def test_compliance_lowers_hydraulic_natural_frequency(simulate, whitebox_fmu: Path,
-                                                       truth_fmu: Path) -> None:
+def test_compliance_lowers_hydraulic_natural_frequency(
+    simulate, whitebox_fmu: Path, truth_fmu: Path
+) -> None:
     inputs = {"load_force": lambda t: np.where(t >= 0.01, 2000.0, 0.0)}
     white = simulate(whitebox_fmu, 0.2, step_size=1e-4, inputs=inputs)
-    truth = simulate(truth_fmu, 0.2, step_size=1e-4, inputs=inputs,
-                     parameters={"compliance": 0.5})
+    truth = simulate(truth_fmu, 0.2, step_size=1e-4, inputs=inputs, parameters={"compliance": 0.5})
     ratio = _ringing_frequency(truth) / _ringing_frequency(white)
     assert ratio == pytest.approx(np.sqrt(0.5), rel=0.02)
 
 
-def test_supply_droop_lowers_velocity_at_large_flow(simulate, whitebox_fmu: Path,
-                                                    truth_fmu: Path) -> None:
+def test_supply_droop_lowers_velocity_at_large_flow(
+    simulate, whitebox_fmu: Path, truth_fmu: Path
+) -> None:
     inputs = {"valve_current": 10.0}
     white = simulate(whitebox_fmu, 0.2, inputs=inputs)
     droop = 1e10
@@ -143,8 +152,10 @@ def test_supply_droop_lowers_velocity_at_large_flow(simulate, whitebox_fmu: Path
 
 
 def test_time_delay_shifts_sensed_outputs(simulate, truth_fmu: Path) -> None:
-    inputs = {"valve_current": lambda t: 3.0 * np.sin(2 * np.pi * 5.0 * t) + 1.0,
-              "load_force": lambda t: 4000.0 * np.sin(2 * np.pi * 2.0 * t)}
+    inputs = {
+        "valve_current": lambda t: 3.0 * np.sin(2 * np.pi * 5.0 * t) + 1.0,
+        "load_force": lambda t: 4000.0 * np.sin(2 * np.pi * 2.0 * t),
+    }
     plain = simulate(truth_fmu, 0.5, inputs=inputs)
     delayed = simulate(truth_fmu, 0.5, inputs=inputs, parameters={"time_delay": 0.005})
     shift = 5  # samples of 1 ms

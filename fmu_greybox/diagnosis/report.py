@@ -139,7 +139,8 @@ def diagnosis_sections(diagnosis, payload: dict) -> list[str]:
                 f["effect"],
                 fmt(mag.get("value"), 4, mag.get("unit", "")),
                 f"[{ci[0]:.4g}, {ci[1]:.4g}]" if ci else "",
-                "" if f.get("explained_fraction") is None
+                ""
+                if f.get("explained_fraction") is None
                 else f"{100 * f['explained_fraction']:.0f} %",
                 f["summary"],
             )
@@ -169,8 +170,9 @@ def diagnosis_sections(diagnosis, payload: dict) -> list[str]:
     ]
     return [
         "<h2>Findings</h2>",
-        table(("#", "stage", "effect", "magnitude", "95 % interval", "explained", "summary"),
-              findings),
+        table(
+            ("#", "stage", "effect", "magnitude", "95 % interval", "explained", "summary"), findings
+        ),
         "<h2>Diagnosis fit on held-out rows</h2>",
         table(("stage", "unit", "noise", "white-box RMSE", "+ named terms", "grey-box"), fit),
         "<h2>Residual per stage (white-box)</h2>",

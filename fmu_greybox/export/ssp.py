@@ -625,8 +625,11 @@ def compare_with_master(
     differences = {}
     for q, signal in enumerate(model.chain.target_signals):
         name = model.config.signals[signal].variable
-        for suffix, ref in (("", run.mean[:, q]), ("_std", run.std[:, q]),
-                            ("_wb", run.whitebox[:, q])):
+        for suffix, ref in (
+            ("", run.mean[:, q]),
+            ("_std", run.std[:, q]),
+            ("_wb", run.whitebox[:, q]),
+        ):
             got = result[f"greybox.{name}{suffix}"]
             scale = max(float(np.ptp(ref)), float(np.max(np.abs(ref))), np.finfo(float).tiny)
             differences[name + suffix] = float(np.max(np.abs(got - ref))) / scale

@@ -50,19 +50,34 @@ FRAMEWORK_DIR = SOURCES_DIR / "framework"
 REFERENCE_MODEL_DIR = SOURCES_DIR / "HydraulicActuator"
 """The reference actuator: white-box ``HydraulicActuator`` and ``HydraulicActuatorTruth``."""
 
-CFLAGS = ("-std=c99", "-O2", "-funroll-loops", "-fvisibility=hidden", "-ffp-contract=off", "-Wall",
-          "-Wextra")
+CFLAGS = (
+    "-std=c99",
+    "-O2",
+    "-funroll-loops",
+    "-fvisibility=hidden",
+    "-ffp-contract=off",
+    "-Wall",
+    "-Wextra",
+)
 """Compiler flags of every build (plus ``-shared``/``-fPIC`` for the platform)."""
 
 _CAUSALITIES = ("input", "output", "parameter")
 _VARIABILITIES = ("continuous", "discrete", "fixed", "tunable")
 _TYPES = ("Real", "Integer", "Boolean", "String")
 _TYPE_PREFIX = {"Real": "R", "Integer": "I", "Boolean": "B", "String": "S"}
-_C_TYPE = {"Real": "FW_REAL", "Integer": "FW_INTEGER", "Boolean": "FW_BOOLEAN",
-           "String": "FW_STRING"}
+_C_TYPE = {
+    "Real": "FW_REAL",
+    "Integer": "FW_INTEGER",
+    "Boolean": "FW_BOOLEAN",
+    "String": "FW_STRING",
+}
 _C_CAUSALITY = {"parameter": "FW_PARAMETER", "input": "FW_INPUT", "output": "FW_OUTPUT"}
-_C_VARIABILITY = {"fixed": "FW_FIXED", "tunable": "FW_TUNABLE", "discrete": "FW_DISCRETE",
-                  "continuous": "FW_CONTINUOUS"}
+_C_VARIABILITY = {
+    "fixed": "FW_FIXED",
+    "tunable": "FW_TUNABLE",
+    "discrete": "FW_DISCRETE",
+    "continuous": "FW_CONTINUOUS",
+}
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _GUID_NAMESPACE = uuid.UUID("6f1c2a0e-5b7d-4e21-9a57-1f0c3d8e4b62")
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)  # fixed: same sources give the same archive
@@ -178,15 +193,26 @@ def _table_error(path: Path, where: str, message: str) -> FmuBuildError:
     return FmuBuildError(f"{path}: {where}: {message}")
 
 
-def _parse_variable(path: Path, index: int, raw: dict[str, Any],
-                    identifiers: set[str]) -> Variable:
+def _parse_variable(path: Path, index: int, raw: dict[str, Any], identifiers: set[str]) -> Variable:
     where = f"variable #{index} ({raw.get('name', '?')!r})"
-    known_keys = {"name", "causality", "variability", "type", "unit", "description", "start",
-                  "min", "max", "dependencies", "models"}
+    known_keys = {
+        "name",
+        "causality",
+        "variability",
+        "type",
+        "unit",
+        "description",
+        "start",
+        "min",
+        "max",
+        "dependencies",
+        "models",
+    }
     unknown = set(raw) - known_keys
     if unknown:
-        raise _table_error(path, where, f"unknown keys {sorted(unknown)}; allowed: "
-                           f"{sorted(known_keys)}.")
+        raise _table_error(
+            path, where, f"unknown keys {sorted(unknown)}; allowed: {sorted(known_keys)}."
+        )
     name = raw.get("name")
     if not isinstance(name, str) or not _NAME.fullmatch(name):
         raise _table_error(path, where, "name must be a C identifier (letters, digits, _).")
@@ -214,8 +240,9 @@ def _parse_variable(path: Path, index: int, raw: dict[str, Any],
     unit = raw.get("unit")
     if vtype == "Real":
         if not isinstance(unit, str) or not unit:
-            raise _table_error(path, where, 'unit is required for Real variables ("1" if '
-                               "dimensionless).")
+            raise _table_error(
+                path, where, 'unit is required for Real variables ("1" if dimensionless).'
+            )
         _parse_unit(unit, path, where)
     elif unit is not None:
         raise _table_error(path, where, "only Real variables have a unit.")
@@ -244,12 +271,24 @@ def _parse_variable(path: Path, index: int, raw: dict[str, Any],
     models = raw.get("models")
     if models is not None:
         if not isinstance(models, list) or not set(models) <= identifiers or not models:
-            raise _table_error(path, where, f"models must be a non-empty list out of "
-                               f"{sorted(identifiers)}.")
+            raise _table_error(
+                path, where, f"models must be a non-empty list out of {sorted(identifiers)}."
+            )
         models = tuple(models)
-    return Variable(name=name, value_reference=index, causality=causality,
-                    variability=variability, type=vtype, unit=unit, description=description,
-                    start=start, min=low, max=high, dependencies=dependencies, models=models)
+    return Variable(
+        name=name,
+        value_reference=index,
+        causality=causality,
+        variability=variability,
+        type=vtype,
+        unit=unit,
+        description=description,
+        start=start,
+        min=low,
+        max=high,
+        dependencies=dependencies,
+        models=models,
+    )
 
 
 def _check_start(path: Path, where: str, vtype: str, start: Any) -> float | int | bool | str:
@@ -301,16 +340,20 @@ def load_variable_table(path: Path) -> VariableTable:
         defines = entry.get("defines", [])
         if not all(isinstance(d, str) and _NAME.fullmatch(d) for d in defines):
             raise _table_error(path, f"model {identifier!r}", "defines must be C identifiers.")
-        models.append(ModelEntry(identifier, entry.get("description", fmu.get("description", "")),
-                                 tuple(defines)))
+        models.append(
+            ModelEntry(
+                identifier, entry.get("description", fmu.get("description", "")), tuple(defines)
+            )
+        )
     if not models:
         raise FmuBuildError(f"{path}: declare at least one [[model]] with an identifier.")
     if len({m.identifier for m in models}) != len(models):
         raise FmuBuildError(f"{path}: model identifiers must be unique.")
     identifiers = {m.identifier for m in models}
 
-    variables = tuple(_parse_variable(path, i, v, identifiers)
-                      for i, v in enumerate(raw.get("variable", [])))
+    variables = tuple(
+        _parse_variable(path, i, v, identifiers) for i, v in enumerate(raw.get("variable", []))
+    )
     by_name: dict[str, Variable] = {}
     for v in variables:
         if v.name in by_name:
@@ -320,22 +363,36 @@ def load_variable_table(path: Path) -> VariableTable:
         for dep in v.dependencies or ():
             known = by_name.get(dep)
             if known is None or known.causality != "input":
-                raise _table_error(path, f"variable {v.name!r}",
-                                   f"dependency {dep!r} is not an input of the table.")
+                raise _table_error(
+                    path,
+                    f"variable {v.name!r}",
+                    f"dependency {dep!r} is not an input of the table.",
+                )
     for m in models:
         solver = by_name.get("solver_step")
-        if solver is None or not solver.in_model(m.identifier) or solver.type != "Real" \
-                or solver.causality != "parameter":
-            raise FmuBuildError(f"{path}: model {m.identifier!r} needs the Real parameter "
-                                "solver_step [s]: the framework's longest internal step.")
+        if (
+            solver is None
+            or not solver.in_model(m.identifier)
+            or solver.type != "Real"
+            or solver.causality != "parameter"
+        ):
+            raise FmuBuildError(
+                f"{path}: model {m.identifier!r} needs the Real parameter "
+                "solver_step [s]: the framework's longest internal step."
+            )
 
     experiment = {k: float(v) for k, v in fmu.get("default_experiment", {}).items()}
     unknown = set(experiment) - {"start_time", "stop_time", "step_size"}
     if unknown:
         raise FmuBuildError(f"{path}: unknown default_experiment keys {sorted(unknown)}.")
-    return VariableTable(path=path, model_name=fmu["model_name"],
-                         description=fmu.get("description", ""),
-                         default_experiment=experiment, models=tuple(models), variables=variables)
+    return VariableTable(
+        path=path,
+        model_name=fmu["model_name"],
+        description=fmu.get("description", ""),
+        default_experiment=experiment,
+        models=tuple(models),
+        variables=variables,
+    )
 
 
 # ------------------------------------------------------------------------------------------------
@@ -344,22 +401,34 @@ def load_variable_table(path: Path) -> VariableTable:
 
 _BASE = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
 _SYMBOLS: dict[str, tuple[dict[str, int], float]] = {
-    "kg": ({"kg": 1}, 1.0), "m": ({"m": 1}, 1.0), "s": ({"s": 1}, 1.0), "A": ({"A": 1}, 1.0),
-    "K": ({"K": 1}, 1.0), "mol": ({"mol": 1}, 1.0), "cd": ({"cd": 1}, 1.0),
-    "rad": ({"rad": 1}, 1.0), "g": ({"kg": 1}, 1e-3),
-    "N": ({"kg": 1, "m": 1, "s": -2}, 1.0), "Pa": ({"kg": 1, "m": -1, "s": -2}, 1.0),
-    "J": ({"kg": 1, "m": 2, "s": -2}, 1.0), "W": ({"kg": 1, "m": 2, "s": -3}, 1.0),
-    "V": ({"kg": 1, "m": 2, "s": -3, "A": -1}, 1.0), "Hz": ({"s": -1}, 1.0),
-    "bar": ({"kg": 1, "m": -1, "s": -2}, 1e5), "l": ({"m": 3}, 1e-3),
-    "min": ({"s": 1}, 60.0), "Ohm": ({"kg": 1, "m": 2, "s": -3, "A": -2}, 1.0),
+    "kg": ({"kg": 1}, 1.0),
+    "m": ({"m": 1}, 1.0),
+    "s": ({"s": 1}, 1.0),
+    "A": ({"A": 1}, 1.0),
+    "K": ({"K": 1}, 1.0),
+    "mol": ({"mol": 1}, 1.0),
+    "cd": ({"cd": 1}, 1.0),
+    "rad": ({"rad": 1}, 1.0),
+    "g": ({"kg": 1}, 1e-3),
+    "N": ({"kg": 1, "m": 1, "s": -2}, 1.0),
+    "Pa": ({"kg": 1, "m": -1, "s": -2}, 1.0),
+    "J": ({"kg": 1, "m": 2, "s": -2}, 1.0),
+    "W": ({"kg": 1, "m": 2, "s": -3}, 1.0),
+    "V": ({"kg": 1, "m": 2, "s": -3, "A": -1}, 1.0),
+    "Hz": ({"s": -1}, 1.0),
+    "bar": ({"kg": 1, "m": -1, "s": -2}, 1e5),
+    "l": ({"m": 3}, 1e-3),
+    "min": ({"s": 1}, 60.0),
+    "Ohm": ({"kg": 1, "m": 2, "s": -3, "A": -2}, 1.0),
     "H": ({"kg": 1, "m": 2, "s": -2, "A": -2}, 1.0),
 }
 _PREFIXES = {"G": 1e9, "M": 1e6, "k": 1e3, "c": 1e-2, "m": 1e-3, "u": 1e-6}
 _TOKEN = re.compile(r"\s*(?:(?P<sym>[A-Za-z]+)(?P<exp>[+-]?\d+)?|(?P<op>[./()])|(?P<one>1))")
 
 
-def _parse_unit(unit: str, path: Path | None = None,
-                where: str = "") -> tuple[dict[str, int], float]:
+def _parse_unit(
+    unit: str, path: Path | None = None, where: str = ""
+) -> tuple[dict[str, int], float]:
     """SI base-unit exponents and factor of a unit string (grammar of Modelica units).
 
     ``"1"`` is dimensionless, ``.`` multiplies, ``/`` divides by one factor or a parenthesised
@@ -388,8 +457,9 @@ def _parse_unit(unit: str, path: Path | None = None,
             return exps, factor * _PREFIXES[text[0]]
         raise _unit_error(unit, path, where, f"unknown unit symbol {text!r}")
 
-    def combine(acc: tuple[dict[str, int], float], part: tuple[dict[str, int], float],
-                sign: int) -> tuple[dict[str, int], float]:
+    def combine(
+        acc: tuple[dict[str, int], float], part: tuple[dict[str, int], float], sign: int
+    ) -> tuple[dict[str, int], float]:
         exps = dict(acc[0])
         for key, value in part[0].items():
             exps[key] = exps.get(key, 0) + sign * value
@@ -427,9 +497,11 @@ def _parse_unit(unit: str, path: Path | None = None,
 def _unit_error(unit: str, path: Path | None, where: str, detail: str = "") -> FmuBuildError:
     detail = detail or "cannot parse it"
     prefix = f"{path}: {where}: " if path else ""
-    return FmuBuildError(f"{prefix}unit {unit!r}: {detail}. Use SI symbols joined by '.' and "
-                         f"'/', exponents as digits (m3, s-2), e.g. 'm3/(s.Pa)'; known symbols: "
-                         f"{', '.join(_SYMBOLS)}; prefixes: {', '.join(_PREFIXES)}.")
+    return FmuBuildError(
+        f"{prefix}unit {unit!r}: {detail}. Use SI symbols joined by '.' and "
+        f"'/', exponents as digits (m3, s-2), e.g. 'm3/(s.Pa)'; known symbols: "
+        f"{', '.join(_SYMBOLS)}; prefixes: {', '.join(_PREFIXES)}."
+    )
 
 
 # ------------------------------------------------------------------------------------------------
@@ -472,28 +544,35 @@ def model_description(table: VariableTable, identifier: str, guid: str) -> bytes
     """
     entry = table.model(identifier)
     variables = table.variables_of(identifier)
-    root = ET.Element("fmiModelDescription", {
-        "fmiVersion": "2.0",
-        "modelName": table.model_name,
-        "guid": guid,
-        "description": entry.description,
-        "generationTool": f"fmu-greybox {__version__}",
-        "variableNamingConvention": "flat",
-        "numberOfEventIndicators": "0",
-    })
-    ET.SubElement(root, "CoSimulation", {
-        "modelIdentifier": identifier,
-        "needsExecutionTool": "false",
-        "canHandleVariableCommunicationStepSize": "true",
-        "canInterpolateInputs": "false",
-        "maxOutputDerivativeOrder": "0",
-        "canRunAsynchronuously": "false",
-        "canBeInstantiatedOnlyOncePerProcess": "false",
-        "canNotUseMemoryManagementFunctions": "false",
-        "canGetAndSetFMUstate": "true",
-        "canSerializeFMUstate": "true",
-        "providesDirectionalDerivative": "false",
-    })
+    root = ET.Element(
+        "fmiModelDescription",
+        {
+            "fmiVersion": "2.0",
+            "modelName": table.model_name,
+            "guid": guid,
+            "description": entry.description,
+            "generationTool": f"fmu-greybox {__version__}",
+            "variableNamingConvention": "flat",
+            "numberOfEventIndicators": "0",
+        },
+    )
+    ET.SubElement(
+        root,
+        "CoSimulation",
+        {
+            "modelIdentifier": identifier,
+            "needsExecutionTool": "false",
+            "canHandleVariableCommunicationStepSize": "true",
+            "canInterpolateInputs": "false",
+            "maxOutputDerivativeOrder": "0",
+            "canRunAsynchronuously": "false",
+            "canBeInstantiatedOnlyOncePerProcess": "false",
+            "canNotUseMemoryManagementFunctions": "false",
+            "canGetAndSetFMUstate": "true",
+            "canSerializeFMUstate": "true",
+            "providesDirectionalDerivative": "false",
+        },
+    )
     units = ET.SubElement(root, "UnitDefinitions")
     for unit in sorted({v.unit for v in variables if v.unit}):
         exps, factor = _parse_unit(unit)
@@ -503,18 +582,28 @@ def model_description(table: VariableTable, identifier: str, guid: str) -> bytes
             attributes["factor"] = _number(factor)
         ET.SubElement(element, "BaseUnit", attributes)
     categories = ET.SubElement(root, "LogCategories")
-    ET.SubElement(categories, "Category", {"name": "logStatusError",
-                                           "description": "Errors: what failed and how to mend it"})
+    ET.SubElement(
+        categories,
+        "Category",
+        {"name": "logStatusError", "description": "Errors: what failed and how to mend it"},
+    )
     experiment = {"start_time": "startTime", "stop_time": "stopTime", "step_size": "stepSize"}
-    ET.SubElement(root, "DefaultExperiment", {experiment[k]: _number(v)
-                                              for k, v in table.default_experiment.items()})
+    ET.SubElement(
+        root,
+        "DefaultExperiment",
+        {experiment[k]: _number(v) for k, v in table.default_experiment.items()},
+    )
     scalars = ET.SubElement(root, "ModelVariables")
     index_of: dict[str, int] = {}
     for position, v in enumerate(variables, start=1):
         index_of[v.name] = position
-        attributes = {"name": v.name, "valueReference": str(v.value_reference),
-                      "description": v.description, "causality": v.causality,
-                      "variability": v.variability}
+        attributes = {
+            "name": v.name,
+            "valueReference": str(v.value_reference),
+            "description": v.description,
+            "causality": v.causality,
+            "variability": v.variability,
+        }
         scalar = ET.SubElement(scalars, "ScalarVariable", attributes)
         typed: dict[str, str] = {}
         if v.unit:
@@ -585,20 +674,37 @@ def variables_c_sources(table: VariableTable, identifier: str, guid: str) -> tup
         index[v.name] = counts[v.type]
         counts[v.type] += 1
 
-    notice = (f"/* Generated by fmu_greybox.fmi.build from {table.path.parent.name}/"
-              f"{table.path.name} for {identifier}. Do not edit. */\n")
-    header = [notice, "#ifndef FMU_VARIABLES_H", "#define FMU_VARIABLES_H", "",
-              f"#define MODEL_IDENTIFIER_STRING {_c_string(identifier)}",
-              f"#define MODEL_GUID {_c_string(guid)}", "",
-              f"#define N_VALUE_REFERENCES {n_vr}",
-              f"#define N_REAL {counts['Real']}", f"#define N_INTEGER {counts['Integer']}",
-              f"#define N_BOOLEAN {counts['Boolean']}", f"#define N_STRING {counts['String']}",
-              "", "/* Value references */"]
+    notice = (
+        f"/* Generated by fmu_greybox.fmi.build from {table.path.parent.name}/"
+        f"{table.path.name} for {identifier}. Do not edit. */\n"
+    )
+    header = [
+        notice,
+        "#ifndef FMU_VARIABLES_H",
+        "#define FMU_VARIABLES_H",
+        "",
+        f"#define MODEL_IDENTIFIER_STRING {_c_string(identifier)}",
+        f"#define MODEL_GUID {_c_string(guid)}",
+        "",
+        f"#define N_VALUE_REFERENCES {n_vr}",
+        f"#define N_REAL {counts['Real']}",
+        f"#define N_INTEGER {counts['Integer']}",
+        f"#define N_BOOLEAN {counts['Boolean']}",
+        f"#define N_STRING {counts['String']}",
+        "",
+        "/* Value references */",
+    ]
     header += [f"#define VR_{v.name} {v.value_reference}" for v in variables]
     header += ["", "/* Positions in the SimData array of each type */"]
     header += [f"#define {_TYPE_PREFIX[v.type]}_{v.name} {index[v.name]}" for v in variables]
-    header += ["", "/* The framework's internal step (parameter solver_step) */",
-               "#define FW_SOLVER_STEP R_solver_step", "", "#endif", ""]
+    header += [
+        "",
+        "/* The framework's internal step (parameter solver_step) */",
+        "#define FW_SOLVER_STEP R_solver_step",
+        "",
+        "#endif",
+        "",
+    ]
 
     rows = []
     by_vr = {v.value_reference: v for v in variables}
@@ -607,9 +713,11 @@ def variables_c_sources(table: VariableTable, identifier: str, guid: str) -> tup
         if v is None:
             rows.append(f"    /* {vr}: not in this model */ {{0, FW_ABSENT, 0, 0, -1}},")
         else:
-            rows.append(f"    /* {vr} */ {{{_c_string(v.name)}, {_C_TYPE[v.type]}, "
-                        f"{_C_CAUSALITY[v.causality]}, {_C_VARIABILITY[v.variability]}, "
-                        f"{index[v.name]}}},")
+            rows.append(
+                f"    /* {vr} */ {{{_c_string(v.name)}, {_C_TYPE[v.type]}, "
+                f"{_C_CAUSALITY[v.causality]}, {_C_VARIABILITY[v.variability]}, "
+                f"{index[v.name]}}},"
+            )
 
     def array(ctype: str, name: str, vtype: str, value: Any) -> list[str]:
         items = [f"    {value(v)}, /* {v.name} */" for v in variables if v.type == vtype]
@@ -623,19 +731,38 @@ def variables_c_sources(table: VariableTable, identifier: str, guid: str) -> tup
         def text(v: Variable | None) -> str:
             value = getattr(v, attribute) if v is not None else None
             return default if value is None else _number(value)
+
         return text
 
-    source = [notice, "#include <math.h>", "", '#include "fmu_framework.h"', "",
-              "const FwVariable fw_variables[N_VALUE_REFERENCES] = {", *rows, "};", ""]
+    source = [
+        notice,
+        "#include <math.h>",
+        "",
+        '#include "fmu_framework.h"',
+        "",
+        "const FwVariable fw_variables[N_VALUE_REFERENCES] = {",
+        *rows,
+        "};",
+        "",
+    ]
     source += array("double", "fw_real_start", "Real", real_start)
     source += array("double", "fw_real_min", "Real", bound("min", "-HUGE_VAL"))
     source += array("double", "fw_real_max", "Real", bound("max", "HUGE_VAL"))
-    source += array("int", "fw_integer_start", "Integer",
-                    lambda v: str(v.start) if v is not None and v.start is not None else "0")
-    source += array("int", "fw_boolean_start", "Boolean",
-                    lambda v: "1" if v is not None and v.start else "0")
-    source += array("char *const", "fw_string_start", "String",
-                    lambda v: _c_string(str(v.start or "")) if v is not None else '""')
+    source += array(
+        "int",
+        "fw_integer_start",
+        "Integer",
+        lambda v: str(v.start) if v is not None and v.start is not None else "0",
+    )
+    source += array(
+        "int", "fw_boolean_start", "Boolean", lambda v: "1" if v is not None and v.start else "0"
+    )
+    source += array(
+        "char *const",
+        "fw_string_start",
+        "String",
+        lambda v: _c_string(str(v.start or "")) if v is not None else '""',
+    )
     return "\n".join(header), "\n".join(source)
 
 
@@ -666,8 +793,10 @@ def fmi2_platform() -> tuple[str, str]:
         return "darwin64", ".dylib"
     if sys.platform.startswith("win") and intel:
         return f"win{bits}", ".dll"
-    raise FmuBuildError(f"FMI 2.0 defines no binary folder for {sys.platform} on {machine}; "
-                        "build on linux64, win64 or darwin64.")
+    raise FmuBuildError(
+        f"FMI 2.0 defines no binary folder for {sys.platform} on {machine}; "
+        "build on linux64, win64 or darwin64."
+    )
 
 
 def fmi2_headers() -> Path:
@@ -697,8 +826,11 @@ def _compiler() -> str:
 
 
 def _compile(model_dir: Path, entry: ModelEntry, generated: Path, library: Path) -> None:
-    sources = [*sorted(FRAMEWORK_DIR.glob("*.c")), *sorted(model_dir.glob("*.c")),
-               generated / "fmu_variables.c"]
+    sources = [
+        *sorted(FRAMEWORK_DIR.glob("*.c")),
+        *sorted(model_dir.glob("*.c")),
+        generated / "fmu_variables.c",
+    ]
     command = [_compiler(), *CFLAGS, "-shared"]
     if not sys.platform.startswith("win"):
         command.append("-fPIC")
@@ -709,8 +841,10 @@ def _compile(model_dir: Path, entry: ModelEntry, generated: Path, library: Path)
     result = subprocess.run(command, capture_output=True, text=True, check=False)
     output = (result.stdout + result.stderr).strip()
     if result.returncode != 0:
-        raise FmuBuildError(f"compiling {entry.identifier} failed (exit {result.returncode}):\n"
-                            f"{' '.join(command)}\n{output}")
+        raise FmuBuildError(
+            f"compiling {entry.identifier} failed (exit {result.returncode}):\n"
+            f"{' '.join(command)}\n{output}"
+        )
     if output:
         warnings.warn(f"compiler messages for {entry.identifier}:\n{output}", stacklevel=3)
 
@@ -725,9 +859,11 @@ def _zip_write(archive: zipfile.ZipFile, name: str, data: bytes, executable: boo
 def _index_html(entry: ModelEntry, readme: str) -> bytes:
     """``documentation/index.html`` (the FMI entry point): the README as preformatted text."""
     title = html.escape(entry.identifier)
-    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{title}'
-            f"</title></head>\n<body><h1>{title}</h1><p>{html.escape(entry.description)}</p>"
-            f"\n<pre>{html.escape(readme)}</pre></body></html>\n").encode()
+    return (
+        f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{title}'
+        f"</title></head>\n<body><h1>{title}</h1><p>{html.escape(entry.description)}</p>"
+        f"\n<pre>{html.escape(readme)}</pre></body></html>\n"
+    ).encode()
 
 
 def build_fmu(model_dir: Path, out_dir: Path, identifier: str | None = None) -> Path:
@@ -774,8 +910,9 @@ def build_fmu(model_dir: Path, out_dir: Path, identifier: str | None = None) -> 
         target = out_dir / f"{entry.identifier}.fmu"
         with atomic_write(target, "wb") as stream, zipfile.ZipFile(stream, "w") as archive:
             _zip_write(archive, "modelDescription.xml", description)
-            _zip_write(archive, f"binaries/{folder}/{library.name}", library.read_bytes(),
-                       executable=True)
+            _zip_write(
+                archive, f"binaries/{folder}/{library.name}", library.read_bytes(), executable=True
+            )
             readme = model_dir / "README.md"
             if readme.is_file():
                 text = readme.read_text(encoding="utf-8")

@@ -206,9 +206,7 @@ class Posterior:
         -------
         mean, var : float
         """
-        return _chainstep.predict(
-            self.packed, self.n_inducing, self.input_dim, x, None, full_noise
-        )
+        return _chainstep.predict(self.packed, self.n_inducing, self.input_dim, x, None, full_noise)
 
     def predict_one_grad(self, x: FloatArray) -> tuple[float, float, FloatArray]:
         """Latent mean and variance at one point, and the gradient of the mean.
@@ -227,9 +225,7 @@ class Posterior:
             ∂mean/∂x, original units.
         """
         grad = np.empty(self.input_dim)
-        mean, var = _chainstep.predict(
-            self.packed, self.n_inducing, self.input_dim, x, grad, False
-        )
+        mean, var = _chainstep.predict(self.packed, self.n_inducing, self.input_dim, x, grad, False)
         return mean, var, grad
 
 

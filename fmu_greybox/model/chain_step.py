@@ -47,8 +47,10 @@ class FittedChain(Protocol):
     correctors_: list[SparseGPR | None]
     feature_bounds_: list[np.ndarray | None]
 
+
 #: Target mode codes of the compiled step (``MODE_*`` in chainstep.c).
 MODE_CODES = {"residual": 0, "increment": 1, "output": 2}
+
 
 class ChainState:
     """Everything the chain remembers between steps (its autoregressive memory), in one

@@ -122,8 +122,16 @@ def simulate_with_terms(
             continue
         start = dict(zip(inputs, u[0], strict=True))
         with NamedModel(
-            archive, inputs, names, dt, active, [level] * len(names), parameters, start,
-            start_time, substeps,
+            archive,
+            inputs,
+            names,
+            dt,
+            active,
+            [level] * len(names),
+            parameters,
+            start,
+            start_time,
+            substeps,
         ) as model:
             y[:, columns] = run_open_loop(model, u, progress)
         if cache is not None:

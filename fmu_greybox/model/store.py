@@ -357,9 +357,7 @@ def load_model(model_dir: str | Path) -> GreyBoxModel:
     )
 
 
-def _named_terms(
-    path: Path, manifest: Mapping[str, Any], n_stages: int
-) -> tuple[list[Term], int]:
+def _named_terms(path: Path, manifest: Mapping[str, Any], n_stages: int) -> tuple[list[Term], int]:
     """The manifest's named terms and sub-steps (none in a version 1 folder)."""
     named = manifest.get("named_terms", {"terms": [], "substeps": DEFAULT_SUBSTEPS})
     try:

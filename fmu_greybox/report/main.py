@@ -113,9 +113,7 @@ def frequency_figure(responses: list[FrequencyResponse]) -> plt.Figure:
     responses : list of FrequencyResponse
     """
     styles = {"recording": REC_STYLE, "white-box": WB_STYLE, "grey-box": GB_STYLE}
-    fig, axes = plt.subplots(
-        len(responses), 3, figsize=(12, 2.8 * len(responses)), squeeze=False
-    )
+    fig, axes = plt.subplots(len(responses), 3, figsize=(12, 2.8 * len(responses)), squeeze=False)
     for (gain, phase, match), r in zip(axes, responses, strict=True):
         f = r.freq
         keep = f > 0
@@ -168,8 +166,13 @@ def report_html(result: DemoResult) -> str:
         for r in result.responses
     ]
     bench_rows = [
-        (a.engine, a.steps, f"{a.seconds:.2f} s", f"{1e6 * a.seconds / a.steps:.0f} µs",
-         f"{a.worst:.1e}")
+        (
+            a.engine,
+            a.steps,
+            f"{a.seconds:.2f} s",
+            f"{1e6 * a.seconds / a.steps:.0f} µs",
+            f"{a.worst:.1e}",
+        )
         for a in result.bench
     ]
     trace = trace_figure(
@@ -186,30 +189,61 @@ def report_html(result: DemoResult) -> str:
         *diagnosis_sections(result.diagnosis, result.payload),
         "<h2>Grey-box on an independent recording</h2>",
         f"<p>{escape(validation.held_out)}; free run, correctors fed their own outputs."
-        + (" The grey-box is the white-box with the diagnosis' named terms folded in, plus the "
-           "correctors trained on what those leave.</p>" if named else "</p>"),
-        table(("stage", "unit", "white-box RMSE", *(["+ named terms RMSE"] if named else []),
-               "grey-box RMSE", "change", "white-box nRMSE", "grey-box nRMSE"), fit_rows),
-        figure("Time traces with the grey-box's ±2σ band", trace,
-               "Recording dotted blue, white-box red, grey-box green with its band; the last "
-               "panel zooms on the first stage."),
-        figure("Frequency response and coherence", frequency_figure(result.responses),
-               f"Welch estimates from {result.responses[0].input_name} (the first stage's "
-               "command) to each stage output; right: coherence of each model's output with "
-               "the recorded output (1 = the model reproduces the recording in that band)."),
-        table((f"output (up to {BAND_LIMIT:g} Hz)", "white-box gain error [dB RMS]",
-               "grey-box gain error [dB RMS]", "white-box median coherence",
-               "grey-box median coherence"), freq_rows),
+        + (
+            " The grey-box is the white-box with the diagnosis' named terms folded in, plus the "
+            "correctors trained on what those leave.</p>"
+            if named
+            else "</p>"
+        ),
+        table(
+            (
+                "stage",
+                "unit",
+                "white-box RMSE",
+                *(["+ named terms RMSE"] if named else []),
+                "grey-box RMSE",
+                "change",
+                "white-box nRMSE",
+                "grey-box nRMSE",
+            ),
+            fit_rows,
+        ),
+        figure(
+            "Time traces with the grey-box's ±2σ band",
+            trace,
+            "Recording dotted blue, white-box red, grey-box green with its band; the last "
+            "panel zooms on the first stage.",
+        ),
+        figure(
+            "Frequency response and coherence",
+            frequency_figure(result.responses),
+            f"Welch estimates from {result.responses[0].input_name} (the first stage's "
+            "command) to each stage output; right: coherence of each model's output with "
+            "the recorded output (1 = the model reproduces the recording in that band).",
+        ),
+        table(
+            (
+                f"output (up to {BAND_LIMIT:g} Hz)",
+                "white-box gain error [dB RMS]",
+                "grey-box gain error [dB RMS]",
+                "white-box median coherence",
+                "grey-box median coherence",
+            ),
+            freq_rows,
+        ),
         "<h2>The exported FMU on the SSP bench</h2>",
         f"<p>{escape(result.fmu.name)} in {escape(result.ssp.name)} (recording playback → "
         "grey-box, white-box side by side), compared output by output (corrected value, "
         "_std, _wb) with the in-process master on the same inputs.</p>",
-        table(("engine", "steps", "wall time", "per step", "largest relative difference"),
-              bench_rows),
+        table(
+            ("engine", "steps", "wall time", "per step", "largest relative difference"), bench_rows
+        ),
         "<h2>Traceability</h2>",
-        table(("item", "value"),
-              [(k, f"<code>{escape(v)}</code>") for k, v in result.traceability().items()],
-              raw=True),
+        table(
+            ("item", "value"),
+            [(k, f"<code>{escape(v)}</code>") for k, v in result.traceability().items()],
+            raw=True,
+        ),
         f"<p><small>Timings: {escape(result.timings)}</small></p>",
     ]
     return page(f"fmu-greybox report: {result.config.name}", sections)

@@ -129,11 +129,11 @@ def synthesise_positioner(
         for name in (*INPUTS, *outputs)
     }
     nominal = {
-        name: whitebox_archive.variable(name).start
-        for name in ("resistance", "back_emf_constant")
+        name: whitebox_archive.variable(name).start for name in ("resistance", "back_emf_constant")
     }
-    u, y = _closed_loop(truth_archive, dict(effects), profile, nominal, outputs, reference,
-                        load, noise_of)
+    u, y = _closed_loop(
+        truth_archive, dict(effects), profile, nominal, outputs, reference, load, noise_of
+    )
     signals = {name: u[:, j] + noise_of[name] for j, name in enumerate(INPUTS)}
     signals.update({name: y[:, j] + noise_of[name] for j, name in enumerate(outputs)})
     stride = max(1, n // 2000)
