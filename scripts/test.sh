@@ -5,7 +5,8 @@ cd "$(dirname "$0")/.."
 python3 -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e ".[dev]"
-.venv/bin/ruff check fmu_greybox tests benchmarks setup.py
+.venv/bin/ruff check .
+.venv/bin/ruff format --check .
 # the report test renders the HTML report in headless Chromium, from the distribution's packages
 if ! command -v chromium >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; then
   sudo_=""
