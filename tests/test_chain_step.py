@@ -11,6 +11,7 @@ import pytest
 from fmu_greybox import _chainstep
 from fmu_greybox.gp import SparseGPR
 from fmu_greybox.gp.predictive import packed_factor
+from fmu_greybox.model.calibration import VarianceCalibration
 from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.model.chain_step import ChainState
 from fmu_greybox.project.config import parse_config
@@ -54,8 +55,9 @@ def numpy_step(chain: GreyBoxChain, values: np.ndarray, exo_prev, y_wb, enabled=
     """One chain step from the documented equations: the history shifted, features A s,
     clipping, the GP mean and latent variance by batch prediction, its gradient by central
     differences (zero for clipped features), first-order propagation of the earlier outputs'
-    variances and of the memory's covariance. Returns the new state vector and the domain
-    score."""
+    (calibrated) variances and of the memory's covariance, the memory keeping the propagated
+    variance and the output reporting it calibrated. Returns the new state vector and the
+    domain score."""
     layout, q_count = chain.layout, len(chain.stages)
     state = ChainState(layout, [s.memory_length for s in chain.stages], values.copy())
     for block in ("wb", "out", "exo"):
@@ -100,7 +102,8 @@ def numpy_step(chain: GreyBoxChain, values: np.ndarray, exo_prev, y_wb, enabled=
             var, level = 0.0, (y if stage.target_mode == "output" else 0.0)
             state.out_mean[q] = y
             state.outside[q] = 0.0
-        state.out_var[q] = var
+        state.out_var[q] = chain.calibration_[q].latent_scale * var
+        state.out_var[q] += chain.calibration_[q].residual_variance
         memory[1:] = memory[:-1].copy()
         memory[0] = level
         shifted = np.zeros((n, n))
@@ -127,6 +130,12 @@ def test_compiled_step_equals_the_numpy_reference(
 ) -> None:
     chain, (exo, wb, out) = fitted_chain(mode, feed_rates, lags, differences)
     chain.active_[1] = mode != "output"  # a passed-through stage in one case
+    # calibrations of every kind: none, the latent variance scaled, a residual variance added
+    chain.calibration_ = [
+        VarianceCalibration(1.0, 0.0),
+        VarianceCalibration(2.5, 0.0),
+        VarianceCalibration(0.4, 3e-6),
+    ]
     plan = chain.plan()
     state = chain.start(out[394:400], wb[394:400], exo[394:400])
     for j in range(400, 600):  # free run on rows the correctors never saw
@@ -146,6 +155,7 @@ def test_compiled_step_equals_the_numpy_reference(
         assert score == pytest.approx(expected_score, rel=1e-9)
         state.values[:] = expected  # each step compared from the same state
     assert np.all(state.out_var[chain.active_] > 0)
+    np.testing.assert_array_equal(state.latent_var, [cov[0, 0] for cov in state.memory_cov])
     for cov in state.memory_cov:  # a covariance: symmetric, positive semi-definite
         np.testing.assert_allclose(cov, cov.T, rtol=0, atol=0)
         assert np.linalg.eigvalsh(cov).min() >= -1e-12 * max(np.abs(cov).max(), 1e-300)
@@ -157,7 +167,9 @@ def test_switched_off_correction_passes_the_white_box_and_keeps_memory_consisten
     state = chain.start(out[398:400], wb[398:400], exo[398:400])
     assert plan.step(state, exo[399], wb[400], enabled=False) == 1.0
     np.testing.assert_array_equal(state.out_mean, wb[400])
-    np.testing.assert_array_equal(state.out_var, 0.0)
+    # the white-box's output, known to within each stage's residual variance
+    np.testing.assert_array_equal(state.out_var, [c.residual_variance for c in chain.calibration_])
+    assert np.all(state.out_var > 0) and np.all(state.latent_var == 0.0)
     assert [m[0] for m in state.memory] == [0.0, 0.0, 0.0]  # zero residual remembered
 
 

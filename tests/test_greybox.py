@@ -156,13 +156,13 @@ def test_correction_off_passes_the_white_box_through(model, data) -> None:
     score = chain.plan().step(state, data.exo[1], data.y_wb[2], enabled=False)
     assert score == 1.0
     np.testing.assert_array_equal(state.out_mean, data.y_wb[2])
-    np.testing.assert_array_equal(state.out_var, 0.0)
+    np.testing.assert_array_equal(state.out_var, [c.residual_variance for c in chain.calibration_])
 
 
 def test_model_folder_round_trip_and_tamper_detection(model, data, tmp_path: Path) -> None:
     folder = save_model(model, tmp_path / "model")
     manifest = json.loads((folder / MANIFEST).read_text())
-    assert manifest["format_version"] == 2
+    assert manifest["format_version"] == 3
     assert manifest["named_terms"] == {"terms": [], "substeps": 4}
     assert manifest["training"]["recording_sha256"] == data.recording.sha256()
     assert len(manifest["whitebox_sha256"]) == 64
@@ -172,6 +172,8 @@ def test_model_folder_round_trip_and_tamper_detection(model, data, tmp_path: Pat
     a = model.chain.free_run(data.exo, data.y_wb, data.outputs, start)
     b = loaded.chain.free_run(data.exo, data.y_wb, data.outputs, start)
     np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])  # the calibrated standard deviations
+    assert loaded.chain.calibration_ == model.chain.calibration_
     stage_file = folder / "stage_RAM.npz"
     content = bytearray(stage_file.read_bytes())
     content[len(content) // 2] ^= 0xFF

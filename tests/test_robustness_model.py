@@ -25,7 +25,9 @@ from hypothesis import strategies as st
 
 from fmu_greybox.errors import ModelFormatError
 from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.model.calibration import UNCALIBRATED
 from fmu_greybox.model.store import (
+    FORMAT_VERSION,
     MANIFEST,
     MANIFEST_HASH,
     file_sha256,
@@ -134,9 +136,12 @@ def test_each_missing_file_is_named(saved: Path, tmp_path: Path) -> None:
         (lambda m: m["stages"].pop(), "content does not match the hash it recorded"),
         (lambda m: m["files"].pop("stage_RAM.npz"), "content does not match the hash"),
         (lambda m: m.update(format_version="1"), "format version '1'"),
-        (lambda m: m.update(format_version=3), "format version 3; this tool reads versions 1, 2"),
+        (
+            lambda m: m.update(format_version=4),
+            "format version 4; this tool reads versions 1, 2, 3",
+        ),
     ],
-    ids=["dt", "stage removed", "hash removed", "version as text", "version 3"],
+    ids=["dt", "stage removed", "hash removed", "version as text", "version 4"],
 )
 def test_valid_json_edits_of_the_manifest_are_refused(
     saved: Path, tmp_path: Path, edit: Callable[[dict], Any], pattern: str
@@ -241,6 +246,14 @@ def _set_stage(index: int, **fields: Any) -> Callable[[dict], Any]:
         (_set_stage(0, name="SPOOL"), r"stages do not fit the stored project.*SPOOL"),
         (_set_stage(1, feature_low=[0.0]), r"stages do not fit.*feature bounds of shape"),
         (_set_stage(1, feature_low="low"), r"stages do not fit the stored project"),
+        (
+            _set_stage(2, calibration={"latent_scale": 1.0, "residual_variance": -2.0}),
+            r"stage 'ITFV' has a calibration with a value that is not a finite number >= 0",
+        ),
+        (
+            _set_stage(0, calibration={"latent_scale": 1.0}),
+            r"stage 'EHV' has a calibration that is not a table",
+        ),
         (lambda m: m["stages"].pop(), r"stages do not fit the stored project"),
         (lambda m: m.update(target_mode="delta"), r"stages do not fit.*'delta' is not one of"),
         (lambda m: m["project"]["gp"].update(inducing=0), r"stored project is invalid"),
@@ -264,7 +277,7 @@ def test_rehashed_but_malformed_manifest_is_refused(
     folder = copy_of(saved, tmp_path)
     manifest = read(folder)
     edit(manifest)
-    manifest["format_version"] = 2
+    manifest["format_version"] = FORMAT_VERSION
     write_rehashed(folder, manifest)
     error = refused(folder, pattern)
     assert str(folder) in str(error)
@@ -276,3 +289,22 @@ def test_manifest_that_is_not_an_object(saved: Path, tmp_path: Path) -> None:
     refused(folder, r"model\.json: holds a JSON list, not the object 'fmu-greybox train' writes")
     (folder / MANIFEST).write_bytes(b"\xff\xfe{}")
     refused(folder, r"model\.json: corrupt manifest")
+
+
+def test_a_folder_written_before_calibration_loads_uncalibrated(
+    saved: Path, tmp_path: Path
+) -> None:
+    """Format 2 knew no calibration: its stages report the propagated variance (a = 1, b = 0)."""
+    folder = copy_of(saved, tmp_path)
+    manifest = read(folder)
+    for stage in manifest["stages"]:
+        del stage["calibration"]
+    manifest["format_version"] = 2
+    write_rehashed(folder, manifest)
+    old = load_model(folder)
+    assert old.chain.calibration_ == [UNCALIBRATED] * 3
+    assert load_model(saved).chain.calibration_ != old.chain.calibration_
+    chain = old.chain
+    state = chain.start(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((2, len(chain.exo_names))))
+    chain.plan().step(state, np.zeros(len(chain.exo_names)), np.zeros(3))
+    np.testing.assert_array_equal(state.out_var, state.latent_var)

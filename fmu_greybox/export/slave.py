@@ -211,8 +211,9 @@ def greybox_interface(
     for kind, text in (
         (
             "std",
-            "Predictive standard deviation of {name} (stage {stage}; first-order "
-            "propagation of the correctors' variance through the chain)",
+            "Calibrated predictive standard deviation of {name} (stage {stage}; the "
+            "correctors' variance propagated through the chain, scaled, plus the stage's "
+            "residual variance)",
         ),
         (
             "wb",

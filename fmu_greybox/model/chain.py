@@ -10,17 +10,22 @@ and the exported FMU.
 from __future__ import annotations
 
 import contextlib
+import copy
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 
 import numpy as np
 
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.gp import SparseGPR
+from fmu_greybox.model.calibration import UNCALIBRATED, VarianceCalibration, fit_calibration
 from fmu_greybox.model.chain_step import ChainPlan, ChainState
 from fmu_greybox.model.stage import TARGET_MODES, SourceLayout, StageLayout
 from fmu_greybox.project.config import AUTO, ProjectConfig
 
 ProgressCallback = Callable[[str, int, float], None]
+#: A corrector and the widened feature range it was fitted with.
+StageFit = tuple[SparseGPR, np.ndarray]
 
 #: Features are clipped to their training range widened by this share of the range.
 RANGE_MARGIN = 0.05
@@ -42,6 +47,9 @@ class GreyBoxChain:
     check_tail : float or None
         Share of the training rows :meth:`fit` free-runs at its end to pass through the stages
         whose corrector loses to their white-box there (``None``: keep every corrector).
+    calibrate : bool
+        Estimate each stage's reported variance on rows its corrector was not fitted to
+        (:attr:`calibration_`); ``False`` reports the propagated variance as it is.
 
     Attributes
     ----------
@@ -63,6 +71,13 @@ class GreyBoxChain:
     feature_bounds_ : list of ndarray, each shape (2, D_q)
         Per stage, the training range of each feature (widened by :data:`RANGE_MARGIN`);
         features are clipped to it when the chain steps, so a free run never extrapolates.
+    calibration_ : list of VarianceCalibration
+        Per stage, the reported variance ``a V + b`` of its output (V: the propagated
+        variance; see :mod:`fmu_greybox.model.calibration` and :meth:`fit`);
+        :data:`~fmu_greybox.model.calibration.UNCALIBRATED` until fitted.
+    calibration_check_ : dict
+        Stage -> rows, RMSE and median propagated standard deviation on the rows the
+        calibration was estimated on (empty without it).
     """
 
     def __init__(
@@ -70,6 +85,7 @@ class GreyBoxChain:
         config: ProjectConfig,
         target_mode: str | None = None,
         check_tail: float | None = SELECTION_TAIL,
+        calibrate: bool = True,
     ) -> None:
         mode = target_mode or config.gp.target
         if mode not in (*TARGET_MODES, AUTO):
@@ -79,6 +95,7 @@ class GreyBoxChain:
         self.config = config
         self.target_mode = mode
         self.check_tail = check_tail
+        self.calibrate = calibrate
         self.exo_names: list[str] = []
         for stage in config.stages:
             self.exo_names += [s for s in stage.inputs if s not in self.exo_names]
@@ -93,6 +110,8 @@ class GreyBoxChain:
         self.active_ = np.ones(len(self.stages), dtype=bool)
         self.free_run_check_: dict[str, dict[str, float]] = {}
         self.selection_: dict[str, dict[str, float]] = {}
+        self.calibration_: list[VarianceCalibration] = [UNCALIBRATED] * len(self.stages)
+        self.calibration_check_: dict[str, dict[str, float]] = {}
 
     def _layouts(self) -> list[StageLayout]:
         """The stage layouts as the settings give them (target ``"auto"`` not yet chosen)."""
@@ -154,7 +173,14 @@ class GreyBoxChain:
         :data:`SELECTION_MARGIN`; then it is trained on all rows. Last, unless ``check_tail``
         is ``None``, the chain is free-run over that share of the rows and every stage that
         does not beat its white-box there is passed through (:attr:`active_`), so the grey-box
-        is never knowingly worse than the model it corrects. The settings given to the
+        is never knowingly worse than the model it corrects. Then, with ``calibrate``, each
+        stage's reported variance is estimated (:attr:`calibration_`): a chain of correctors
+        fitted on the leading rows only (for a stage whose target was ``"auto"``, the fit
+        that chose it) free-runs over the last :data:`SELECTION_TAIL` of the rows, and its
+        residuals there, which no corrector of that chain saw, give ``a`` and ``b``
+        (:func:`~fmu_greybox.model.calibration.fit_calibration`), stage by stage in chain
+        order (a stage's propagated variance holds the calibrated variances of the stages
+        feeding it). The settings given to the
         constructor are not changed: a refit chooses ``"auto"`` targets again.
 
         Parameters
@@ -166,8 +192,9 @@ class GreyBoxChain:
         outputs : ndarray, shape (n, Q)
             Recorded stage outputs.
         progress : callable, optional
-            Called as ``progress(label, iteration, bound)`` during optimisation (label: the
-            stage name, with the candidate target while choosing one).
+            Called as ``progress(corrector, iteration, bound)`` during optimisation;
+            ``corrector`` names the fit in words (``"EHV corrector"``, or with what a fit on
+            the leading rows is for).
 
         Returns
         -------
@@ -181,12 +208,19 @@ class GreyBoxChain:
         self.active_ = np.ones(q_count, dtype=bool)
         self.selection_ = {}
         self.free_run_check_ = {}
+        self.calibration_ = [UNCALIBRATED] * q_count
+        self.calibration_check_ = {}
+        head_fits: list[StageFit | None] = [None] * q_count
         for q, stage in enumerate(self.stages):
             if stage.target_mode == AUTO:
-                stage.target_mode = self._choose_target(q, exo, y_wb, outputs, progress)
-            self._fit_stage(q, exo, y_wb, outputs, progress, stage.name)
+                stage.target_mode, head_fits[q] = self._choose_target(
+                    q, exo, y_wb, outputs, progress
+                )
+            self._fit_stage(q, exo, y_wb, outputs, progress, f"{stage.name} corrector")
         if self.check_tail is not None:
             self.free_run_check_ = self._check_free_run(exo, y_wb, outputs, self.check_tail)
+        if self.calibrate:
+            self._calibrate(exo, y_wb, outputs, head_fits, progress)
         return self
 
     def _fit_stage(
@@ -234,6 +268,11 @@ class GreyBoxChain:
         fed[start + 1 :, :q] = mean[:, :q]
         return fed
 
+    def _head_split(self, n: int) -> int:
+        """First of the trailing :data:`SELECTION_TAIL` of ``n`` training rows, which the
+        fits that choose a target and the calibration's fits leave out."""
+        return max(self.history + 2, int((1.0 - SELECTION_TAIL) * n))
+
     def _choose_target(
         self,
         q: int,
@@ -241,24 +280,80 @@ class GreyBoxChain:
         y_wb: np.ndarray,
         outputs: np.ndarray,
         progress: ProgressCallback | None,
-    ) -> str:
-        """``residual`` or ``increment`` for stage ``q`` (see :meth:`fit`)."""
+    ) -> tuple[str, StageFit]:
+        """``residual`` or ``increment`` for stage ``q`` (see :meth:`fit`), and the fit on the
+        leading rows that chose it."""
         stage = self.stages[q]
-        split = max(self.history + 2, int((1.0 - SELECTION_TAIL) * exo.shape[0]))
+        split = self._head_split(exo.shape[0])
         head = slice(0, split)
-        errors = {}
+        errors, fits = {}, {}
         with self._correcting_first(q + 1):
             for mode in ("residual", "increment"):
                 stage.target_mode = mode
                 self._fit_stage(
-                    q, exo[head], y_wb[head], outputs[head], progress, f"{stage.name} ({mode}?)"
+                    q,
+                    exo[head],
+                    y_wb[head],
+                    outputs[head],
+                    progress,
+                    f"{stage.name} corrector on the leading rows, {mode} target (to choose it)",
                 )
+                fits[mode] = (self.correctors_[q], self.feature_bounds_[q])
                 mean, _ = self.free_run(exo, y_wb, outputs, split - 1)
                 errors[mode] = float(np.sqrt(np.mean((mean[:, q] - outputs[split:, q]) ** 2)))
         better = errors["increment"] < (1.0 - SELECTION_MARGIN) * errors["residual"]
         chosen = "increment" if better else "residual"
         self.selection_[stage.name] = {**errors, "chosen": chosen}
-        return chosen
+        return chosen, fits[chosen]
+
+    def _calibrate(
+        self,
+        exo: np.ndarray,
+        y_wb: np.ndarray,
+        outputs: np.ndarray,
+        head_fits: list[StageFit | None],
+        progress: ProgressCallback | None,
+    ) -> None:
+        """Set :attr:`calibration_` and :attr:`calibration_check_` (see :meth:`fit`).
+
+        Parameters
+        ----------
+        exo, y_wb, outputs : ndarray
+            The training rows, as given to :meth:`fit`.
+        head_fits : list of (SparseGPR, ndarray) or None
+            Per stage, a fit on the leading rows already made (target ``"auto"``), or
+            ``None`` to make one here.
+        """
+        split = self._head_split(exo.shape[0])
+        head = copy.copy(self)
+        head.correctors_ = list(self.correctors_)
+        head.feature_bounds_ = list(self.feature_bounds_)
+        head.active_ = self.active_.copy()
+        head.calibration_ = list(self.calibration_)
+        for q, stage in enumerate(self.stages):
+            if not self.active_[q]:
+                continue  # passed through: its output is the white-box's, nothing to fit
+            if head_fits[q] is None:
+                head._fit_stage(
+                    q,
+                    exo[:split],
+                    y_wb[:split],
+                    outputs[:split],
+                    progress,
+                    f"{stage.name} corrector on the leading rows (to calibrate its uncertainty)",
+                )
+            else:
+                head.correctors_[q], head.feature_bounds_[q] = head_fits[q]
+        for q, name in enumerate(self.stage_names):
+            run = head.free_run_variances(exo, y_wb, outputs, split - 1)
+            residual = outputs[split:, q] - run.mean[:, q]
+            head.calibration_[q] = fit_calibration(residual, run.latent_var[:, q])
+            self.calibration_check_[name] = {
+                "rows": int(residual.size),
+                "rmse": float(np.sqrt(np.mean(residual**2))),
+                "median_latent_std": float(np.median(np.sqrt(run.latent_var[:, q]))),
+            }
+        self.calibration_ = head.calibration_
 
     # ------------------------------------------------------------------ running
     def start(self, outputs: np.ndarray, y_wb: np.ndarray, exo: np.ndarray) -> ChainState:
@@ -357,7 +452,20 @@ class GreyBoxChain:
         Returns
         -------
         mean, std : ndarray, shape (n - start - 1, Q)
-            Predictions of rows ``start + 1 .. n - 1``.
+            Predictions of rows ``start + 1 .. n - 1`` and their calibrated standard
+            deviations.
+        """
+        run = self.free_run_variances(exo, y_wb, outputs, start)
+        return run.mean, np.sqrt(run.var)
+
+    def free_run_variances(
+        self, exo: np.ndarray, y_wb: np.ndarray, outputs: np.ndarray, start: int
+    ) -> FreeRun:
+        """:meth:`free_run` with variances, calibrated and propagated (same parameters).
+
+        Returns
+        -------
+        FreeRun
         """
         first = max(0, start - self.history + 1)
         known = slice(first, start + 1)
@@ -367,12 +475,32 @@ class GreyBoxChain:
         y_wb = np.ascontiguousarray(y_wb, dtype=np.float64)
         mean = np.empty((n - start - 1, len(self.stages)))
         var = np.empty_like(mean)
+        latent_var = np.empty_like(mean)
         plan = self.plan()
         for i, j in enumerate(range(start + 1, n)):
             plan.step(state, exo[j - 1], y_wb[j])
             mean[i] = state.out_mean
             var[i] = state.out_var
-        return mean, np.sqrt(var)
+            latent_var[i] = state.latent_var
+        return FreeRun(mean=mean, var=var, latent_var=latent_var)
+
+
+@dataclass(frozen=True)
+class FreeRun:
+    """A free run's stage outputs and their variances.
+
+    Attributes
+    ----------
+    mean : ndarray, shape (m, Q)
+    var : ndarray, shape (m, Q)
+        Calibrated variances (what the exported FMU's ``_std`` squares to).
+    latent_var : ndarray, shape (m, Q)
+        Propagated variances before calibration.
+    """
+
+    mean: np.ndarray
+    var: np.ndarray
+    latent_var: np.ndarray
 
 
 def _widened_range(X: np.ndarray) -> np.ndarray:

@@ -18,7 +18,10 @@ and the step's inputs to the compiled function. Per stage and step that function
 5. the stage output and its variance: first-order propagation, the latent variance plus, for
    every uncertain source (this step's earlier stage outputs, the stage's stored levels), the
    squared sensitivity of the output to it times its variance (covariances ignored);
-6. push the new level into the memory.
+6. push the new level into the memory, with that propagated variance ``V``;
+7. report the calibrated variance ``a V + b`` (the stage's
+   :class:`~fmu_greybox.model.calibration.VarianceCalibration`; ``b`` alone for a stage
+   passed through).
 
 It returns the step's domain score: the smallest, over the stages whose correctors ran, of the
 largest kernel correlation between the features and an inducing point.
@@ -34,6 +37,7 @@ import numpy as np
 from fmu_greybox import _chainstep
 from fmu_greybox.gp import SparseGPR
 from fmu_greybox.gp.linalg import aligned_zeros
+from fmu_greybox.model.calibration import VarianceCalibration
 from fmu_greybox.model.stage import SourceLayout, StageLayout
 
 
@@ -46,6 +50,7 @@ class FittedChain(Protocol):
     active_: np.ndarray
     correctors_: list[SparseGPR | None]
     feature_bounds_: list[np.ndarray | None]
+    calibration_: list[VarianceCalibration]
 
 
 #: Target mode codes of the compiled step (``MODE_*`` in chainstep.c).
@@ -79,7 +84,8 @@ class ChainState:
     exo : ndarray, shape (n_exo,)
         The exogenous inputs the last step was given (those of the row before it).
     out_var : ndarray, shape (Q,)
-        Variances of the last step's stage outputs.
+        Calibrated variances of the last step's stage outputs (``a V + b``, see
+        :mod:`fmu_greybox.model.calibration`).
     outside : ndarray, shape (Q,)
         1.0 where a stage's features left their training range in the last step (they were
         clipped to it), else 0.0.
@@ -112,6 +118,15 @@ class ChainState:
             v[o + n : o + n + n * n].reshape(n, n)
             for o, n in zip(starts, self.memory_lengths, strict=True)
         ]
+        self._newest_level_var = np.array(
+            [o + n for o, n in zip(starts, self.memory_lengths, strict=True)], dtype=int
+        )
+
+    @property
+    def latent_var(self) -> np.ndarray:
+        """Propagated (uncalibrated) variances ``V`` of the last step's stage outputs, shape
+        (Q,): the variance of each stage's newest stored level, which its memory carries on."""
+        return self.values[self._newest_level_var]
 
     def history(self, block: str) -> np.ndarray:
         """A view of the white-box (``"wb"``) or stage-output (``"out"``) history, shape
@@ -143,7 +158,12 @@ class ChainPlan:
     ----------
     chain : FittedChain
         A :class:`~fmu_greybox.model.chain.GreyBoxChain`, fitted (or loaded): every stage has
-        a corrector and a feature range.
+        a corrector, a feature range and a variance calibration.
+
+    Layout: the plan is int64, a header then one record per stage (params offset, M, D, width
+    of the feature map, memory length, target mode, active, memory offset in the state,
+    calibration offset in params); params is float64, per active stage its packed posterior,
+    feature map and range (each block on a cache line), then ``a, b`` of every stage.
     """
 
     def __init__(self, chain: FittedChain) -> None:
@@ -186,6 +206,11 @@ class ChainPlan:
             offset += -(-block.size // 8) * 8  # each posterior on a cache-line boundary
             memory_offset += stage.memory_length * (1 + stage.memory_length)
             work = max(work, 2 * m + 5 * d + 2 * stage.memory_length + 1)
+        calibration = [(c.latent_scale, c.residual_variance) for c in chain.calibration_]
+        for q, record in enumerate(records):
+            record.append(offset + 2 * q)
+        blocks.append((offset, np.ravel(calibration)))
+        offset += 2 * n_stages
         self._params = aligned_zeros(offset)
         for start, block in blocks:
             self._params[start : start + block.size] = block

@@ -9,7 +9,9 @@ Layout::
       stage_<NAME>.json    corrector metadata
 
 The named correction terms the model carries (physics found by the diagnosis, folded into the
-white-box before the correctors) are plain data in ``model.json`` (``named_terms``).
+white-box before the correctors) are plain data in ``model.json`` (``named_terms``), and so is
+each stage's variance calibration (``stages[i].calibration``: ``latent_scale`` and
+``residual_variance``, see :mod:`fmu_greybox.model.calibration`).
 
 Every file's SHA-256 is recorded in ``model.json`` and checked on load, so a truncated or
 tampered file is refused with a clear error; ``model.json`` also records the SHA-256 of its own
@@ -20,6 +22,7 @@ executed. The folder is written atomically: a failed run leaves any earlier mode
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -37,15 +40,17 @@ from fmu_greybox.atomic import atomic_dir, atomic_write
 from fmu_greybox.errors import ConfigError, ModelFormatError
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.gp import SparseGPR
+from fmu_greybox.model.calibration import UNCALIBRATED, VarianceCalibration
 from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.model.stage import TARGET_MODES
 from fmu_greybox.model.terms import Term, term_from_dict
 from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS, NamedModel
 from fmu_greybox.project.config import ProjectConfig, parse_config
 
-#: Version written; versions read (1: no named terms).
-FORMAT_VERSION = 2
-READABLE_VERSIONS = (1, 2)
+#: Version written; versions read (1: no named terms; 1 and 2: no variance calibration, read
+#: as uncalibrated).
+FORMAT_VERSION = 3
+READABLE_VERSIONS = (1, 2, 3)
 MANIFEST = "model.json"
 WHITEBOX = "whitebox.fmu"
 #: Key of ``model.json`` holding the SHA-256 of the rest of its content.
@@ -185,6 +190,7 @@ def save_model(model: GreyBoxModel, out_dir: str | Path) -> Path:
                     "target_mode": stage.target_mode,
                     "feature_low": model.chain.feature_bounds_[stage.stage_index][0].tolist(),
                     "feature_high": model.chain.feature_bounds_[stage.stage_index][1].tolist(),
+                    "calibration": dataclasses.asdict(model.chain.calibration_[stage.stage_index]),
                 }
             )
         files = sorted(p.name for p in tmp.iterdir())
@@ -338,6 +344,7 @@ def load_model(model_dir: str | Path) -> GreyBoxModel:
                 f"{chain.stage_names}"
             )
         bounds = [_feature_bounds(s, len(chain.feature_names(i))) for i, s in enumerate(stages)]
+        calibration = [_calibration(s) for s in stages]
     except (ConfigError, KeyError, TypeError, ValueError) as exc:
         raise ModelFormatError(
             f"{model_dir / MANIFEST}: the stages do not fit the stored project ({exc}); {_RETRAIN}"
@@ -345,6 +352,7 @@ def load_model(model_dir: str | Path) -> GreyBoxModel:
     chain.correctors_ = [_load_corrector(model_dir / s["stem"]) for s in stages]
     chain.active_ = np.array([s["active"] for s in stages], dtype=bool)
     chain.feature_bounds_ = bounds
+    chain.calibration_ = calibration
     terms, substeps = _named_terms(model_dir / MANIFEST, manifest, len(stages))
     return GreyBoxModel(
         config=config,
@@ -384,6 +392,29 @@ def _feature_bounds(stage: Mapping[str, Any], n_features: int) -> np.ndarray:
     if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(low <= high)):
         raise ValueError(f"stage {stage['name']!r} has non-finite or inverted feature bounds")
     return np.array([low, high])
+
+
+def _calibration(stage: Mapping[str, Any]) -> VarianceCalibration:
+    """A stage's variance calibration, checked finite and non-negative (uncalibrated in a
+    folder written before calibration existed)."""
+    stored = stage.get("calibration")
+    if stored is None:
+        return UNCALIBRATED
+    if not isinstance(stored, Mapping) or set(stored) != {"latent_scale", "residual_variance"}:
+        raise ValueError(
+            f"stage {stage['name']!r} has a calibration that is not a table of latent_scale "
+            "and residual_variance"
+        )
+    values = [stored["latent_scale"], stored["residual_variance"]]
+    if not all(
+        isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+        for v in values
+    ):
+        raise ValueError(
+            f"stage {stage['name']!r} has a calibration with a value that is not a finite "
+            "number >= 0"
+        )
+    return VarianceCalibration(float(values[0]), float(values[1]))
 
 
 def _load_corrector(stem: Path) -> SparseGPR:

@@ -35,9 +35,9 @@
 #include <math.h>
 #include <string.h>
 
-#define PLAN_VERSION 1
+#define PLAN_VERSION 2
 #define PLAN_HEADER 7
-#define STAGE_RECORD 8
+#define STAGE_RECORD 9
 #define POSTERIOR_SCALARS 4
 
 enum { MODE_RESIDUAL = 0, MODE_INCREMENT = 1, MODE_OUTPUT = 2 };
@@ -211,14 +211,15 @@ static double predict_point(const PosteriorView *p, const double *x, double *mea
  *   per stage, at memory_offset: levels[n] (most recent first), their covariance[n * n]
  * A stage's sources are the shared ones followed by its own stored levels; its features are
  * A s, A (D x (S0 + n)) row-major in its params block (at an offset that is a multiple of 8):
- * packed posterior, then A, low[D], high[D]. */
+ * packed posterior, then A, low[D], high[D]. Every stage's variance calibration a, b lies at
+ * its calibration offset in params (fmu_greybox/model/calibration.py). */
 typedef struct {
-    Py_ssize_t params_offset, m, d, s, memory, mode, active, memory_offset;
+    Py_ssize_t params_offset, m, d, s, memory, mode, active, memory_offset, calibration;
 } StageRecord;
 
 static StageRecord stage_record(const long long *plan, Py_ssize_t q) {
     const long long *r = plan + PLAN_HEADER + q * STAGE_RECORD;
-    StageRecord s = {r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7]};
+    StageRecord s = {r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8]};
     return s;
 }
 
@@ -252,6 +253,12 @@ static void push_level(double *memory, double *p, Py_ssize_t n, double level, do
     }
     p[0] = var;
     for (Py_ssize_t k = 1; k < n; k++) p[k] = p[k * n] = cov[k - 1];
+}
+
+/* The variance a stage reports: a * var + b, var the propagated variance (which the memory
+ * keeps), a and b the stage's calibration (b alone for a stage passed through, var = 0). */
+static double calibrated_variance(const double *calibration, double var) {
+    return calibration[0] * var + calibration[1];
 }
 
 /* One stage of one step. Returns the stage's domain score (largest kernel correlation), or
@@ -320,8 +327,8 @@ static double stage_step(const StageRecord *r, const Layout *l, const double *pa
         out[q] = y;
         for (Py_ssize_t k = 0; k < r->memory; k++) cov[k] = 0.0;
     }
-    out_var[q] = var;
     push_level(memory, memory_cov, r->memory, level, var, cov);
+    out_var[q] = calibrated_variance(params + r->calibration, var);
     return score;
 }
 

@@ -42,7 +42,10 @@ class MasterRun:
         White-box stage outputs (with the model's named terms, if any): what the correctors
         start from.
     mean, std : ndarray, shape (m, Q)
-        Grey-box stage outputs and their standard deviations.
+        Grey-box stage outputs and their calibrated standard deviations (those of the
+        exported FMU's ``_std`` outputs).
+    latent_std : ndarray, shape (m, Q)
+        The standard deviations propagated through the chain before calibration.
     """
 
     rows: np.ndarray
@@ -50,6 +53,7 @@ class MasterRun:
     whitebox: np.ndarray
     mean: np.ndarray
     std: np.ndarray
+    latent_std: np.ndarray
 
 
 def run_master(
@@ -98,7 +102,13 @@ def run_master(
     ):
         wb = run_open_loop(fmu, u, progress)
     known = data.outputs if memory_from == "recorded" else wb
-    mean, std = chain.free_run(data.exo, wb, known, start)
+    run = chain.free_run_variances(data.exo, wb, known, start)
     rows = np.arange(start + 1, n)
-    time = data.recording.time[rows]
-    return MasterRun(rows=rows, time=time, whitebox=wb[rows], mean=mean, std=std)
+    return MasterRun(
+        rows=rows,
+        time=data.recording.time[rows],
+        whitebox=wb[rows],
+        mean=run.mean,
+        std=np.sqrt(run.var),
+        latent_std=np.sqrt(run.latent_var),
+    )

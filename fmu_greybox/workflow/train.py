@@ -96,6 +96,7 @@ def train_model(
         },
         "free_run_check": chain.free_run_check_,
         "target_selection": chain.selection_,
+        "calibration_check": chain.calibration_check_,
         "whitebox_source": str(fmu_path),
         "whitebox_sha256": file_sha256(fmu_path),
         "seconds": round(time.perf_counter() - started, 2),

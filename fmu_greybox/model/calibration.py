@@ -1,0 +1,154 @@
+"""Calibrated predictive uncertainty of a stage: the reported variance ``a V + b``.
+
+A corrector's propagated variance ``V`` (its latent variance carried through the chain to first
+order; :mod:`fmu_greybox.model.chain_step`) says how unsure the GP is of its own mean. It leaves
+out the sensor noise of the recorded signal and every error the corrector does not know it makes
+(the drift of a free run, a white-box error it was not trained to see), and a stage whose
+corrector is switched off has ``V = 0``. What a test bench needs is the spread of the recording
+about the prediction. Per stage, two numbers make one from the other:
+
+    reported variance = a · V + b
+
+``b`` [unit²] is the stage's residual variance: observation noise plus the model error that
+``V`` does not carry (alone when the corrector is off); ``a`` scales ``V``. Both are estimated
+on rows the correctors were not fitted to (:meth:`~fmu_greybox.model.chain.GreyBoxChain.fit`
+free-runs a chain fitted on the leading training rows over the trailing ones), in two steps:
+
+1. the shape, by maximum a posteriori: the residuals ``r`` as independent ``N(0, a V + b)`` and
+   a log-normal prior on ``a`` centred on 1 (:data:`LATENT_SCALE_PRIOR`), so that ``a`` stays 1
+   when ``V`` is too small or too even to tell it apart from ``b``;
+2. the scale, by the split-conformal quantile: both are multiplied by the factor that puts
+   exactly :data:`CALIBRATION_LEVEL` of those rows inside ±1.96 σ. Free-run residuals are
+   neither Gaussian nor independent (a drift is a slow wave); matching the variance alone puts
+   every sample of a sine-like error inside ±1.96 σ (coverage 1, not 0.95). The quantile holds
+   whatever the distribution, on rows like those it was taken from.
+
+:func:`coverage` measures the result on other rows.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import minimize
+
+FloatArray = NDArray[np.float64]
+
+#: Share of calibration rows placed inside ±:data:`Z95` σ.
+CALIBRATION_LEVEL = 0.95
+#: Half-width of the central 95 % interval of a standard normal.
+Z95 = 1.959963984540054
+#: Standard deviation of log ``a`` under its prior (``a`` within a factor e of 1 at 1 σ).
+LATENT_SCALE_PRIOR = 1.0
+#: Range searched for log ``a`` and for log ``b`` (relative to the mean square residual).
+LOG_RANGE = (-30.0, 30.0)
+
+
+@dataclass(frozen=True)
+class VarianceCalibration:
+    """The two numbers of one stage's reported variance ``latent_scale · V + residual_variance``.
+
+    Attributes
+    ----------
+    latent_scale : float
+        ``a`` (dimensionless, >= 0).
+    residual_variance : float
+        ``b`` [unit of the stage output, squared], >= 0.
+    """
+
+    latent_scale: float = 1.0
+    residual_variance: float = 0.0
+
+    def variance(self, latent_var: FloatArray) -> FloatArray:
+        """The reported variance for propagated variances ``latent_var`` (any shape)."""
+        return self.latent_scale * np.asarray(latent_var) + self.residual_variance
+
+
+#: What an uncalibrated model (a folder of format 2 or older) reports: the propagated variance.
+UNCALIBRATED = VarianceCalibration()
+
+
+def fit_calibration(residual: FloatArray, latent_var: FloatArray) -> VarianceCalibration:
+    """Estimate ``a`` and ``b`` from held-out residuals (see the module docstring).
+
+    Parameters
+    ----------
+    residual : ndarray, shape (m,)
+        Recorded minus predicted, on rows the corrector was not fitted to.
+    latent_var : ndarray, shape (m,)
+        The propagated variance ``V`` of those predictions (zeros for a stage passed through).
+
+    Returns
+    -------
+    VarianceCalibration
+        :data:`UNCALIBRATED` when no finite row is left or every residual is zero.
+    """
+    r = np.asarray(residual, dtype=np.float64)
+    v = np.asarray(latent_var, dtype=np.float64)
+    keep = np.isfinite(r) & np.isfinite(v)
+    r, v = r[keep], np.maximum(v[keep], 0.0)
+    scale = float(np.mean(r**2)) if r.size else 0.0
+    if scale == 0.0:
+        return UNCALIBRATED
+    a, b_relative = _most_probable(r**2 / scale, v / scale)
+    b = b_relative * scale
+    z = np.abs(r) / np.sqrt(a * v + b)
+    factor = (conformal_quantile(z, CALIBRATION_LEVEL) / Z95) ** 2
+    return VarianceCalibration(latent_scale=a * factor, residual_variance=b * factor)
+
+
+def _most_probable(r2: FloatArray, v: FloatArray) -> tuple[float, float]:
+    """``(a, b)`` maximising the Gaussian likelihood of ``r2 = r²`` with variance ``a v + b``
+    times the prior on ``a`` (normalised units: mean of ``r2`` is 1)."""
+
+    def objective(theta: FloatArray) -> tuple[float, FloatArray]:
+        a, b = np.exp(theta)
+        s = a * v + b
+        misfit = 1.0 / s - r2 / s**2  # d/ds of log s + r²/s
+        value = 0.5 * np.sum(np.log(s) + r2 / s) + 0.5 * (theta[0] / LATENT_SCALE_PRIOR) ** 2
+        grad = np.array(
+            [
+                0.5 * np.sum(misfit * a * v) + theta[0] / LATENT_SCALE_PRIOR**2,
+                0.5 * np.sum(misfit) * b,
+            ]
+        )
+        return float(value), grad
+
+    result = minimize(
+        objective, np.zeros(2), jac=True, method="L-BFGS-B", bounds=[LOG_RANGE, LOG_RANGE]
+    )
+    a, b = np.exp(result.x)
+    return float(a), float(b)
+
+
+def conformal_quantile(scores: FloatArray, level: float) -> float:
+    """The split-conformal ``level`` quantile of ``scores``: the ``ceil((m + 1) level)``-th
+    smallest of ``m`` (the largest when that exceeds ``m``).
+
+    Parameters
+    ----------
+    scores : ndarray, shape (m,)
+    level : float
+        In (0, 1).
+    """
+    ordered = np.sort(np.asarray(scores, dtype=np.float64))
+    rank = min(ordered.size, math.ceil((ordered.size + 1) * level))
+    return float(ordered[rank - 1])
+
+
+def coverage(residual: FloatArray, std: FloatArray, width: float) -> float:
+    """Share of samples with ``|residual| <= width · std`` (NaN when there are none).
+
+    Parameters
+    ----------
+    residual, std : ndarray, shape (m,)
+        Recorded minus predicted, and the predictive standard deviation.
+    width : float
+        Half-width of the band in standard deviations (1 for ±1σ, :data:`Z95` for 95 %).
+    """
+    r = np.abs(np.asarray(residual, dtype=np.float64))
+    s = np.asarray(std, dtype=np.float64)
+    return float(np.mean(r <= width * s)) if r.size else float("nan")

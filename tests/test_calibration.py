@@ -1,0 +1,126 @@
+"""Calibrated uncertainty: the estimator of ``a V + b``, coverage, and a chain whose noise is known.
+
+The chain case is one where the right σ is known: the first stage's recorded output is its
+white-box plus white sensor noise of a stated level (nothing to learn: σ must be that level),
+the others add smooth maps of the inputs that the correctors learn (σ must be the spread left,
+noise and what the corrector misses, and never below the noise); ±1.96σ must cover about 95 %
+of rows the chain never saw, in training or in calibration.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fmu_greybox.model.calibration import (
+    UNCALIBRATED,
+    Z95,
+    conformal_quantile,
+    coverage,
+    fit_calibration,
+)
+from fmu_greybox.model.chain import GreyBoxChain
+from fmu_greybox.project.config import parse_config
+
+REFERENCE = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"
+
+
+def test_coverage_counts_the_samples_inside_the_band() -> None:
+    residual = np.array([0.0, 0.5, -1.0, 1.5, -2.5])
+    std = np.ones(5)
+    assert coverage(residual, std, 1.0) == pytest.approx(3 / 5)  # the edge counts as inside
+    assert coverage(residual, std, Z95) == pytest.approx(4 / 5)
+    assert coverage(residual, 2 * std, Z95) == 1.0
+    assert np.isnan(coverage(np.zeros(0), np.zeros(0), 1.0))
+
+
+def test_conformal_quantile_is_the_rank_ceil_m_plus_one_times_level() -> None:
+    scores = np.arange(1.0, 101.0)[::-1]  # 1..100, any order
+    assert conformal_quantile(scores, 0.95) == 96.0  # ceil(101 * 0.95) = 96
+    assert conformal_quantile(scores[-10:], 0.95) == 10.0  # beyond m: the largest
+
+
+def test_heteroscedastic_gaussian_residuals_give_back_a_and_b() -> None:
+    """r ~ N(0, 2 V + 0.5): the estimate recovers both numbers and covers new draws."""
+    rng = np.random.default_rng(0)
+    latent = rng.uniform(0.0, 4.0, 20000)
+    residual = rng.standard_normal(latent.size) * np.sqrt(2.0 * latent + 0.5)
+    found = fit_calibration(residual, latent)
+    assert found.latent_scale == pytest.approx(2.0, rel=0.05)
+    assert found.residual_variance == pytest.approx(0.5, rel=0.1)
+    fresh = rng.uniform(0.0, 4.0, 20000)
+    new = rng.standard_normal(fresh.size) * np.sqrt(2.0 * fresh + 0.5)
+    std = np.sqrt(found.variance(fresh))
+    assert coverage(new, std, Z95) == pytest.approx(0.95, abs=0.01)
+    assert coverage(new, std, 1.0) == pytest.approx(0.683, abs=0.015)
+
+
+def test_a_corrector_switched_off_reports_the_residual_level_alone() -> None:
+    """V = 0 (or negligible): b is the residual variance, a stays at its prior's centre."""
+    rng = np.random.default_rng(1)
+    noise = 3.0 * rng.standard_normal(20000)
+    for latent in (np.zeros(noise.size), np.full(noise.size, 1e-20)):
+        found = fit_calibration(noise, latent)
+        assert np.sqrt(found.residual_variance) == pytest.approx(3.0, rel=0.03)
+        assert found.latent_scale == pytest.approx(1.0, rel=0.05)
+
+
+def test_a_slow_wave_is_covered_at_95_percent_not_at_100() -> None:
+    """A drift-like residual: matching its variance would put every sample inside ±1.96σ;
+    the quantile step puts 95 % of the calibration rows there."""
+    wave = np.sin(np.arange(6000) / 300.0)
+    found = fit_calibration(wave, np.zeros(wave.size))
+    std = np.sqrt(found.variance(np.zeros(wave.size)))
+    assert coverage(wave, std, Z95) == pytest.approx(0.95, abs=1e-3)
+    assert coverage(wave, np.full(wave.size, wave.std()), Z95) == 1.0
+
+
+def test_without_a_residual_nothing_is_calibrated() -> None:
+    assert fit_calibration(np.zeros(50), np.ones(50)) == UNCALIBRATED
+    assert fit_calibration(np.array([np.nan]), np.array([1.0])) == UNCALIBRATED
+
+
+NOISE = (2e-3, 5e-3, 1e-2)  # sensor noise of each stage's recorded output
+
+
+def noisy_signals(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Inputs (n, 3), white-box (n, 3) and recorded outputs (n, 3): the white-box (exact for
+    the first stage, plus smooth maps of the inputs for the others) plus white noise of the
+    levels :data:`NOISE`."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 1e-3
+    exo = np.column_stack(
+        [
+            np.sin(2 * np.pi * f * t + p)
+            for f, p in zip((3.0, 0.7, 1.9), (0.3, 1.0, 2.0), strict=True)
+        ]
+    )
+    wb = np.column_stack([np.sin(2 * np.pi * 2.3 * t), np.cos(2 * np.pi * 1.1 * t), np.sin(5 * t)])
+    truth = wb + np.column_stack([np.zeros(n), 0.1 * exo[:, 1], -0.1 * exo[:, 2] ** 2])
+    return exo, wb, truth + rng.standard_normal(truth.shape) * np.array(NOISE)
+
+
+def test_a_chain_reports_the_known_noise_and_covers_95_percent_of_unseen_rows() -> None:
+    raw = tomllib.loads(REFERENCE.read_text())
+    raw["gp"].update(inducing=30, max_iter=30, target="residual", feeds="recorded")
+    for stage in raw["stages"]:
+        stage.update(lags=1, differences=0)
+    chain = GreyBoxChain(parse_config(raw, REFERENCE))
+    exo, wb, out = noisy_signals(6000, seed=4)
+    chain.fit(exo[:3000], wb[:3000], out[:3000])
+    assert set(chain.calibration_check_) == {"EHV", "RAM", "ITFV"}
+    # rows 3000.. were seen by nothing: not by the correctors, not by the calibration
+    run = chain.free_run_variances(exo, wb, out, 2999)
+    residual = out[3000:] - run.mean
+    std = np.sqrt(run.var)
+    assert np.median(std[:, 0]) == pytest.approx(NOISE[0], rel=0.1), chain.calibration_[0]
+    for q, noise in enumerate(NOISE):
+        spread = np.sqrt(np.mean(residual[:, q] ** 2))
+        assert noise * 0.95 <= np.median(std[:, q]) == pytest.approx(spread, rel=0.15)
+        assert 0.92 <= coverage(residual[:, q], std[:, q], Z95) <= 0.98
+        assert 0.62 <= coverage(residual[:, q], std[:, q], 1.0) <= 0.74
+        # the propagated variance alone claims far more certainty than the data allow
+        assert np.median(np.sqrt(run.latent_var[:, q])) < 0.5 * noise
