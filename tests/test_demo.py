@@ -22,7 +22,6 @@ from fmpy.validation import validate_fmu
 from PIL import Image
 
 from fmu_greybox.cli import main
-from fmu_greybox.report.spectra import frequency_response
 from fmu_greybox.synth.actuator import TYPICAL_MAGNITUDES
 from fmu_greybox.workflow.demo import choose_effect
 
@@ -98,13 +97,53 @@ def test_demo_bench_runs_match_the_master(demo: tuple[Path, dict]) -> None:
 
 def test_report_is_self_contained(demo: tuple[Path, dict]) -> None:
     text = (Path(demo[0]) / "report.html").read_text(encoding="utf-8")
-    assert text.index("Verdict") < text.index("Findings")
+    assert text.index("Acceptance") < text.index("Verdict") < text.index("Findings")
     sources = re.findall(r"src='([^']*)'", text)
-    assert len(sources) >= 5  # residual, regime, before/after, traces, frequency response
+    assert len(sources) >= 5  # residuals, calibration, frequency, residual in time, regimes
     assert all(s.startswith("data:image/png;base64,") for s in sources)
     assert "http://" not in text and "https://" not in text and "<script" not in text
-    for block in ("Traceability", "sha256 greybox.fmu", "±2σ", "Frequency response", "libcosim"):
+    for block in (
+        "Traceability",
+        "±1.96σ",
+        "Calibration of the uncertainty",
+        "Frequency response",
+        "dB re 1 m/mA",
+        "libcosim",
+        "target for the step alone",
+    ):
         assert block in text, block
+
+
+def test_report_labels_every_hash_and_names_no_local_path(demo: tuple[Path, dict]) -> None:
+    text = (Path(demo[0]) / "report.html").read_text(encoding="utf-8")
+    start = text.index("<h2>Traceability</h2>")
+    rows = re.findall(r"<tr><td>(.*?)</td><td>(.*?)</td><td><code>(.*?)</code>", text[start:])
+    items = {item: (covers, value) for item, covers, value in rows}
+    for item in ("package sources", "project file", "white-box sources", "greybox.fmu"):
+        covers, value = items[item]
+        assert "SHA-256" in covers and re.fullmatch(r"[0-9a-f]{64}", value), item
+    assert "recording.csv" in items and "training recording data" in items  # two hashes, named
+    assert items["recording.csv"][1] != items["training recording data"][1]
+    assert "fmu-greybox" in items and all(covers for covers, _ in items.values())
+    assert str(Path.home()) not in text and "/.cache/" not in text
+    assert "Timings: {" not in text and "{'" not in text  # tables, not Python dicts
+
+
+def test_demo_reports_acceptance_and_calibrated_coverage(demo: tuple[Path, dict]) -> None:
+    out, summary = demo
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert summary["acceptance"] == metrics["acceptance"]
+    assert summary["acceptance"]["verdict"] in ("PASS", "FAIL", "UNDECIDED")
+    checks = summary["acceptance"]["checks"]
+    assert {c["stage"] for c in checks} == {"EHV", "RAM", "ITFV"}
+    assert all(c["verdict"] in ("PASS", "FAIL", "UNDECIDED") and c["limit"] for c in checks)
+    for stage, row in summary["validation"].items():
+        # the uncalibrated σ covered nothing here (1e-10 m against an RMSE of 1e-6 m)
+        assert 0.8 <= row["coverage95"] <= 1.0, (stage, row)
+        assert row["coverage68"] < row["coverage95"]
+        assert metrics["stages"][stage]["median_latent_std"] < row["median_std"]
+    assert set(summary["frequency"]) == {"EHV", "RAM", "ITFV"}
+    assert summary["frequency"]["EHV"]["gain_unit"] == "dB re 1 m/mA"
 
 
 def chromium() -> str | None:
@@ -147,22 +186,55 @@ def test_report_renders_in_headless_chromium(demo: tuple[Path, dict], tmp_path: 
     assert pixels.shape == (2400, 1200)
     assert (pixels < 200).mean() > 0.03  # text, tables and plots, not a blank page
     assert pixels.std() > 20
-    # the same page with a probe that counts images that failed to decode
+    # the same page with a probe that counts images that failed to decode and measures where
+    # the acceptance table and the residual figure are laid out
     probe = tmp_path / "probe.html"
     probe.write_text(
         report.read_text(encoding="utf-8").replace(
             "</body>",
             "<script>window.addEventListener('load',()=>{const bad=[...document.images]"
             ".filter(i=>!i.complete||i.naturalWidth===0).length;document.body.setAttribute("
-            "'data-images',document.images.length+'/'+bad);});</script></body>",
+            "'data-images',document.images.length+'/'+bad);const box=e=>{const r=e"
+            ".getBoundingClientRect();return [r.left,r.top,r.right,r.bottom].map(Math.round)"
+            ".join(',')};document.body.setAttribute('data-acceptance',box(document"
+            ".querySelector('table')));document.body.setAttribute('data-band',box(document"
+            ".querySelector(\"img[alt^='Residuals']\")));});</script></body>",
         ),
         encoding="utf-8",
     )
-    dom = run_chromium(probe, tmp_path, "--virtual-time-budget=10000", "--dump-dom").stdout
+    dom = run_chromium(
+        probe, tmp_path, "--window-size=1200,2400", "--virtual-time-budget=10000", "--dump-dom"
+    ).stdout
     found = re.search(r'data-images="(\d+)/(\d+)"', dom)
     assert found, dom[-500:]
     total, broken = map(int, found.groups())
     assert total >= 5 and broken == 0
+    colour = np.asarray(Image.open(shot).convert("RGB"), dtype=int)
+    # the acceptance table is the first thing on the page, its verdicts in coloured badges
+    left, top, right, bottom = box(dom, "acceptance")
+    assert top < 400 and bottom > top + 100
+    table = colour[top:bottom, left:right]
+    badges = sum(np.all(np.abs(table - rgb) <= 12, axis=-1).sum() for rgb in VERDICT_COLOURS)
+    assert badges > 500, badges
+    # the uncertainty band is drawn, with an area one can see, in the residual figure
+    left, top, right, bottom = box(dom, "band")
+    assert bottom <= 2400, "render the page taller: the residual figure is below the shot"
+    figure = colour[top:bottom, left:right]
+    band = np.all(np.abs(figure - BAND_RGB) <= 10, axis=-1).mean()
+    assert band > 0.02, band
+
+
+#: Badge colours of PASS, FAIL and UNDECIDED (report/html.py).
+VERDICT_COLOURS = ((0x1A, 0x7F, 0x37), (0xC6, 0x28, 0x28), (0xF2, 0xC9, 0x4C))
+#: The band's fill: tab:green at alpha 0.25 over white.
+BAND_RGB = (201, 231, 201)
+
+
+def box(dom: str, name: str) -> tuple[int, int, int, int]:
+    """A layout box the probe wrote into the page (CSS pixels = screenshot pixels)."""
+    found = re.search(rf'data-{name}="(-?\d+),(-?\d+),(-?\d+),(-?\d+)"', dom)
+    assert found, name
+    return tuple(max(0, int(v)) for v in found.groups())
 
 
 def test_a_failed_demo_writes_no_report(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -189,24 +261,3 @@ def test_choose_effect_is_deterministic_and_typical() -> None:
         ((name, value),) = d.items()
         low, high = TYPICAL_MAGNITUDES[name][0], TYPICAL_MAGNITUDES[name][-1]
         assert low <= value <= high * 1.01
-
-
-def test_frequency_response_of_a_known_filter() -> None:
-    # y[k] = a y[k-1] + (1 - a) u[k-1]: H(z) = (1 - a) z^-1 / (1 - a z^-1)
-    rng = np.random.default_rng(0)
-    dt, a = 1e-3, 0.9
-    u = rng.standard_normal(2**15)
-    y = np.zeros_like(u)
-    for k in range(1, u.size):
-        y[k] = a * y[k - 1] + (1 - a) * u[k - 1]
-    r = frequency_response(u, {"recording": y, "grey-box": y, "white-box": 2 * y}, dt)
-    z = np.exp(-2j * np.pi * r.freq * dt)
-    exact = (1 - a) * z / (1 - a * z)
-    np.testing.assert_allclose(np.abs(r.response["recording"]), np.abs(exact), rtol=0.02)
-    np.testing.assert_allclose(
-        np.angle(r.response["recording"][1:50]), np.angle(exact[1:50]), atol=0.02
-    )
-    assert r.coherence["recording"].min() > 0.99
-    assert r.band_error_db("grey-box") == pytest.approx(0.0, abs=1e-9)
-    assert r.band_error_db("white-box") == pytest.approx(20 * np.log10(2), rel=1e-6)
-    assert r.match["white-box"].min() > 0.99  # a scaled copy is fully coherent

@@ -128,7 +128,17 @@ def test_any_field_removed(path: str) -> None:
 
 
 ALLOWED = {
-    "": {"format_version", "name", "whitebox", "recording", "signals", "stages", "gp", "split"},
+    "": {
+        "format_version",
+        "name",
+        "whitebox",
+        "recording",
+        "signals",
+        "stages",
+        "gp",
+        "split",
+        "acceptance",
+    },
     "whitebox": {"fmu", "step", "parameters", "fixed_inputs"},
     "recording": {"path", "time_column", "resample"},
     "gp": {
@@ -141,6 +151,19 @@ ALLOWED = {
         "kernel",
     },
     "split": {"train_fraction"},
+    "acceptance": {
+        "max_nrmse",
+        "band",
+        "max_gain_error_db",
+        "max_phase_error_deg",
+        "min_coherence",
+        "coverage95",
+        "coverage68",
+        "input",
+        "EHV",
+        "RAM",
+        "ITFV",
+    },
     "signals.valve_current": {"role", "unit", "column", "variable"},
     "stages[1]": {
         "name",

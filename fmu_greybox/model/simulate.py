@@ -18,13 +18,13 @@ from pathlib import Path
 from typing import Protocol
 
 import numpy as np
-from tqdm import tqdm
 
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu, real_outputs
 from fmu_greybox.fmi.binding import InputBinding, bind_inputs
 from fmu_greybox.model.terms import Term
 from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS, NamedModel
+from fmu_greybox.progress import track
 
 #: Largest number of runs :func:`simulate_with_terms` keeps in a cache.
 CACHE_SIZE = 8
@@ -62,7 +62,7 @@ def run_open_loop(model: Stepper, u: np.ndarray, progress: bool = False) -> np.n
     first = model.outputs()
     y = np.empty((n, first.size))
     y[0] = first
-    for k in tqdm(range(n - 1), disable=not progress, desc="simulate", unit="step", leave=False):
+    for k in track(range(n - 1), "Stepping the white-box over the recording", n - 1, progress):
         y[k + 1] = model.step(u[k])
     return y
 

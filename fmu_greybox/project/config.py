@@ -8,6 +8,7 @@ example.
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import math
 import sys
@@ -146,6 +147,65 @@ class GPConfig:
 
 
 @dataclass(frozen=True)
+class Criteria:
+    """Acceptance limits of one stage (``[acceptance]``; ``docs/config.md`` says why each
+    default). ``None`` leaves a criterion unchecked (``false`` in the file).
+
+    Attributes
+    ----------
+    max_nrmse : float or None
+        Largest grey-box RMSE on the validation rows, divided by the standard deviation of the
+        training target.
+    band : tuple of float
+        ``(low, high)`` [Hz]: the frequencies the frequency-domain criteria look at (only
+        those where the recording's estimate can be trusted, see
+        :mod:`fmu_greybox.report.spectra`).
+    max_gain_error_db : float or None
+        Largest RMS gain error against the recording in the band [dB].
+    max_phase_error_deg : float or None
+        Largest RMS phase error against the recording in the band [deg].
+    min_coherence : float or None
+        Smallest median coherence of the grey-box's output with the recorded output in the
+        band.
+    coverage95, coverage68 : tuple of float or None
+        ``(low, high)`` shares of the validation rows that must lie inside ±1.96σ and ±1σ.
+    """
+
+    max_nrmse: float | None = 0.1
+    band: tuple[float, float] = (0.0, 50.0)
+    max_gain_error_db: float | None = 2.0
+    max_phase_error_deg: float | None = 15.0
+    min_coherence: float | None = 0.6
+    coverage95: tuple[float, float] | None = (0.90, 0.99)
+    coverage68: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True)
+class AcceptanceConfig:
+    """The project's acceptance criteria: defaults, and per stage where a stage differs.
+
+    Attributes
+    ----------
+    default : Criteria
+        The ``[acceptance]`` table's own values (each field's default where not given).
+    stages : dict[str, Criteria]
+        Stage -> its criteria, for the stages with an ``[acceptance.NAME]`` table (the
+        default's values where that table gives none).
+    input : str or None
+        Signal the frequency responses are taken from (``None``: the first input of the first
+        stage).
+    """
+
+    default: Criteria = field(default_factory=Criteria)
+    stages: dict[str, Criteria] = field(default_factory=dict)
+    input: str | None = None
+
+    def for_stage(self, name: str) -> Criteria:
+        """The criteria of stage ``name``."""
+        return self.stages.get(name, self.default)
+
+
+@dataclass(frozen=True)
 class ProjectConfig:
     """A validated project file.
 
@@ -177,6 +237,8 @@ class ProjectConfig:
         Corrector settings.
     train_fraction : float
         Leading share of a recording used for training; the rest is held out.
+    acceptance : AcceptanceConfig
+        What a validated grey-box must meet.
 
     The typed fields are the only source of truth: :meth:`to_dict` derives the TOML tables from
     them (stored in model folders, read back with :func:`parse_config`), and a changed project
@@ -196,6 +258,7 @@ class ProjectConfig:
     stages: tuple[StageConfig, ...]
     gp: GPConfig = field(default_factory=GPConfig)
     train_fraction: float = 0.95
+    acceptance: AcceptanceConfig = field(default_factory=AcceptanceConfig)
 
     def to_dict(self) -> dict[str, Any]:
         """The project as TOML tables, such that ``parse_config(c.to_dict(), c.path) == c``.
@@ -203,8 +266,9 @@ class ProjectConfig:
         Returns
         -------
         dict
-            ``name``, ``whitebox``, ``recording``, ``signals``, ``stages``, ``gp`` and ``split``
-            tables (unset optional values left out, as TOML has no null).
+            ``name``, ``whitebox``, ``recording``, ``signals``, ``stages``, ``gp``, ``split`` and
+            ``acceptance`` tables (unset optional values left out, as TOML has no null; an
+            unchecked criterion as ``false``).
         """
         whitebox = {"fmu": self.fmu, "step": self.step}
         whitebox |= {"parameters": dict(self.parameters), "fixed_inputs": dict(self.fixed_inputs)}
@@ -222,6 +286,7 @@ class ProjectConfig:
             "stages": [_fields(s) for s in self.stages],
             "gp": _fields(self.gp),
             "split": {"train_fraction": self.train_fraction},
+            "acceptance": _acceptance_table(self.acceptance),
         }
 
     def stage(self, name: str) -> StageConfig:
@@ -329,7 +394,17 @@ def parse_config(raw: Mapping[str, Any], path: Path | None = None) -> ProjectCon
     reader.keys(
         raw,
         "",
-        {"format_version", "name", "whitebox", "recording", "signals", "stages", "gp", "split"},
+        {
+            "format_version",
+            "name",
+            "whitebox",
+            "recording",
+            "signals",
+            "stages",
+            "gp",
+            "split",
+            "acceptance",
+        },
     )
     version = reader.get(raw, "format_version", int, FORMAT_VERSION)
     if version != FORMAT_VERSION:
@@ -373,6 +448,7 @@ def parse_config(raw: Mapping[str, Any], path: Path | None = None) -> ProjectCon
         stages=stages,
         gp=_gp(reader, reader.table(raw, "gp")),
         train_fraction=train_fraction,
+        acceptance=_acceptance(reader, reader.table(raw, "acceptance"), signals, stages),
     )
     if rec_path is not None:
         object.__setattr__(config, "recording", config.resolve_path(rec_path))
@@ -610,6 +686,69 @@ def _gp(reader: _Reader, table: Mapping[str, Any]) -> GPConfig:
     return gp
 
 
+def _acceptance(
+    reader: _Reader,
+    table: Mapping[str, Any],
+    signals: Mapping[str, Signal],
+    stages: tuple[StageConfig, ...],
+) -> AcceptanceConfig:
+    names = [s.name for s in stages]
+    criteria = [f.name for f in fields(Criteria)]
+    reader.keys(table, "acceptance", {*criteria, "input", *names})
+    default = _criteria(reader, table, "acceptance", Criteria())
+    per_stage = {}
+    for name in names:
+        if name in table:
+            where = f"acceptance.{name}"
+            own = reader.table(table, name)
+            reader.keys(own, where, set(criteria))
+            per_stage[name] = _criteria(reader, own, where, default)
+    source = reader.get(table, "input", str, None, "acceptance.")
+    if source is not None and source not in signals:
+        reader.fail(
+            "acceptance.input",
+            f"{source!r} is not a declared signal" + _did_you_mean(source, signals),
+        )
+    return AcceptanceConfig(default=default, stages=per_stage, input=source)
+
+
+def _criteria(reader: _Reader, table: Mapping[str, Any], where: str, base: Criteria) -> Criteria:
+    """The criteria of one ``[acceptance]`` table, ``base``'s where it gives none."""
+    values: dict[str, Any] = {}
+    for name in ("max_nrmse", "max_gain_error_db", "max_phase_error_deg", "min_coherence"):
+        if name in table:
+            value = (
+                None if table[name] is False else reader.get(table, name, float, None, where + ".")
+            )
+            if value is not None:
+                reader.positive(f"{where}.{name}", value)
+            values[name] = value
+    if values.get("min_coherence") is not None and values["min_coherence"] > 1.0:
+        reader.fail(f"{where}.min_coherence", f"{values['min_coherence']} is above 1")
+    if "band" in table:
+        values["band"] = reader.interval(table, "band", where + ".", upper=None)
+    for name in ("coverage95", "coverage68"):
+        if name in table:
+            values[name] = (
+                None if table[name] is False else reader.interval(table, name, where + ".", 1.0)
+            )
+    return dataclasses.replace(base, **values)
+
+
+def _acceptance_table(acceptance: AcceptanceConfig) -> dict[str, Any]:
+    """The ``[acceptance]`` table of :meth:`ProjectConfig.to_dict` (unchecked as ``false``)."""
+
+    def table(criteria: Criteria) -> dict[str, Any]:
+        return {
+            f.name: False if value is None else list(value) if isinstance(value, tuple) else value
+            for f in fields(criteria)
+            for value in [getattr(criteria, f.name)]
+        }
+
+    stored = table(acceptance.default) | {n: table(c) for n, c in acceptance.stages.items()}
+    return _without_none(stored | {"input": acceptance.input})
+
+
 def _without_none(table: Mapping[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in table.items() if v is not None}
 
@@ -702,6 +841,24 @@ class _Reader:
     def positive(self, field_name: str, value: float) -> None:
         if value <= 0:
             self.fail(field_name, f"{value} must be positive")
+
+    def interval(
+        self, table: Mapping[str, Any], key: str, prefix: str, upper: float | None
+    ) -> tuple[float, float]:
+        """Two numbers ``[low, high]`` with ``0 <= low < high`` (``<= upper`` if given)."""
+        value = table[key]
+        limit = "" if upper is None else f" <= {upper:g}"
+        if (
+            not isinstance(value, list)
+            or len(value) != 2
+            or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+            or not all(math.isfinite(v) for v in value)
+        ):
+            self.fail(prefix + key, f"must be two numbers [low, high], not {_shown(value)}")
+        low, high = float(value[0]), float(value[1])
+        if not 0.0 <= low < high or (upper is not None and high > upper):
+            self.fail(prefix + key, f"[{low:g}, {high:g}] is not 0 <= low < high{limit}")
+        return low, high
 
 
 #: Largest integer a float field accepts (TOML integers have no size limit in tomllib).

@@ -21,6 +21,10 @@ STYLE = (
     "th{background:#eee;}"
     ".verdict{background:#f4f4f4;padding:0.5em 1em;border-left:4px solid #555;}"
     "img{max-width:100%;}code{font-size:85%;word-break:break-all;}"
+    ".pass{color:#fff;background:#1a7f37;padding:0 6px;font-weight:bold;}"
+    ".fail{color:#fff;background:#c62828;padding:0 6px;font-weight:bold;}"
+    ".undecided{color:#000;background:#f2c94c;padding:0 6px;font-weight:bold;}"
+    ".verdict li{margin:0.3em 0;}"
 )
 
 
@@ -51,9 +55,9 @@ def page(title: str, sections: Iterable[str]) -> str:
 
 
 def verdict(lines: Sequence[str], heading: str = "Verdict") -> str:
-    """The verdict box: one paragraph per line."""
-    body = "".join(f"<p>{escape(line)}</p>" for line in lines)
-    return f"<div class='verdict'><h2>{escape(heading)}</h2>{body}</div>"
+    """The verdict box: one list item per line."""
+    body = "".join(f"<li>{escape(line)}</li>" for line in lines)
+    return f"<div class='verdict'><h2>{escape(heading)}</h2><ul>{body}</ul></div>"
 
 
 def table(header: Sequence[str], rows: Iterable[Sequence[object]], raw: bool = False) -> str:

@@ -1,7 +1,10 @@
-"""Figures in the style of the paper's Figures 3 and 4.
+"""Evidence figures of a validation: residuals with the uncertainty band, zooms, calibration.
 
-White-box in red, recording dotted blue, grey-box in green with its ±2σ band; one panel per
-stage plus a zoom on a short window of the first stage. Written as PNG (atomically).
+Colours as the paper's Figures 3 and 4 (white-box red, recording dotted blue, grey-box green).
+Curves that would hide one another are not overlaid: each stage gets a residual panel
+(recording minus grey-box, with the grey-box's ±1.96σ band about zero, so the band is drawn at
+the scale of the error it describes) and a zoom on the short window where that residual is
+largest. Legends sit above the panels, never on them. Written as PNG (atomically) or embedded.
 """
 
 from __future__ import annotations
@@ -15,12 +18,18 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from scipy.stats import norm
 
 from fmu_greybox.atomic import atomic_write
+from fmu_greybox.model.calibration import Z95, coverage
+from fmu_greybox.report.spectra import MIN_COHERENCE, FrequencyResponse
 
 WB_STYLE = {"color": "tab:red", "lw": 1.0, "label": "white-box"}
 REC_STYLE = {"color": "tab:blue", "lw": 1.2, "ls": ":", "label": "recording"}
 GB_STYLE = {"color": "tab:green", "lw": 1.0, "label": "grey-box"}
+BAND_STYLE = {"color": "tab:green", "alpha": 0.25, "lw": 0, "label": "grey-box ±1.96σ"}
+#: Share of the residual panel's height the band and the grey-box residual fill at most.
+PANEL_MARGIN = 1.3
 
 
 def trace_figure(
@@ -33,7 +42,12 @@ def trace_figure(
     units: Sequence[str],
     zoom_seconds: float = 0.2,
 ) -> plt.Figure:
-    """Stage traces with uncertainty band, and a zoom on the first stage.
+    """Per stage, the residual with the grey-box's ±1.96σ band, and a zoom on its worst window.
+
+    Left: recording minus grey-box inside the band, titled with both models' RMSE (the
+    white-box's residual is often orders of magnitude larger and would hide the band). Right:
+    the recording, the white-box and the grey-box with its band over the ``zoom_seconds``
+    window where the grey-box's residual is largest in RMS.
 
     Parameters
     ----------
@@ -41,40 +55,217 @@ def trace_figure(
     recorded, whitebox, mean, std : ndarray, shape (m, Q)
     names, units : sequence of str, length Q
     zoom_seconds : float
-        Length of the zoomed window, centred in the run [s].
+        Length of each zoomed window [s].
 
     Returns
     -------
     matplotlib.figure.Figure
     """
     q_count = len(names)
-    fig, axes = plt.subplots(q_count + 1, 1, figsize=(10, 2.4 * (q_count + 1)), squeeze=False)
-    for q, ax in enumerate(axes[:q_count, 0]):
-        _panel(ax, time, recorded[:, q], whitebox[:, q], mean[:, q], std[:, q])
-        ax.set_ylabel(f"{names[q]} [{units[q]}]")
-    mid = 0.5 * (time[0] + time[-1])
-    window = (time >= mid - zoom_seconds / 2) & (time <= mid + zoom_seconds / 2)
-    ax = axes[q_count, 0]
-    _panel(
-        ax, time[window], recorded[window, 0], whitebox[window, 0], mean[window, 0], std[window, 0]
+    fig, axes = plt.subplots(
+        q_count,
+        2,
+        figsize=(11, 2.5 * q_count + 0.6),
+        squeeze=False,
+        gridspec_kw={"width_ratios": [2.2, 1]},
     )
-    ax.set_ylabel(f"{names[0]} [{units[0]}] (zoom)")
-    ax.set_xlabel("time [s]")
-    axes[0, 0].legend(loc="upper right", ncol=4, fontsize="small")
+    dt = float(np.median(np.diff(time))) if time.size > 1 else 1.0
+    width = max(2, min(time.size, round(zoom_seconds / dt)))
+    for q, (left, right) in enumerate(axes):
+        residual = recorded[:, q] - mean[:, q]
+        left.fill_between(time, -Z95 * std[:, q], Z95 * std[:, q], **BAND_STYLE)
+        left.plot(time, residual, color="tab:green", lw=0.6)
+        reach = np.percentile(np.maximum(np.abs(residual), Z95 * std[:, q]), 99.5)
+        left.set_ylim(-PANEL_MARGIN * reach, PANEL_MARGIN * reach)
+        inside = coverage(residual, std[:, q], Z95)
+        rmse = [np.sqrt(np.mean((recorded[:, q] - m) ** 2)) for m in (whitebox[:, q], mean[:, q])]
+        left.set_title(
+            f"{names[q]}: recording − grey-box [{units[q]}]; RMSE white-box {rmse[0]:.3g}, "
+            f"grey-box {rmse[1]:.3g}; {100 * inside:.1f} % inside ±1.96σ",
+            fontsize="medium",
+            loc="left",
+        )
+        left.grid(alpha=0.3)
+        window = worst_window(residual, width)
+        t = time[window]
+        right.fill_between(
+            t,
+            mean[window, q] - Z95 * std[window, q],
+            mean[window, q] + Z95 * std[window, q],
+            **BAND_STYLE,
+        )
+        right.plot(t, whitebox[window, q], **WB_STYLE)
+        right.plot(t, recorded[window, q], **REC_STYLE)
+        right.plot(t, mean[window, q], **GB_STYLE)
+        low = np.minimum(recorded[window, q], mean[window, q] - Z95 * std[window, q]).min()
+        high = np.maximum(recorded[window, q], mean[window, q] + Z95 * std[window, q]).max()
+        pad = 0.1 * (high - low) or abs(high) * 1e-3 or 1.0
+        right.set_ylim(low - pad, high + pad)
+        right.set_title(f"zoom: largest residual [{units[q]}]", fontsize="medium", loc="left")
+        right.grid(alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel("time [s]")
+    handles = [
+        plt.Rectangle((0, 0), 1, 1, **{k: v for k, v in BAND_STYLE.items() if k != "label"}),
+        plt.Line2D([], [], color="tab:green", lw=1.0),
+        plt.Line2D([], [], color="tab:red", lw=1.0),
+        plt.Line2D([], [], **{k: v for k, v in REC_STYLE.items() if k != "label"}),
+    ]
+    labels = ["grey-box ±1.96σ", "grey-box (left: recording − grey-box)", "white-box", "recording"]
+    legend_above(fig, handles, labels)
+    return fig
+
+
+def worst_window(residual: np.ndarray, width: int) -> slice:
+    """The ``width`` consecutive rows where ``residual`` has the largest RMS.
+
+    Parameters
+    ----------
+    residual : ndarray, shape (m,)
+    width : int
+        Rows per window (at most m).
+    """
+    energy = np.convolve(residual**2, np.ones(width), mode="valid")
+    start = int(np.argmax(energy))
+    return slice(start, start + width)
+
+
+def calibration_figure(
+    recorded: np.ndarray,
+    mean: np.ndarray,
+    std: np.ndarray,
+    latent_std: np.ndarray,
+    names: Sequence[str],
+) -> plt.Figure:
+    """Calibration: for each central level p, the share of rows inside ±z_p σ.
+
+    A calibrated σ lies on the diagonal; the target at 95 % (0.90 .. 0.99) is marked. Dashed:
+    the propagated σ before calibration.
+
+    Parameters
+    ----------
+    recorded, mean, std, latent_std : ndarray, shape (m, Q)
+    names : sequence of str, length Q
+    """
+    levels = np.linspace(0.02, 0.995, 60)
+    widths = norm.ppf(0.5 + levels / 2)
+    fig, ax = plt.subplots(figsize=(8.5, 4.6))
+    ax.plot([0, 1], [0, 1], color="0.5", lw=0.8, label="calibrated")
+    ax.plot([0.95, 0.95], [0.90, 0.99], color="k", lw=4, alpha=0.35, label="target at 95 %")
+    for q, name in enumerate(names):
+        residual = recorded[:, q] - mean[:, q]
+        for sigma, style in ((std, "-"), (latent_std, "--")):
+            share = [coverage(residual, sigma[:, q], w) for w in widths]
+            label = name if style == "-" else f"{name}, before calibration"
+            ax.plot(levels, share, ls=style, color=f"C{q}", lw=1.2, label=label)
+    ax.set_xlabel("nominal share inside ±z σ")
+    ax.set_ylabel("share of validation rows inside")
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0)
     fig.tight_layout()
     return fig
 
 
-def _panel(
-    ax: plt.Axes, t: np.ndarray, rec: np.ndarray, wb: np.ndarray, mean: np.ndarray, std: np.ndarray
-) -> None:
-    ax.fill_between(
-        t, mean - 2 * std, mean + 2 * std, color="tab:green", alpha=0.25, lw=0, label="grey-box ±2σ"
+def frequency_figure(
+    responses: Sequence[FrequencyResponse], bands: Sequence[tuple[float, float]]
+) -> plt.Figure:
+    """Per stage (one titled row): gain and phase of recording, white-box and grey-box, and
+    coherences, over the frequencies where the recording's estimate is trusted.
+
+    The recording's 95 % bounds are shaded blue, each stage's acceptance band grey. The
+    coherence panel shows the recording's input-output coherence (dotted; below the dash-dot
+    line at :data:`~fmu_greybox.report.spectra.MIN_COHERENCE` a frequency is not trusted), each
+    model's coherence with the recording, and as a dashed segment across the band its median
+    there: the statistic the tables give (``gid`` ``band median SOURCE``).
+
+    Parameters
+    ----------
+    responses : sequence of FrequencyResponse
+    bands : sequence of (float, float)
+        Each stage's band [Hz].
+    """
+    styles = {"recording": REC_STYLE, "white-box": WB_STYLE, "grey-box": GB_STYLE}
+    rows = len(responses)
+    fig, axes = plt.subplots(rows, 3, figsize=(12, 2.9 * rows + 0.6), squeeze=False)
+    for (gain, phase, match), r, band in zip(axes, responses, bands, strict=True):
+        f = r.freq
+        shown = f > 0
+        lower, upper = r.gain_bounds_db()
+        reference = r.gain_db("recording")
+        drawn = np.isfinite(upper)
+        gain.fill_between(
+            f,
+            np.fmax(lower, reference - 40),
+            upper,
+            where=drawn,
+            color="tab:blue",
+            alpha=0.15,
+            lw=0,
+        )
+        rec_phase, half = r.phase_deg("recording"), r.phase_bound_deg()
+        phase.fill_between(
+            f, rec_phase - half, rec_phase + half, where=drawn, color="tab:blue", alpha=0.15, lw=0
+        )
+        for source in r.response:
+            style = styles.get(source, {"label": source})
+            gain.semilogx(f[shown], r.gain_db(source)[shown], **style)
+            phase.semilogx(f[shown], r.phase_deg(source)[shown], **style)
+        match.semilogx(f[shown], r.coherence["recording"][shown], **REC_STYLE)
+        match.axhline(MIN_COHERENCE, color="0.4", lw=0.8, ls="-.")
+        for source, c in r.match.items():
+            style = styles.get(source, {"label": source})
+            match.semilogx(f[shown], np.where(r.trusted, c, np.nan)[shown], **style)
+            stats = r.band_statistics(source, band)
+            if stats.bins:
+                trusted = f[r.in_band(band)]
+                match.hlines(
+                    stats.median_coherence,
+                    trusted.min(),
+                    trusted.max(),
+                    colors=style.get("color"),
+                    linestyles="--",
+                    lw=1.6,
+                    gid=f"band median {source}",
+                )
+        for ax in (gain, phase, match):
+            ax.axvspan(max(band[0], f[shown].min()), band[1], color="0.6", alpha=0.15, lw=0)
+            ax.grid(alpha=0.3, which="both")
+        gain.set_title(
+            f"{r.stage}: {r.output_name} / {r.input_name}", loc="left", fontsize="medium"
+        )
+        gain.set_ylabel(f"gain [{r.gain_unit}]")
+        phase.set_ylabel("phase [deg]")
+        match.set_ylabel("coherence")
+        match.set_ylim(0, 1.05)
+    for ax in axes[-1]:
+        ax.set_xlabel("frequency [Hz]")
+    handles = [
+        plt.Line2D([], [], **{k: v for k, v in s.items() if k != "label"}) for s in styles.values()
+    ] + [
+        plt.Rectangle((0, 0), 1, 1, color="tab:blue", alpha=0.15, lw=0),
+        plt.Rectangle((0, 0), 1, 1, color="0.6", alpha=0.15, lw=0),
+        plt.Line2D([], [], color="k", ls="--", lw=1.6),
+        plt.Line2D([], [], color="0.4", ls="-.", lw=0.8),
+    ]
+    labels = [
+        *styles,
+        "recording's 95 % bounds",
+        "acceptance band",
+        "median in the band",
+        f"trusted above {MIN_COHERENCE:g}",
+    ]
+    legend_above(fig, handles, labels)
+    return fig
+
+
+def legend_above(fig: plt.Figure, handles: list, labels: list[str]) -> None:
+    """One legend for the figure, above its panels; the panels are laid out below it."""
+    fig.legend(
+        handles, labels, loc="upper center", ncol=len(labels), fontsize="small", frameon=False
     )
-    ax.plot(t, wb, **WB_STYLE)
-    ax.plot(t, rec, **REC_STYLE)
-    ax.plot(t, mean, **GB_STYLE)
-    ax.grid(alpha=0.3)
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / fig.get_figheight()))
 
 
 def save_png(fig: plt.Figure, path: str | Path, dpi: int = 110) -> None:

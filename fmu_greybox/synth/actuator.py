@@ -18,12 +18,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
-from tqdm import tqdm
 
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.fmi.archive import FmuArchive, FmuVariable, real_outputs
 from fmu_greybox.fmi.instance import FmuInstance
+from fmu_greybox.progress import track
 
 #: Standard deviation of each sensor's white noise at ``noise = 1`` [SI units of the signal].
 SENSOR_NOISE: dict[str, float] = {
@@ -333,7 +333,7 @@ def _closed_loop(
     start = {"supply_pressure": float(supply[0]), "engage": 1.0}
     with FmuInstance(truth, INPUTS, outputs, request.effects, start, "synth") as inst:
         y[0] = inst.read_outputs()
-        for k in tqdm(range(n), disable=not progress, desc="synth", unit="step", leave=False):
+        for k in track(range(n), "Recording the truth model in closed loop", n, progress):
             measured = y[k, ram] + noise["ram_position"][k]
             current = profile.position_gain * (reference[k] - measured)
             current = min(max(current, -profile.current_limit), profile.current_limit)

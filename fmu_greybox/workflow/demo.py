@@ -21,7 +21,6 @@ folder without them is an interrupted run.
 
 from __future__ import annotations
 
-import dataclasses
 import platform
 import shlex
 import sys
@@ -35,7 +34,6 @@ from typing import Any
 
 import numpy as np
 
-from fmu_greybox import __version__
 from fmu_greybox.data.recording import Recording, save_recording
 from fmu_greybox.diagnosis import Diagnosis, GreyBoxSettings
 from fmu_greybox.diagnosis.findings import named_physics
@@ -43,11 +41,11 @@ from fmu_greybox.diagnosis.report import diagnosis_payload, write_json
 from fmu_greybox.export.fmu import export_greybox
 from fmu_greybox.export.ssp import BenchAgreement, compare_with_master, make_bench, run_bench
 from fmu_greybox.fmi.archive import open_fmu
-from fmu_greybox.fmi.builtin import reference_fmus, reference_project
+from fmu_greybox.fmi.builtin import reference_fmus, reference_project, sources_digest
 from fmu_greybox.model.store import file_sha256, load_model, save_model
 from fmu_greybox.model.whitebox import terms_from_findings
 from fmu_greybox.project.config import ProjectConfig, load_config
-from fmu_greybox.report.spectra import FrequencyResponse, stage_responses
+from fmu_greybox.report.provenance import tool_rows
 from fmu_greybox.synth.actuator import (
     TYPICAL_MAGNITUDES,
     FlightTestProfile,
@@ -58,6 +56,17 @@ from fmu_greybox.workflow.train import train_model, with_inducing
 from fmu_greybox.workflow.validate import Validation, validate_model, write_metrics
 
 Log = Callable[[str], None]
+
+#: What each file of the traceability block is.
+FILE_ROLES = {
+    "recording.csv": "the training recording, as written",
+    "validation.csv": "the independent validation recording, as written",
+    "HydraulicActuator.fmu": "the white-box FMU, as built",
+    "HydraulicActuatorTruth.fmu": "the truth FMU that made the recordings",
+    "model/model.json": "the model manifest, which holds the SHA-256 of every model file",
+    "greybox.fmu": "the exported grey-box FMU",
+    "bench.ssp": "the SSP bench",
+}
 
 #: Bench runs cover this many 1 ms steps of the validation recording (a power of two keeps the
 #: recording's mean step exactly libcosim's integer-nanosecond step).
@@ -117,10 +126,9 @@ class DemoResult:
         Model folder, exported FMU, SSP bench.
     bench : list of BenchAgreement
         Per engine: the exported FMU against the in-process master.
-    responses : list of FrequencyResponse
-        Per stage, on the validation run.
     files : dict[str, Path]
-        Inputs and outputs to hash in the traceability block.
+        Inputs and outputs to hash in the traceability block (label: the file's name in the
+        output folder, or of a built-in FMU).
     timings : dict[str, float]
         Seconds per step.
     command : str
@@ -137,7 +145,6 @@ class DemoResult:
     fmu: Path
     ssp: Path
     bench: list[BenchAgreement]
-    responses: list[FrequencyResponse]
     files: dict[str, Path] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
     command: str = ""
@@ -149,20 +156,51 @@ class DemoResult:
             return False
         return named_physics(findings[0]) in self.effects
 
-    def traceability(self) -> dict[str, str]:
-        """Hashes of data, FMUs and model; versions; the command line."""
-        rows = {f"sha256 {label}": file_sha256(path) for label, path in self.files.items()}
-        rows["fmu-greybox"] = __version__
+    def traceability(self) -> list[tuple[str, str, str]]:
+        """Rows ``(item, what it covers, value)``: the tool, the project file, the white-box
+        sources, every file's SHA-256, the recordings' data hashes, versions, the command."""
+        rows = tool_rows()
+        rows.append(
+            (
+                "project file",
+                f"SHA-256 of {reference_project().name} (stages, signals, GP settings, "
+                "acceptance criteria)",
+                file_sha256(reference_project()),
+            )
+        )
+        rows.append(
+            (
+                "white-box sources",
+                "SHA-256 of the C sources, variable tables and builder the FMUs were built "
+                "from (fmu_sources/)",
+                sources_digest(),
+            )
+        )
+        rows += [
+            (label, f"SHA-256 of the file: {FILE_ROLES.get(label, label)}", file_sha256(path))
+            for label, path in self.files.items()
+        ]
+        rows.append(
+            (
+                "training recording data",
+                "SHA-256 of recording.csv's time, signals and units as read (independent of "
+                "the file format; model.json and diagnosis.json record this one)",
+                self.payload["recording"]["sha256"],
+            )
+        )
         for package in ("fmpy", "pythonfmu", "libcosimpy", "numpy", "scipy"):
             try:
-                rows[package] = metadata.version(package)
+                version = metadata.version(package)
             except metadata.PackageNotFoundError:
-                rows[package] = "not installed"
-        rows["python"] = platform.python_version()
-        rows["platform"] = platform.platform()
-        rows["command"] = self.command
-        rows["seed"] = str(self.settings.seed)
-        rows["finished (UTC)"] = datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S")
+                version = "not installed"
+            rows.append((package, "version", version))
+        rows += [
+            ("python", "version", platform.python_version()),
+            ("platform", "operating system and machine", platform.platform()),
+            ("command", "the command line", self.command),
+            ("seed", "seed of the effect draw and of the recordings", str(self.settings.seed)),
+            ("finished", "UTC", datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S")),
+        ]
         return rows
 
 
@@ -238,7 +276,9 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
     on = f"the white-box + {len(terms)} named term(s)" if terms else "the white-box"
     say(f"[4/6] training the grey-box on {on} ({settings.inducing} inducing points per stage)")
     model_dir = out / "model"
-    trained = train_model(_training_config(config, settings), training, progress, terms=terms)
+    trained = train_model(
+        with_inducing(config, settings.inducing, settings.max_iter), training, progress, terms=terms
+    )
     save_model(trained, model_dir)
     model = load_model(model_dir)
     validation = validate_model(model, validation_rec, progress)
@@ -260,17 +300,7 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
         agreements.append(compare_with_master(model, bench_rec, result, engine, seconds))
     step("export and bench")
 
-    say("[6/6] frequency responses and the report")
-    run = validation.run
-    first_input = config.stages[0].inputs[0]
-    responses = stage_responses(
-        validation_rec[config.signals[first_input].column][run.rows],
-        validation.data.outputs[run.rows],
-        {"white-box": validation.whitebox, "grey-box": run.mean},
-        model.dt,
-        first_input,
-        model.chain.target_signals,
-    )
+    say("[6/6] writing the report")
     files = {
         "recording.csv": out / "recording.csv",
         "validation.csv": out / "validation.csv",
@@ -291,7 +321,6 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
         fmu=fmu,
         ssp=ssp,
         bench=agreements,
-        responses=responses,
         files=files,
         timings=timings,
         command=shlex.join(["fmu-greybox", *sys.argv[1:]]),
@@ -316,10 +345,3 @@ def _record(
             )
             recordings.append(synthesise(truth, whitebox, request, progress=progress))
     return recordings[0], recordings[1]
-
-
-def _training_config(config: ProjectConfig, settings: DemoSettings) -> ProjectConfig:
-    """The project with the demo's inducing points and iteration cap."""
-    config = with_inducing(config, settings.inducing)
-    gp = dataclasses.replace(config.gp, max_iter=settings.max_iter)
-    return dataclasses.replace(config, gp=gp)

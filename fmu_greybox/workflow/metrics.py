@@ -1,10 +1,13 @@
-"""Error measures of the paper's tables: RMSE, normalised RMSE, improvement."""
+"""Error measures of the paper's tables (RMSE, normalised RMSE, improvement) and of the
+predictive uncertainty (coverage of the ±1σ and ±1.96σ bands)."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+
+from fmu_greybox.model.calibration import Z95, coverage
 
 
 def rmse(predicted: np.ndarray, recorded: np.ndarray) -> float:
@@ -69,14 +72,52 @@ def stage_table(
     return table
 
 
+def uncertainty_table(
+    names: Sequence[str],
+    recorded: np.ndarray,
+    greybox: np.ndarray,
+    std: np.ndarray,
+    latent_std: np.ndarray,
+) -> dict[str, dict[str, float]]:
+    """Per stage, how well the grey-box's standard deviation describes its error.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Stage names, one per column.
+    recorded, greybox : ndarray, shape (m, Q)
+        Recorded targets and the grey-box prediction.
+    std, latent_std : ndarray, shape (m, Q)
+        Its calibrated and its propagated (uncalibrated) standard deviations.
+
+    Returns
+    -------
+    dict
+        Stage -> ``coverage68`` and ``coverage95`` (share of rows inside ±1σ and ±1.96σ),
+        ``median_std`` and ``median_latent_std``.
+    """
+    residual = recorded - greybox
+    return {
+        name: {
+            "coverage68": coverage(residual[:, q], std[:, q], 1.0),
+            "coverage95": coverage(residual[:, q], std[:, q], Z95),
+            "median_std": float(np.median(std[:, q])),
+            "median_latent_std": float(np.median(latent_std[:, q])),
+        }
+        for q, name in enumerate(names)
+    }
+
+
 def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, str]) -> str:
     """The table as fixed-width text, one stage a line (for the terminal); a column for the
-    white-box with named terms when the table has one."""
+    white-box with named terms, and the coverage of ±1.96σ, when the table has them."""
     named = all("named_rmse" in row for row in table.values())
+    covered = all("coverage95" in row for row in table.values())
     lines = [
         f"{'stage':8s} {'unit':6s} {'WB RMSE':>11s} "
         + (f"{'+terms RMSE':>11s} " if named else "")
         + f"{'GB RMSE':>11s} {'WB nRMSE':>9s} {'GB nRMSE':>9s} {'improvement':>11s}"
+        + (f" {'in ±1.96σ':>9s}" if covered else "")
     ]
     for name, row in table.items():
         lines.append(
@@ -84,5 +125,6 @@ def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, s
             + (f"{row['named_rmse']:11.3e} " if named else "")
             + f"{row['gb_rmse']:11.3e} {row['wb_nrmse']:9.3g} {row['gb_nrmse']:9.3g} "
             f"{100 * row['improvement']:10.1f}%"
+            + (f" {100 * row['coverage95']:8.1f}%" if covered else "")
         )
     return "\n".join(lines)

@@ -7,7 +7,6 @@ import time
 from collections.abc import Sequence
 
 import numpy as np
-from tqdm import tqdm
 
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.fmi.archive import open_fmu
@@ -15,15 +14,18 @@ from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.model.store import GreyBoxModel, file_sha256
 from fmu_greybox.model.terms import Term
 from fmu_greybox.model.whitebox import check_terms
+from fmu_greybox.progress import Progress
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import prepare, split_row, whitebox_path
 
 
-def with_inducing(config: ProjectConfig, inducing: int | None) -> ProjectConfig:
-    """The project with another number of inducing points (``None`` keeps it)."""
-    if inducing is None:
-        return config
-    return dataclasses.replace(config, gp=dataclasses.replace(config.gp, inducing=inducing))
+def with_inducing(
+    config: ProjectConfig, inducing: int | None, max_iter: int | None = None
+) -> ProjectConfig:
+    """The project with another number of inducing points and, if given, another iteration
+    cap (``None`` keeps the project's)."""
+    changes = {k: v for k, v in (("inducing", inducing), ("max_iter", max_iter)) if v is not None}
+    return dataclasses.replace(config, gp=dataclasses.replace(config.gp, **changes))
 
 
 def train_model(
@@ -63,24 +65,20 @@ def train_model(
         data = prepare(config, chain, archive, recording, progress, terms)
     split = split_row(config, data.n_samples)
     rows = slice(0, split + 1)
-    bars: dict[str, tqdm] = {}
+    shown: list[Progress] = []
 
-    def report(stage: str, iteration: int, bound: float) -> None:
-        bar = bars.get(stage)
-        if bar is None:
-            bar = bars[stage] = tqdm(
-                total=config.gp.max_iter,
-                desc=f"train {stage}",
-                unit="it",
-                leave=False,
-                disable=not progress,
+    def report(corrector: str, iteration: int, bound: float) -> None:
+        if not shown or shown[-1].label != f"Fitting the {corrector}":
+            if shown:
+                shown[-1].close()  # fits run one after the other
+            shown.append(
+                Progress(f"Fitting the {corrector}", config.gp.max_iter, progress, "iteration")
             )
-        bar.update(1)
-        bar.set_postfix(bound=f"{bound:.4g}")
+        shown[-1].update(bound=f"{bound:.4g}")
 
     chain.fit(data.exo[rows], data.y_wb[rows], data.outputs[rows], progress=report)
-    for bar in bars.values():
-        bar.close()
+    if shown:
+        shown[-1].close()
     training = {
         "recording_sha256": recording.sha256(),
         "recording_source": str(recording.source),

@@ -1,0 +1,191 @@
+"""Acceptance: the project's criteria (``[acceptance]``) checked against a validation.
+
+Each criterion of each stage gives one :class:`Check` with its measured value, its limit and a
+verdict: ``PASS``, ``FAIL``, or ``UNDECIDED`` when the data cannot decide (a frequency band
+where the recording's own estimate cannot be trusted, no rows to count). The whole verdict is
+``FAIL`` if any check fails, else ``UNDECIDED`` if any is undecided, else ``PASS``: an
+engineer signs a ``PASS`` only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from fmu_greybox.project.config import AcceptanceConfig, Criteria
+from fmu_greybox.report.spectra import FrequencyResponse
+
+PASS, FAIL, UNDECIDED = "PASS", "FAIL", "UNDECIDED"
+
+
+@dataclass(frozen=True)
+class Check:
+    """One criterion of one stage.
+
+    Attributes
+    ----------
+    stage : str
+    criterion : str
+        What is measured, in words with its unit.
+    value : float
+        The measured value (NaN when it could not be measured).
+    limit : str
+        The limit, e.g. ``<= 0.1`` or ``0.9 .. 0.99``.
+    verdict : str
+        ``PASS``, ``FAIL`` or ``UNDECIDED``.
+    note : str
+        Why a check is undecided (empty otherwise).
+    """
+
+    stage: str
+    criterion: str
+    value: float
+    limit: str
+    verdict: str
+    note: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (NaN as ``None``)."""
+        row = asdict(self)
+        row["value"] = None if math.isnan(self.value) else self.value
+        return row
+
+
+@dataclass(frozen=True)
+class Acceptance:
+    """Every check of a validation, in stage order.
+
+    Attributes
+    ----------
+    checks : tuple of Check
+    """
+
+    checks: tuple[Check, ...]
+
+    @property
+    def verdict(self) -> str:
+        """``FAIL`` if any check fails, else ``UNDECIDED`` if any is undecided, else ``PASS``."""
+        verdicts = {c.verdict for c in self.checks}
+        return FAIL if FAIL in verdicts else UNDECIDED if UNDECIDED in verdicts else PASS
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"verdict", "checks": [...]}`` for ``metrics.json`` and ``summary.json``."""
+        return {"verdict": self.verdict, "checks": [c.to_dict() for c in self.checks]}
+
+    def summary(self) -> str:
+        """One line: the verdict and the checks that did not pass."""
+        others = [c for c in self.checks if c.verdict != PASS]
+        named = "; ".join(
+            f"{c.stage} {c.criterion}: {c.verdict} ({_number(c.value)}, limit {c.limit})"
+            for c in others
+        )
+        counted = f"{len(self.checks) - len(others)} of {len(self.checks)} checks pass"
+        return f"Acceptance: {self.verdict} ({counted}{'; ' + named if named else ''})."
+
+
+def evaluate(
+    criteria: AcceptanceConfig,
+    table: Mapping[str, Mapping[str, float]],
+    responses: Sequence[FrequencyResponse],
+) -> Acceptance:
+    """Check every stage of a validation table against its criteria.
+
+    Parameters
+    ----------
+    criteria : AcceptanceConfig
+    table : mapping
+        Stage -> its row of :attr:`~fmu_greybox.workflow.validate.Validation.table`
+        (``gb_nrmse``, ``coverage95``, ``coverage68``).
+    responses : sequence of FrequencyResponse
+        Per stage (matched by :attr:`~FrequencyResponse.stage`); a stage without one has its
+        frequency-domain checks undecided.
+
+    Returns
+    -------
+    Acceptance
+    """
+    by_stage = {r.stage: r for r in responses}
+    checks: list[Check] = []
+    for stage, row in table.items():
+        limits = criteria.for_stage(stage)
+        if limits.max_nrmse is not None:
+            checks.append(_at_most(stage, "nRMSE", row["gb_nrmse"], limits.max_nrmse))
+        checks += _frequency_checks(stage, limits, by_stage.get(stage))
+        for key, width in (("coverage95", "±1.96σ"), ("coverage68", "±1σ")):
+            bounds = getattr(limits, key)
+            if bounds is not None:
+                checks.append(_within(stage, f"share of rows inside {width}", row[key], bounds))
+    return Acceptance(tuple(checks))
+
+
+def _frequency_checks(
+    stage: str, limits: Criteria, response: FrequencyResponse | None
+) -> list[Check]:
+    """Gain, phase and coherence of the grey-box in the stage's band."""
+    low, high = limits.band
+    band = f"{low:g}-{high:g} Hz"
+    wanted = [
+        (f"gain error in {band} [dB RMS]", "gain_error_db", limits.max_gain_error_db, _at_most),
+        (
+            f"phase error in {band} [deg RMS]",
+            "phase_error_deg",
+            limits.max_phase_error_deg,
+            _at_most,
+        ),
+        (
+            f"coherence with the recording in {band} [median]",
+            "median_coherence",
+            limits.min_coherence,
+            _at_least,
+        ),
+    ]
+    wanted = [w for w in wanted if w[2] is not None]
+    if response is None:
+        note = "no frequency response (no input to take it from)"
+        return [
+            _undecided(stage, name, _limit(check, value), note) for name, _, value, check in wanted
+        ]
+    stats = response.band_statistics("grey-box", limits.band)
+    if stats.bins == 0:
+        note = (
+            "no frequency in the band where the recording's estimate can be trusted (input "
+            "power or the recording's coherence too low)"
+        )
+        return [
+            _undecided(stage, name, _limit(check, value), note) for name, _, value, check in wanted
+        ]
+    return [check(stage, name, getattr(stats, key), value) for name, key, value, check in wanted]
+
+
+def _at_most(stage: str, criterion: str, value: float, limit: float) -> Check:
+    return _judged(stage, criterion, value, f"<= {limit:g}", value <= limit)
+
+
+def _at_least(stage: str, criterion: str, value: float, limit: float) -> Check:
+    return _judged(stage, criterion, value, f">= {limit:g}", value >= limit)
+
+
+def _within(stage: str, criterion: str, value: float, bounds: tuple[float, float]) -> Check:
+    low, high = bounds
+    return _judged(stage, criterion, value, f"{low:g} .. {high:g}", low <= value <= high)
+
+
+def _limit(check: Any, value: float) -> str:
+    return f"<= {value:g}" if check is _at_most else f">= {value:g}"
+
+
+def _judged(stage: str, criterion: str, value: float, limit: str, passed: bool) -> Check:
+    value = float(value)
+    if math.isnan(value):
+        return _undecided(stage, criterion, limit, "not measured (no rows)")
+    return Check(stage, criterion, value, limit, PASS if passed else FAIL)
+
+
+def _undecided(stage: str, criterion: str, limit: str, note: str) -> Check:
+    return Check(stage, criterion, float("nan"), limit, UNDECIDED, note)
+
+
+def _number(value: float) -> str:
+    return "not measured" if math.isnan(value) else f"{value:.3g}"

@@ -1,0 +1,119 @@
+"""Acceptance criteria: the ``[acceptance]`` table and its PASS / FAIL / UNDECIDED checks."""
+
+from __future__ import annotations
+
+import copy
+import math
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from fmu_greybox.errors import ConfigError
+from fmu_greybox.project.config import AcceptanceConfig, Criteria, parse_config
+from fmu_greybox.report.spectra import frequency_response
+from fmu_greybox.workflow.acceptance import FAIL, PASS, UNDECIDED, evaluate
+
+REFERENCE = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"
+RAW = tomllib.loads(REFERENCE.read_text(encoding="utf-8"))
+
+
+def parsed(acceptance: dict) -> AcceptanceConfig:
+    raw = copy.deepcopy(RAW)
+    raw["acceptance"] = acceptance
+    return parse_config(raw, REFERENCE).acceptance
+
+
+def test_the_reference_project_states_the_defaults() -> None:
+    assert parse_config(RAW, REFERENCE).acceptance == AcceptanceConfig()
+    raw = copy.deepcopy(RAW)
+    del raw["acceptance"]
+    assert parse_config(raw, REFERENCE).acceptance.default == Criteria()
+
+
+def test_a_stage_table_overrides_the_default_and_false_unchecks() -> None:
+    acceptance = parsed(
+        {"max_nrmse": 0.2, "coverage68": [0.6, 0.8], "ITFV": {"max_nrmse": False, "band": [1, 20]}}
+    )
+    ehv, itfv = acceptance.for_stage("EHV"), acceptance.for_stage("ITFV")
+    assert ehv.max_nrmse == 0.2 and ehv.band == (0.0, 50.0) and ehv.coverage68 == (0.6, 0.8)
+    assert itfv.max_nrmse is None and itfv.band == (1.0, 20.0) and itfv.coverage68 == (0.6, 0.8)
+    config = parse_config({**RAW, "acceptance": {"ITFV": {"max_nrmse": False}}}, REFERENCE)
+    assert parse_config(config.to_dict(), REFERENCE) == config  # stored with the model
+
+
+@pytest.mark.parametrize(
+    ("table", "field", "message"),
+    [
+        ({"band": [50, 5]}, "acceptance.band", "is not 0 <= low < high"),
+        ({"coverage95": [0.9, 1.2]}, "acceptance.coverage95", "<= 1"),
+        ({"coverage95": [0.9]}, "acceptance.coverage95", "must be two numbers"),
+        ({"min_coherence": 1.5}, "acceptance.min_coherence", "is above 1"),
+        ({"max_nrmse": -1.0}, "acceptance.max_nrmse", "must be positive"),
+        ({"max_nrmse": "small"}, "acceptance.max_nrmse", "must be a number"),
+        ({"ITVF": {}}, "acceptance.ITVF", "did you mean 'ITFV'"),
+        ({"input": "valve_curent"}, "acceptance.input", "did you mean 'valve_current'"),
+        ({"EHV": {"input": "load_force"}}, "acceptance.EHV.input", "unknown field"),
+    ],
+)
+def test_errors_name_the_field(table: dict, field: str, message: str) -> None:
+    with pytest.raises(ConfigError, match=message) as error:
+        parsed(table)
+    assert error.value.field == field
+
+
+def noisy_response(stage: str, model_gain: float, n: int = 2**14):
+    """A stage whose recording is a filter of the input, and a model ``model_gain`` times it."""
+    rng = np.random.default_rng(7)
+    u = rng.standard_normal(n)
+    y = signal.lfilter([0.0, 0.2], [1.0, -0.8], u)
+    return frequency_response(
+        u, {"recording": y, "grey-box": model_gain * y, "white-box": y}, 1e-3, stage=stage
+    )
+
+
+ROW = {"gb_nrmse": 0.05, "coverage95": 0.95, "coverage68": 0.7}
+
+
+def test_every_criterion_passes_fails_or_is_undecided() -> None:
+    criteria = parsed({"coverage68": [0.6, 0.75], "RAM": {"band": [600.0, 900.0]}})
+    table = {
+        "EHV": dict(ROW),
+        "RAM": dict(ROW),  # its band lies above the excited frequencies: undecided
+        "ITFV": {**ROW, "gb_nrmse": 0.3, "coverage95": 0.5},
+    }
+    responses = [
+        noisy_response("EHV", 1.0),
+        noisy_response("RAM", 1.0),
+        noisy_response("ITFV", 1.6),  # 4.1 dB off
+    ]
+    result = evaluate(criteria, table, responses)
+    by = {(c.stage, c.criterion.split(" in ")[0]): c for c in result.checks}
+    assert all(c.verdict == PASS for c in result.checks if c.stage == "EHV")
+    assert len([c for c in result.checks if c.stage == "EHV"]) == 6
+    assert by[("ITFV", "nRMSE")].verdict == FAIL and by[("ITFV", "nRMSE")].limit == "<= 0.1"
+    assert by[("ITFV", "gain error")].verdict == FAIL
+    assert by[("ITFV", "gain error")].value == pytest.approx(20 * np.log10(1.6), rel=1e-6)
+    assert by[("ITFV", "phase error")].verdict == PASS
+    assert by[("ITFV", "share of rows inside ±1.96σ")].verdict == FAIL
+    ram_gain = by[("RAM", "gain error")]
+    assert ram_gain.verdict == UNDECIDED and math.isnan(ram_gain.value)
+    assert "can be trusted" in ram_gain.note
+    assert by[("RAM", "nRMSE")].verdict == PASS
+    assert result.verdict == FAIL
+    stored = result.to_dict()
+    assert stored["verdict"] == FAIL and stored["checks"][0]["stage"] == "EHV"
+    assert next(c for c in stored["checks"] if c["verdict"] == UNDECIDED)["value"] is None
+    assert result.summary().startswith("Acceptance: FAIL (")
+
+
+def test_undecided_without_a_failure_is_not_a_pass() -> None:
+    criteria = parsed({"band": [600.0, 900.0]})
+    table = {name: dict(ROW) for name in ("EHV", "RAM", "ITFV")}
+    result = evaluate(criteria, table, [noisy_response(n, 1.0) for n in table])
+    assert result.verdict == UNDECIDED
+    everything = parsed({})
+    assert evaluate(everything, table, [noisy_response(n, 1.0) for n in table]).verdict == PASS
+    assert evaluate(everything, table, []).verdict == UNDECIDED  # no input for a response
