@@ -1,7 +1,12 @@
 """The ``fmu-greybox`` command line.
 
-Exit codes: 0 success, 1 user error (a message says what to mend), 2 usage error.
-Tracebacks are shown only with ``--debug``.
+Exit codes: 0 success, 1 user error (a message says what to mend), 2 usage error, 3 acceptance
+criteria not met (``validate --strict``). Tracebacks are shown only with ``--debug``.
+
+Conventions every command follows (through the option factories below, so that a new command
+or option gets them too): ``--out`` always has a default, named in the help; an option that two
+commands share has one help text and one range (the project file's); long steps print a bar on
+a terminal and one line per finished step anywhere else (:mod:`fmu_greybox.progress`).
 """
 
 from __future__ import annotations
@@ -9,7 +14,9 @@ from __future__ import annotations
 import json
 import logging
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -17,10 +24,24 @@ from fmu_greybox import __version__
 from fmu_greybox.errors import FmuGreyboxError
 
 EXIT_USER_ERROR = 1
+EXIT_NOT_ACCEPTED = 3
+#: What an option factory returns: click's decorator of a command function.
+Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
 
 
 class _Group(click.Group):
-    """A click group that turns fmu-greybox errors into a message and exit code 1."""
+    """A click group that turns fmu-greybox errors into a message and exit code 1, and lists
+    its commands with their whole first sentence (click cuts it to the terminal's width)."""
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = []
+        for name in self.list_commands(ctx):
+            command = self.get_command(ctx, name)
+            if command is not None and not command.hidden:
+                rows.append((name, command.get_short_help_str(limit=10_000)))
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
 
     def invoke(self, ctx: click.Context):
         try:
@@ -47,6 +68,64 @@ def _pairs(items: tuple[str, ...], option: str, numeric: bool) -> dict:
         else:
             result[name] = value
     return result
+
+
+def out_option(default: str, what: str, folder: bool, name: str = "out_dir") -> Decorator:
+    """The ``--out`` option: what the command writes there, with its default.
+
+    Parameters
+    ----------
+    default : str
+        File or folder written when ``--out`` is not given.
+    what : str
+        What is written, as the start of a sentence.
+    folder : bool
+        A folder (else a file).
+    name : str
+        The command function's parameter.
+    """
+    return click.option(
+        "--out",
+        name,
+        type=click.Path(file_okay=not folder, dir_okay=folder, path_type=Path),
+        default=Path(default),
+        show_default=True,
+        help=f"{what}.",
+    )
+
+
+def inducing_option(default: int | None) -> Decorator:
+    """``--inducing``, with the project file's range (``[gp] inducing``: at least 1)."""
+    return click.option(
+        "--inducing",
+        type=click.IntRange(min=1),
+        default=default,
+        show_default=default is not None,
+        help="Inducing points per stage"
+        + (" (default: the project's [gp] inducing)." if default is None else "."),
+    )
+
+
+def max_iter_option(default: int | None) -> Decorator:
+    """``--max-iter``, with the project file's range (``[gp] max_iter``: at least 0)."""
+    return click.option(
+        "--max-iter",
+        type=click.IntRange(min=0),
+        default=default,
+        show_default=default is not None,
+        help="Optimiser iterations per stage"
+        + (" (default: the project's [gp] max_iter)." if default is None else "."),
+    )
+
+
+def recording_option(what: str) -> Decorator:
+    """``--recording`` of a command that reads a project's recording."""
+    return click.option(
+        "--recording",
+        "recording_path",
+        type=click.Path(dir_okay=False, path_type=Path),
+        help=f"Recording to {what} (default: the project's [recording] path).",
+    )
 
 
 def _info(ctx: click.Context, message: str) -> None:
@@ -91,13 +170,7 @@ def fmu() -> None:
 
 
 @fmu.command("build")
-@click.option(
-    "--out",
-    "out_dir",
-    type=click.Path(file_okay=False, path_type=Path),
-    required=True,
-    help="Folder receiving HydraulicActuator.fmu and HydraulicActuatorTruth.fmu.",
-)
+@out_option("fmus", "Folder receiving the reference FMUs", folder=True)
 @click.pass_context
 def fmu_build_cmd(ctx: click.Context, out_dir: Path) -> None:
     """Compile the reference actuator FMUs from fmu_sources/.
@@ -136,9 +209,7 @@ def fmu_build_cmd(ctx: click.Context, out_dir: Path) -> None:
     show_default=True,
     help="Sensor-noise scale (0 = noise-free).",
 )
-@click.option(
-    "--out", type=click.Path(dir_okay=False, path_type=Path), help="Output file (.csv or .parquet)."
-)
+@out_option("recording.csv", "Recording to write (.csv or .parquet)", folder=False, name="out")
 @click.option("--list-effects", is_flag=True, help="List the truth model's effects and exit.")
 @click.pass_context
 def synth(
@@ -147,7 +218,7 @@ def synth(
     seed: int,
     duration: float,
     noise: float,
-    out: Path | None,
+    out: Path,
     list_effects: bool,
 ) -> None:
     """Record the truth actuator in closed loop, as a flight test would.
@@ -172,8 +243,6 @@ def synth(
             for v in synth_mod.list_effects(truth, whitebox):
                 click.echo(f"{v.name:24s} [{v.unit or '-'}]  {v.description}")
             return
-        if out is None:
-            raise click.UsageError("--out FILE is required (unless --list-effects)")
         request = synth_mod.SynthRequest(
             effects=synth_mod.parse_effects(effects),
             seed=seed,
@@ -193,11 +262,8 @@ def synth(
 @main.command()
 @click.argument("fmu_spec", metavar="FMU")
 @click.argument("recording_path", metavar="RECORDING", type=click.Path(path_type=Path))
-@click.option(
-    "--out",
-    type=click.Path(dir_okay=False, path_type=Path),
-    required=True,
-    help="Output file (.csv or .parquet).",
+@out_option(
+    "simulated.csv", "The FMU's outputs, one row per recorded row (.csv or .parquet)", False, "out"
 )
 @click.option(
     "--map",
@@ -267,18 +333,9 @@ def simulate(
 
 @main.command()
 @click.argument("config_path", metavar="CONFIG", type=click.Path(dir_okay=False, path_type=Path))
-@click.option(
-    "--recording",
-    "recording_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="Recording to train on (default: the project's [recording] path).",
-)
-@click.option(
-    "--inducing",
-    type=click.IntRange(min=1),
-    default=None,
-    help="Inducing points per stage (overrides [gp] inducing).",
-)
+@recording_option("train on")
+@inducing_option(None)
+@max_iter_option(None)
 @click.option(
     "--terms",
     "terms_path",
@@ -286,20 +343,14 @@ def simulate(
     help="diagnosis.json of 'diagnose': fold its named terms into the white-box first; the "
     "correctors learn what remains and the model (and its exported FMU) carries the terms.",
 )
-@click.option(
-    "--out",
-    "out_dir",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=Path("model"),
-    show_default=True,
-    help="Model folder to write.",
-)
+@out_option("model", "Model folder to write", folder=True)
 @click.pass_context
 def train(
     ctx: click.Context,
     config_path: Path,
     recording_path: Path | None,
     inducing: int | None,
+    max_iter: int | None,
     terms_path: Path | None,
     out_dir: Path,
 ) -> None:
@@ -317,7 +368,7 @@ def train(
     from fmu_greybox.project.data import load_project_recording
     from fmu_greybox.workflow.train import train_model, with_inducing
 
-    config = with_inducing(load_config(config_path), inducing)
+    config = with_inducing(load_config(config_path), inducing, max_iter)
     recording = load_project_recording(config, recording_path)
     terms = read_terms(terms_path) if terms_path is not None else []
     model = train_model(config, recording, progress=not ctx.obj["quiet"], terms=terms)
@@ -339,20 +390,14 @@ def train(
     required=True,
     help="Model folder written by 'train'.",
 )
-@click.option(
-    "--recording",
-    "recording_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="Recording to validate on (default: the project's [recording] path).",
-)
-@click.option(
-    "--out",
-    "out_dir",
-    type=click.Path(file_okay=False, path_type=Path),
-    required=True,
-    help="Folder for metrics.json and plots.",
-)
+@recording_option("validate on")
+@out_option("validation", "Folder for metrics.json and the plots", folder=True)
 @click.option("--json", "as_json", is_flag=True, help="Print metrics as one JSON line.")
+@click.option(
+    "--strict",
+    is_flag=True,
+    help=f"Exit with code {EXIT_NOT_ACCEPTED} unless every acceptance criterion passes.",
+)
 @click.pass_context
 def validate(
     ctx: click.Context,
@@ -361,61 +406,55 @@ def validate(
     recording_path: Path | None,
     out_dir: Path,
     as_json: bool,
+    strict: bool,
 ) -> None:
-    """Free-run the grey-box on held-out data; write metrics.json and plots.
+    """Free-run the grey-box on held-out data, check the acceptance criteria; write
+    metrics.json and plots.
+
+    The criteria are the project file's [acceptance] table (docs/config.md); the result,
+    PASS, FAIL or UNDECIDED per stage and criterion, is printed and stored in metrics.json.
 
     \b
     Example:
       fmu-greybox validate bench_configs/hydraulic_actuator.toml --model model/ \\
-          --recording rec.csv --out validation/
+          --recording rec.csv --out validation/ --strict
     """
     from fmu_greybox.model.store import load_model
     from fmu_greybox.project.config import load_config
     from fmu_greybox.project.data import load_project_recording
-    from fmu_greybox.report.plots import save_png, trace_figure
     from fmu_greybox.workflow.metrics import format_table
-    from fmu_greybox.workflow.validate import validate_model, write_metrics
+    from fmu_greybox.workflow.validate import validate_model, write_metrics, write_plots
 
     config = load_config(config_path)
     model = load_model(model_dir)
     recording = load_project_recording(config, recording_path)
-    result = validate_model(model, recording, progress=not (ctx.obj["quiet"] or as_json))
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_metrics(result, model, out_dir / "metrics.json")
-    units = [model.training["target_unit"][n] for n in model.chain.stage_names]
-    run = result.run
-    save_png(
-        trace_figure(
-            run.time,
-            result.data.outputs[run.rows],
-            result.whitebox,
-            run.mean,
-            run.std,
-            model.chain.stage_names,
-            units,
-        ),
-        out_dir / "traces.png",
+    result = validate_model(
+        model, recording, progress=not (ctx.obj["quiet"] or as_json), acceptance=config.acceptance
     )
+    out_dir.mkdir(parents=True, exist_ok=True)
+    metrics = write_metrics(result, model, out_dir / "metrics.json")
+    plots = write_plots(result, model, out_dir)
+    accepted = result.acceptance is not None and result.acceptance.verdict == "PASS"
     if as_json:
-        click.echo(json.dumps(result.table))
-        return
-    _info(ctx, f"held out: {result.held_out}")
-    click.echo(format_table(result.table, model.training["target_unit"]))
-    passed = [n for n, a in zip(model.chain.stage_names, model.chain.active_, strict=True) if not a]
-    if passed:
-        _info(ctx, f"passed through (corrector lost to the white-box in training): {passed}")
-    _info(ctx, f"wrote {out_dir / 'metrics.json'} and {out_dir / 'traces.png'}")
+        click.echo(json.dumps(metrics))
+    else:
+        _info(ctx, f"held out: {result.held_out}")
+        click.echo(format_table(result.table, model.training["target_unit"]))
+        passed = [
+            n for n, a in zip(model.chain.stage_names, model.chain.active_, strict=True) if not a
+        ]
+        if passed:
+            _info(ctx, f"passed through (corrector lost to the white-box in training): {passed}")
+        if result.acceptance is not None:
+            click.echo(result.acceptance.summary())
+        written = ", ".join(str(out_dir / name) for name in ("metrics.json", *plots))
+        _info(ctx, f"wrote {written}")
+    if strict and not accepted:
+        ctx.exit(EXIT_NOT_ACCEPTED)
 
 
 @main.command()
-@click.option(
-    "--out",
-    "out_dir",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=Path("out"),
-    show_default=True,
-    help="Folder for everything produced.",
-)
+@out_option("out", "Folder for everything produced (report.html first)", folder=True)
 @click.option(
     "--effect",
     "effects",
@@ -438,20 +477,8 @@ def validate(
     show_default=True,
     help="Length of the independent validation recording [s].",
 )
-@click.option(
-    "--inducing",
-    type=click.IntRange(min=4),
-    default=150,
-    show_default=True,
-    help="Inducing points per stage.",
-)
-@click.option(
-    "--max-iter",
-    type=click.IntRange(min=1),
-    default=100,
-    show_default=True,
-    help="Optimiser iterations per stage.",
-)
+@inducing_option(150)
+@max_iter_option(100)
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as one JSON line.")
 @click.pass_context
 def demo(
@@ -510,11 +537,8 @@ def demo(
 
 @main.command()
 @click.argument("model_dir", metavar="MODEL_DIR", type=click.Path(file_okay=False, path_type=Path))
-@click.option(
-    "--out",
-    type=click.Path(dir_okay=False, path_type=Path),
-    required=True,
-    help="The grey-box FMU to write (NAME.fmu).",
+@out_option(
+    "greybox.fmu", "The grey-box FMU to write (its name is the model identifier)", False, "out"
 )
 @click.option("--author", default=None, help="Author in the model description (default: you).")
 @click.option(
@@ -604,12 +628,7 @@ def export(
 @click.option(
     "--step", type=float, default=None, help="Communication step [s] (default: the SSD's)."
 )
-@click.option(
-    "--out",
-    type=click.Path(dir_okay=False, path_type=Path),
-    required=True,
-    help="Results: every FMU output (.csv or .parquet).",
-)
+@out_option("results.csv", "Every FMU output, one row per step (.csv or .parquet)", False, "out")
 @click.pass_context
 def cosim(
     ctx: click.Context,
@@ -643,20 +662,8 @@ def cosim(
 
 @main.command()
 @click.argument("config_path", metavar="CONFIG", type=click.Path(dir_okay=False, path_type=Path))
-@click.option(
-    "--recording",
-    "recording_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    help="Recording to diagnose (default: the project's [recording] path).",
-)
-@click.option(
-    "--out",
-    "out_dir",
-    type=click.Path(file_okay=False, path_type=Path),
-    default=Path("diagnosis"),
-    show_default=True,
-    help="Folder for diagnosis.json and report.html.",
-)
+@recording_option("diagnose")
+@out_option("diagnosis", "Folder for diagnosis.json and report.html", folder=True)
 @click.option(
     "--workers",
     type=click.IntRange(min=1),

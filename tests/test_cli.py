@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -205,7 +206,6 @@ def test_simulate_errors(env: dict[str, str], tmp_path: Path) -> None:
     "args",
     [
         ("synth", "--duration", "abc", "--out", "x.csv"),
-        ("synth", "--seed", "1"),  # no --out
         ("synth", "--no-such-option"),
         ("simulate", "builtin:HydraulicActuator"),
     ],
@@ -248,3 +248,76 @@ def test_every_command_has_examples_and_usage_errors_exit_2() -> None:
         bad = runner.invoke(main, [*command, "--no-such-option"])
         assert bad.exit_code == 2, command
         assert "Traceback" not in bad.output
+
+
+COMMANDS = [
+    ["fmu", "build"],
+    ["synth"],
+    ["simulate"],
+    ["train"],
+    ["validate"],
+    ["demo"],
+    ["export"],
+    ["cosim"],
+    ["diagnose"],
+]
+
+
+@pytest.mark.parametrize("command", COMMANDS, ids=" ".join)
+def test_out_has_a_default_stated_in_the_help(command: list[str]) -> None:
+    text = " ".join(CliRunner().invoke(main, [*command, "--help"]).output.split())
+    option = text[text.index("--out ") :]
+    assert "[default: " in option[: option.index("  --") if "  --" in option else None]
+    assert re.search(r"--out (FILE|DIRECTORY) [A-Z]", text), text
+
+
+def test_synth_without_out_writes_the_default_file(
+    env: dict[str, str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    result = cli(env, "-q", "synth", "--duration", 0.2)
+    assert result.exit_code == 0, result.output
+    assert load_recording(tmp_path / "recording.csv").n_samples == 201
+
+
+def test_shared_options_have_one_range_and_one_help() -> None:
+    runner = CliRunner()
+    for option in ("--inducing", "--max-iter"):
+        helps = []
+        for command in ("train", "demo"):
+            text = " ".join(runner.invoke(main, [command, "--help"]).output.split())
+            start = text.index(option + " INTEGER RANGE")
+            helps.append(text[start:].split(".")[0].split(" (default")[0])
+        assert helps[0] == helps[1], helps  # the same words up to the default
+    for command in (["train", "x.toml"], ["demo"]):
+        refused = runner.invoke(main, [*command, "--inducing", "0"])
+        assert refused.exit_code == 2 and "x>=1" in refused.stderr, refused.output
+        refused = runner.invoke(main, [*command, "--max-iter", "-1"])
+        assert refused.exit_code == 2 and "x>=0" in refused.stderr, refused.output
+
+
+def test_top_level_help_lists_each_command_with_its_whole_sentence() -> None:
+    text = " ".join(CliRunner().invoke(main, ["--help"]).output.split())
+    assert "..." not in text[text.index("Commands:") :]  # nothing cut short
+    for sentence in (
+        "Locate where the white-box departs from a recording, name the physics it left out, "
+        "model it and show the fit improve.",
+        "Co-simulate an SSP bench in fmpy or libcosim; write every FMU output.",
+        "Export a trained grey-box as an FMI 2.0 co-simulation FMU (and an SSP bench).",
+    ):
+        assert sentence in text
+
+
+def test_without_a_terminal_each_step_prints_one_line(env: dict[str, str], tmp_path: Path) -> None:
+    """CliRunner's stderr is not a terminal: no bars, no carriage returns, one line per step."""
+    record = tmp_path / "x.csv"
+    result = cli(env, "synth", "--duration", 1, "--out", record)
+    assert result.exit_code == 0, result.output
+    result = cli(env, "simulate", "builtin:HydraulicActuator", record, "--out", tmp_path / "y.csv")
+    assert result.exit_code == 0, result.output
+    assert "\r" not in result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1, lines
+    assert re.fullmatch(
+        r"Stepping the white-box over the recording: done, 1000 steps in \d+\.\d s", lines[0]
+    )

@@ -247,9 +247,39 @@ def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
             "wb_nrmse",
             "gb_nrmse",
             "improvement",
+            "coverage68",
+            "coverage95",
+            "median_std",
+            "median_latent_std",
         }
-    png = (tmp_path / "val" / "traces.png").read_bytes()
-    assert png.startswith(b"\x89PNG") and len(png) > 10_000
+        row = metrics["stages"][stage]
+        assert 0.0 <= row["coverage68"] <= row["coverage95"] <= 1.0
+        assert row["median_std"] > 0.0  # calibrated: never the certainty of a zero band
+    for name in ("traces.png", "calibration.png", "frequency.png"):
+        png = (tmp_path / "val" / name).read_bytes()
+        assert png.startswith(b"\x89PNG") and len(png) > 10_000, name
+    assert metrics["acceptance"]["verdict"] in ("PASS", "FAIL", "UNDECIDED")
+    assert "Acceptance: " in result.output
+    # criteria no model can meet: --strict exits 3, and metrics.json says which failed
+    strict = tmp_path / "strict.toml"
+    strict.write_text(
+        REFERENCE.read_text().replace("max_nrmse = 0.1 ", "max_nrmse = 1e-9 "), encoding="utf-8"
+    )
+    assert "max_nrmse = 1e-9" in strict.read_text()
+    args = ["validate", str(strict), "--model", str(tmp_path / "model"), "--recording", str(rec)]
+    result = runner.invoke(main, [*args, "--out", str(tmp_path / "strict"), "--strict"])
+    assert result.exit_code == 3, result.output
+    assert "Acceptance: FAIL" in result.stdout and "nRMSE: FAIL" in result.stdout
+    failed = json.loads((tmp_path / "strict" / "metrics.json").read_text())["acceptance"]
+    assert failed["verdict"] == "FAIL"
+    assert {c["stage"] for c in failed["checks"] if c["verdict"] == "FAIL"} == {
+        "EHV",
+        "RAM",
+        "ITFV",
+    }
+    lenient = runner.invoke(main, [*args, "--out", str(tmp_path / "lenient"), "--json"])
+    assert lenient.exit_code == 0, lenient.output  # without --strict a FAIL is reported only
+    assert json.loads(lenient.stdout)["acceptance"]["verdict"] == "FAIL"
 
 
 @pytest.mark.parametrize("experiment", ["experiment1", "experiment2"])
