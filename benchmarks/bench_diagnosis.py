@@ -4,21 +4,26 @@ A recording of the truth actuator with a concealed Coulomb friction is diagnosed
 (locate, name with every hypothesis the project allows, model with the grey-box, show), with
 the default two simulation workers. The peer, measured in the same run on the same machine, is
 one open-loop simulation of the white-box over the same recording: the diagnosis' cost is
-printed in those units too, so the figure can be compared across machines.
+printed in those units too, so the figure can be compared across machines. Both are the
+median of ``--repeat`` runs (3 by default), printed with their range, the date and the load
+(``benchmarks/spread.py``).
 
 Usage: ``.venv/bin/python benchmarks/bench_diagnosis.py [--workers N] [--effect NAME=VALUE]
-[--json]``.
+[--repeat R] [--json]``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from spread import conditions, conditions_line, shown, summary
+
 from fmu_greybox.diagnosis import Diagnosis
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import reference_fmus
@@ -40,8 +45,10 @@ def main() -> None:
         metavar="NAME=VALUE",
         help="Concealed effect (repeatable; default coulomb_friction=600).",
     )
+    parser.add_argument("--repeat", type=int, default=3, help="Runs; figures are their median.")
     parser.add_argument("--json", action="store_true", help="Print one JSON line.")
     args = parser.parse_args()
+    load_before = os.getloadavg()[0]
     effects = parse_effects(args.effect or ["coulomb_friction=600"])
     paths = reference_fmus()
     profile = FlightTestProfile(duration=(SAMPLES - 1) * 1e-3)
@@ -50,21 +57,32 @@ def main() -> None:
         open_fmu(paths["HydraulicActuator"]) as whitebox,
     ):
         recording = synthesise(truth, whitebox, SynthRequest(effects, seed=1, profile=profile))
-        started = time.perf_counter()
-        simulate_recording(whitebox, recording, outputs=whitebox.outputs)
-        peer = time.perf_counter() - started
-    config = load_config(CONFIG)
-    started = time.perf_counter()
-    diagnosis = Diagnosis(config, workers=args.workers).fit(recording)
-    seconds = time.perf_counter() - started
+        runs = []
+        config = load_config(CONFIG)
+        for _ in range(max(1, args.repeat)):
+            started = time.perf_counter()
+            simulate_recording(whitebox, recording, outputs=whitebox.outputs)
+            peer = time.perf_counter() - started
+            started = time.perf_counter()
+            diagnosis = Diagnosis(config, workers=args.workers).fit(recording)
+            seconds = time.perf_counter() - started
+            runs.append(
+                {
+                    "diagnosis_seconds": seconds,
+                    "whitebox_simulation_seconds": peer,
+                    "ratio_to_one_simulation": seconds / peer,
+                }
+            )
+    figures = summary(runs, list(runs[0]))
+    facts = conditions(load_before)
     top = diagnosis.findings_[0]
     result = {
         "samples": recording.n_samples,
         "effects": effects,
         "workers": args.workers,
-        "diagnosis_seconds": round(seconds, 1),
-        "whitebox_simulation_seconds": round(peer, 3),
-        "ratio_to_one_simulation": round(seconds / peer, 1),
+        **{key: round(value["median"], 3) for key, value in figures.items()},
+        "figures": figures,
+        **facts,
         "simulations": diagnosis.simulations_,
         "hypotheses": len(diagnosis.hypotheses_),
         "timings": diagnosis.timings_,
@@ -75,13 +93,17 @@ def main() -> None:
         print(json.dumps(result))
         return
     print(f"recording: {recording.n_samples} samples, effects {effects}")
-    print(f"one white-box simulation (peer): {peer:.2f} s")
+    print(conditions_line(facts, len(runs)))
     print(
-        f"diagnosis: {seconds:.1f} s = {seconds / peer:.0f} white-box simulations "
+        f"one white-box simulation (peer): {shown(figures['whitebox_simulation_seconds'], 3, ' s')}"
+    )
+    print(
+        f"diagnosis: {shown(figures['diagnosis_seconds'], 3, ' s')} = "
+        f"{shown(figures['ratio_to_one_simulation'], 3)} white-box simulations "
         f"({result['simulations']} simulations run, {result['hypotheses']} hypotheses, "
         f"{args.workers} workers); target < 120 s"
     )
-    print(f"steps [s]: {diagnosis.timings_}")
+    print(f"steps of the last run [s]: {diagnosis.timings_}")
     print(f"top finding: {top.summary}")
 
 

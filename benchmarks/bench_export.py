@@ -20,8 +20,9 @@ and the number of features, not on how well the hyperparameters fit), exported, 
 
 The bare white-box FMU is measured the same way in the same run (``x white-box`` is the ratio).
 Figures are CPU time of the process per step (wall time in brackets: it also counts time the
-process waited for a shared CPU), after :data:`SETTLE` s and :data:`WARMUP` untimed steps, of
-the run with the least CPU time out of ``--repeats``; the
+process waited for a shared CPU), after :data:`SETTLE` s and :data:`WARMUP` untimed steps: the
+median of ``--repeat`` runs, with their range, the date and the load average
+(``benchmarks/spread.py``); the
 in-process breakdown shows where a step's time goes (white-box FMU step, the chain of
 correctors with their out-of-domain score, the rest of the slave).
 
@@ -34,7 +35,7 @@ signal's
 range, over the corrected outputs, their standard deviations and the white-box outputs.
 
 Usage: ``.venv/bin/python benchmarks/bench_export.py [--inducing 50,100,200,400] [--steps N]
-[--repeats R] [--equivalence] [--json]``.
+[--repeat R] [--equivalence] [--json]``.
 """
 
 from __future__ import annotations
@@ -54,6 +55,8 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from spread import conditions, conditions_line, median_range
+
 from fmu_greybox.export.fmu import export_greybox
 from fmu_greybox.export.slave import GreyBoxSlave
 from fmu_greybox.fmi.archive import open_fmu
@@ -303,10 +306,17 @@ def libcosim_one_core(fmu: Path, u: np.ndarray) -> Clock:
         return libcosim_run(fmu, u)
 
 
-def best(run, fmu: Path, u: np.ndarray, repeats: int) -> dict[str, float]:
-    """CPU and wall time per step [us], of the run with the least CPU time."""
-    clock = min((run(fmu, u) for _ in range(repeats)), key=lambda c: c.cpu)
-    return {"cpu_us": clock.cpu / len(u) * 1e6, "wall_us": clock.wall / len(u) * 1e6}
+def timed(run, fmu: Path, u: np.ndarray, repeat: int) -> dict[str, float]:
+    """CPU and wall time per step [us]: the median over ``repeat`` runs, and the range of the
+    CPU time."""
+    clocks = [run(fmu, u) for _ in range(repeat)]
+    cpu = median_range([c.cpu / len(u) * 1e6 for c in clocks])
+    wall = median_range([c.wall / len(u) * 1e6 for c in clocks])
+    return {
+        "cpu_us": cpu["median"],
+        "cpu_us_range": [cpu["min"], cpu["max"]],
+        "wall_us": wall["median"],
+    }
 
 
 def breakdown(fmu: Path, u: np.ndarray) -> dict[str, float]:
@@ -325,7 +335,7 @@ def main() -> None:
         "--inducing", default="50,100,200,400", help="inducing points per stage, comma separated"
     )
     parser.add_argument("--steps", type=int, default=3000, help="communication steps per run")
-    parser.add_argument("--repeats", type=int, default=3, help="runs per figure (best kept)")
+    parser.add_argument("--repeat", type=int, default=3, help="runs per figure (median kept)")
     parser.add_argument(
         "--equivalence",
         action="store_true",
@@ -335,6 +345,7 @@ def main() -> None:
     args = parser.parse_args()
     sizes = [int(m) for m in args.inducing.split(",")]
 
+    load_before = os.getloadavg()[0]
     rec = recording()
     u = np.column_stack([rec[n] for n in INPUTS])[: args.steps]
     rows = []
@@ -343,27 +354,28 @@ def main() -> None:
         tmp = Path(tmp)
         whitebox = reference_fmus()["HydraulicActuator"]
         bare = {
-            "fmpy": best(fmpy_loop, whitebox, u, args.repeats),
-            "libcosim": best(libcosim_run, whitebox, u, args.repeats),
-            "libcosim 1 core": best(libcosim_one_core, whitebox, u, args.repeats),
+            "fmpy": timed(fmpy_loop, whitebox, u, args.repeat),
+            "libcosim": timed(libcosim_run, whitebox, u, args.repeat),
+            "libcosim 1 core": timed(libcosim_one_core, whitebox, u, args.repeat),
         }
         for m in sizes:
             fmu = export(rec, m, tmp)
             rows.append(
                 {
                     "inducing": m,
-                    "fmpy": best(fmpy_loop, fmu, u, args.repeats),
-                    "libcosim": best(libcosim_run, fmu, u, args.repeats),
-                    "libcosim 1 core": best(libcosim_one_core, fmu, u, args.repeats),
-                    "in-process": best(in_process, fmu, u, args.repeats),
+                    "fmpy": timed(fmpy_loop, fmu, u, args.repeat),
+                    "libcosim": timed(libcosim_run, fmu, u, args.repeat),
+                    "libcosim 1 core": timed(libcosim_one_core, fmu, u, args.repeat),
+                    "in-process": timed(in_process, fmu, u, args.repeat),
                     "breakdown": breakdown(fmu, u),
                 }
             )
             if args.equivalence and not figures:
                 figures = equivalence(tmp / f"model{m}", fmu, tmp)
+    facts = conditions(load_before)
     print(
-        f"grey-box FMU of the three-stage actuator, {len(u)} steps of 1 ms, CPU time per step "
-        f"(wall in brackets), best of {args.repeats} runs"
+        f"grey-box FMU of the three-stage actuator, {len(u)} steps of 1 ms, CPU time per step, "
+        f"{conditions_line(facts, args.repeat)}; wall time (median) in its own column"
     )
     print(
         f"white-box FMU alone: fmpy {bare['fmpy']['cpu_us']:.1f} us "
@@ -371,16 +383,17 @@ def main() -> None:
         f"({bare['libcosim']['wall_us']:.1f})"
     )
     print(
-        f"{'M/stage':>8} {'engine':>15} {'us/step':>9} {'(wall)':>9} {'x white-box':>12} "
-        f"{'< 100 us':>9}"
+        f"{'M/stage':>8} {'engine':>15} {'us/step':>9} {'(range)':>15} {'wall':>9} "
+        f"{'x white-box':>12} {'< 100 us':>9}"
     )
     for row in rows:
         for engine in ("fmpy", "libcosim", "libcosim 1 core", "in-process"):
             cpu, wall = row[engine]["cpu_us"], row[engine]["wall_us"]
+            low, high = row[engine]["cpu_us_range"]
             ratio = f"{cpu / bare[engine]['cpu_us']:12.1f}" if engine in bare else f"{'':12}"
             print(
-                f"{row['inducing']:8d} {engine:>15} {cpu:9.1f} {wall:9.1f} {ratio} "
-                f"{'yes' if cpu < TARGET_US else 'no':>9}"
+                f"{row['inducing']:8d} {engine:>15} {cpu:9.1f} {f'({low:.1f}-{high:.1f})':>15} "
+                f"{wall:9.1f} {ratio} {'yes' if cpu < TARGET_US else 'no':>9}"
             )
         pieces = ", ".join(f"{name} {us:.1f}" for name, us in row["breakdown"].items())
         print(f"{'':8} {'':>15} in-process breakdown [us]: {pieces}")
@@ -394,7 +407,8 @@ def main() -> None:
             json.dumps(
                 {
                     "steps": len(u),
-                    "repeats": args.repeats,
+                    "repeat": args.repeat,
+                    **facts,
                     "target_us": TARGET_US,
                     "whitebox_us_per_step": bare,
                     "greybox_us_per_step": rows,

@@ -10,7 +10,11 @@ against ``SparseGPR.predict_one``).
 
 Usage::
 
-    python benchmarks/bench_sgpr.py [--n N] [--m M] [--d D] [--iters K] [--json]
+    python benchmarks/bench_sgpr.py [--n N] [--m M] [--d D] [--iters K] [--repeat R] [--json]
+
+Each figure is the median of ``--repeat`` runs (3 by default), printed with the range of the
+runs, the date and the load average (``benchmarks/spread.py``); ``--json`` ends with one line
+holding every run, the medians and ranges.
 
 BLAS threads: numpy and scipy wheels each bundle their own OpenBLAS. After every call an
 OpenBLAS pool keeps its worker threads spinning for about 0.1 s; GPy alternates numpy
@@ -43,10 +47,22 @@ from collections.abc import Callable
 
 import numpy as np
 from scipy.optimize import fmin_l_bfgs_b
+from spread import conditions, conditions_line, shown, summary
 
 from fmu_greybox.gp import CollapsedBound, Hyperparameters, SparseGPR
 from fmu_greybox.gp.inducing import equispaced_indices
 from fmu_greybox.gp.sgpr import initial_hyperparameters
+
+#: The figures summarised over the runs.
+FIGURES = (
+    "fit_ratio",
+    "predict_ratio",
+    "ours_fit_s",
+    "gpy_fit_s",
+    "ours_predict_us",
+    "gpy_predict_us",
+    "bound_gain",
+)
 
 SAMPLE_RATE = 1000.0  # Hz
 LAG = 50  # samples (50 ms) for the lagged signals
@@ -165,6 +181,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--iters", type=int, default=200, help="L-BFGS-B iteration cap (default 200)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--calls", type=int, default=2000, help="single-point calls timed, each")
+    p.add_argument("--repeat", type=int, default=3, help="runs; figures are their median")
     p.add_argument("--json", action="store_true", help="end with one JSON line of results")
     p.add_argument(
         "--keep-blas-env", action="store_true", help="do not set OPENBLAS_THREAD_TIMEOUT"
@@ -187,11 +204,25 @@ def main(argv: list[str] | None = None) -> int:
     warnings.filterwarnings("ignore", module="GPy|paramz")
 
     load_before = os.getloadavg()[0]
+    log = (lambda *a: print(*a, file=sys.stderr)) if args.json else print
+    runs = [one_run(args, GPy, log) for _ in range(max(1, args.repeat))]
+    facts = conditions(load_before)
+    figures = summary(runs, FIGURES)
+    for run in runs:
+        print_table(run)
+    print_summary(figures, len(runs), facts)
+    if args.json:
+        medians = {key: value["median"] for key, value in figures.items()}
+        print(json.dumps({**medians, "figures": figures, **facts, "runs": runs}))
+    return 0
+
+
+def one_run(args: argparse.Namespace, GPy, log) -> dict:
+    """Fit both on the same data, time single-point predictions; one run's figures."""
     X, y = make_dataset(args.n + 500, args.d, args.seed)
     Xs, ys = standardise(X, y)
     Xtrain, ytrain, Xquery = Xs[: args.n], ys[: args.n], Xs[args.n :]
     Xtrain, ytrain = np.ascontiguousarray(Xtrain), np.ascontiguousarray(ytrain)
-    log = (lambda *a: print(*a, file=sys.stderr)) if args.json else print
 
     log(f"data: N={args.n} D={args.d} M={args.m}, iteration cap {args.iters}")
     log("fitting fmu-greybox SparseGPR ...")
@@ -243,17 +274,27 @@ def main(argv: list[str] | None = None) -> int:
         "held_out_rmse_gpy": float(np.sqrt(np.mean((gpy_mean - ys[args.n :]) ** 2))),
         "openblas_thread_timeout": os.environ.get("OPENBLAS_THREAD_TIMEOUT"),
         "openblas_num_threads": os.environ.get("OPENBLAS_NUM_THREADS"),
-        "cpus": os.cpu_count(),
-        "load_before": load_before,
-        "load_after": os.getloadavg()[0],
+        "load": os.getloadavg()[0],
     }
     result["targets_met"] = bool(
         result["fit_ratio"] >= 5.0 and result["predict_ratio"] >= 10.0 and result["bound_gain"] >= 0
     )
-    print_table(result)
-    if args.json:
-        print(json.dumps(result))
-    return 0
+    return result
+
+
+def print_summary(figures: dict, repeat: int, facts: dict) -> None:
+    """The medians and ranges over the runs."""
+    print(f"SGPR benchmark, {conditions_line(facts, repeat)}:")
+    print(
+        f"  fit: ours {shown(figures['ours_fit_s'], 3, ' s')}, GPy "
+        f"{shown(figures['gpy_fit_s'], 3, ' s')}, ratio {shown(figures['fit_ratio'], 2, 'x')}"
+    )
+    print(
+        f"  predict one: ours {shown(figures['ours_predict_us'], 3, ' us')}, GPy "
+        f"{shown(figures['gpy_predict_us'], 3, ' us')}, ratio "
+        f"{shown(figures['predict_ratio'], 3, 'x')}"
+    )
+    print(f"  bound gain over GPy: {shown(figures['bound_gain'], 3, ' nats')}")
 
 
 def print_table(r: dict) -> None:
@@ -297,8 +338,7 @@ def print_table(r: dict) -> None:
     print(f"GPy bound recomputed by ours: {r['gpy_bound_recomputed_by_ours']:.3f}")
     print(
         f"OPENBLAS_THREAD_TIMEOUT={r['openblas_thread_timeout']} "
-        f"OPENBLAS_NUM_THREADS={r['openblas_num_threads']}, {r['cpus']} CPUs, "
-        f"load average {r['load_before']:.2f} before, {r['load_after']:.2f} after"
+        f"OPENBLAS_NUM_THREADS={r['openblas_num_threads']}, load average {r['load']:.2f} after"
     )
     print(f"targets (fit >= 5x at >= bound, predict >= 10x) met: {r['targets_met']}")
 

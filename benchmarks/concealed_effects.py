@@ -26,8 +26,16 @@ Usage::
 ``--case`` replaces the suite by the cases given (noise scale 1, seeds 301, 302, ...), e.g.
 magnitudes outside the suite's.
 
+``--coverage`` also checks the calibrated uncertainty on each case, as the demo does: the
+named terms folded into the white-box, the grey-box trained on the recording (``--inducing``,
+``--max-iter``; the demo's 150 and 100 by default) and free-run on an independent 8 s
+recording of the same truth model (seed + 1 000 003); per stage the share of its rows inside
+±1σ and ±1.96σ, and over all stages of all cases the share whose ±1.96σ coverage lies in the
+target 0.90 .. 0.99.
+
 With ``--json`` the last line is one JSON object: ``origin_accuracy``, ``effect_accuracy``,
-``control_false_findings``, ``median_improvement`` and the cases.
+``control_false_findings``, ``median_improvement`` (with ``--coverage`` also
+``coverage95_in_target`` and ``coverage95_median``) and the cases.
 """
 
 from __future__ import annotations
@@ -49,6 +57,7 @@ from fmu_greybox.diagnosis.locate import SIGNIFICANT_STRUCTURE
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu
 from fmu_greybox.fmi.builtin import reference_fmus
 from fmu_greybox.model.simulate import simulate_with_terms
+from fmu_greybox.model.whitebox import terms_from_findings
 from fmu_greybox.project.config import load_config
 from fmu_greybox.synth.actuator import (
     INPUTS,
@@ -58,6 +67,8 @@ from fmu_greybox.synth.actuator import (
     SynthRequest,
     synthesise,
 )
+from fmu_greybox.workflow.train import train_model, with_inducing
+from fmu_greybox.workflow.validate import validate_model
 
 CONFIG = Path(__file__).resolve().parent.parent / "bench_configs" / "hydraulic_actuator.toml"
 #: The recorded signals of each stage of the reference actuator (benchmark knowledge).
@@ -163,8 +174,16 @@ def in_truth_units(finding: dict, effect: str, whitebox: FmuArchive) -> float | 
     return value
 
 
-def run_case(case: Case, paths: dict, config, workers: int, duration: float) -> dict:
-    """Record, diagnose and score one case."""
+def run_case(
+    case: Case,
+    paths: dict,
+    config,
+    workers: int,
+    duration: float,
+    coverage: tuple[int, int] | None = None,
+) -> dict:
+    """Record, diagnose and score one case; with ``coverage`` (inducing points, iterations)
+    also train and validate the grey-box (see the module docstring)."""
     profile = FlightTestProfile(duration=duration)
     request = SynthRequest(effects=case.effects, seed=case.seed, noise=case.noise, profile=profile)
     with (
@@ -182,6 +201,8 @@ def run_case(case: Case, paths: dict, config, workers: int, duration: float) -> 
         named = named_physics(top)
         correct = named in truth_effects
         estimate = in_truth_units(top, named, whitebox) if correct and case.effects else None
+    if coverage is not None:
+        checked = uncertainty_coverage(case, paths, config, findings, recording, coverage)
     true_value = case.effects.get(named) if correct else None
     affected = [diagnosis.fit_[s] for s in moved if s in diagnosis.fit_]
     improvement = (
@@ -205,7 +226,46 @@ def run_case(case: Case, paths: dict, config, workers: int, duration: float) -> 
         "true": true_value,
         "improvement": improvement,
         "seconds": round(seconds, 1),
+        **({"coverage": checked} if coverage is not None else {}),
     }
+
+
+#: The independent validation recording of a case: its seed offset and length [s] (the demo's).
+VALIDATION_SEED, VALIDATION_DURATION = 1_000_003, 8.0
+
+
+def uncertainty_coverage(
+    case: Case, paths: dict, config, findings: list, recording, sizes: tuple[int, int]
+) -> dict[str, dict[str, float]]:
+    """Train the grey-box on the case's recording (named terms first), free-run it on an
+    independent recording; per stage ``coverage68``, ``coverage95``, RMSE and median σ."""
+    profile = FlightTestProfile(duration=VALIDATION_DURATION)
+    request = SynthRequest(
+        effects=case.effects,
+        seed=case.seed + VALIDATION_SEED,
+        noise=case.noise,
+        profile=profile,
+    )
+    with (
+        open_fmu(paths["HydraulicActuatorTruth"]) as truth,
+        open_fmu(paths["HydraulicActuator"]) as whitebox,
+    ):
+        independent = synthesise(truth, whitebox, request)
+    model = train_model(
+        with_inducing(config, *sizes), recording, terms=terms_from_findings(findings)
+    )
+    table = validate_model(model, independent).table
+    keys = ("coverage68", "coverage95", "gb_rmse", "median_std")
+    return {stage: {k: row[k] for k in keys} for stage, row in table.items()}
+
+
+def print_coverage(row: dict) -> None:
+    """The case's coverage, one line under its row."""
+    parts = [
+        f"{stage} {100 * c['coverage68']:.1f} / {100 * c['coverage95']:.1f} %"
+        for stage, c in row["coverage"].items()
+    ]
+    print(f"{'':4s}inside ±1σ / ±1.96σ on an independent recording: {', '.join(parts)}")
 
 
 def print_row(row: dict) -> None:
@@ -225,7 +285,18 @@ def summary(rows: list[dict]) -> dict:
     effect_rows = [r for r in rows if not r["control"]]
     controls = [r for r in rows if r["control"]]
     improvements = [r["improvement"] for r in effect_rows if r["improvement"] is not None]
+    covered = [c["coverage95"] for r in rows for c in r.get("coverage", {}).values()]
+    coverage = (
+        {
+            "coverage95_in_target": float(np.mean([0.90 <= c <= 0.99 for c in covered])),
+            "coverage95_median": statistics.median(covered),
+            "coverage95_range": [min(covered), max(covered)],
+        }
+        if covered
+        else {}
+    )
     return {
+        **coverage,
         "origin_accuracy": float(np.mean([r["origin_correct"] for r in rows])),
         "effect_accuracy": float(np.mean([r["effect_correct"] for r in effect_rows])),
         "control_false_findings": sum(
@@ -247,6 +318,13 @@ def main() -> None:
         "--duration", type=float, default=None, help="Recording length [s] (default 20, quick 12)."
     )
     parser.add_argument(
+        "--coverage",
+        action="store_true",
+        help="Also train and validate the grey-box and report its uncertainty's coverage.",
+    )
+    parser.add_argument("--inducing", type=int, default=150, help="With --coverage (150).")
+    parser.add_argument("--max-iter", type=int, default=100, help="With --coverage (100).")
+    parser.add_argument(
         "--case",
         action="append",
         default=[],
@@ -264,9 +342,12 @@ def main() -> None:
     rows = []
     chosen = [given_case(text, 301 + i) for i, text in enumerate(args.case)] or cases(args.quick)
     for case in chosen:
-        row = run_case(case, paths, config, args.workers, duration)
+        sizes = (args.inducing, args.max_iter) if args.coverage else None
+        row = run_case(case, paths, config, args.workers, duration, sizes)
         rows.append(row)
         print_row(row)
+        if args.coverage:
+            print_coverage(row)
     result = summary(rows)
     print(
         f"origin accuracy {100 * result['origin_accuracy']:.0f} %, effect accuracy "
@@ -274,6 +355,13 @@ def main() -> None:
         f"{result['control_false_findings']}, median held-out improvement "
         f"{100 * (result['median_improvement'] or 0):+.0f} %"
     )
+    if "coverage95_in_target" in result:
+        low, high = result["coverage95_range"]
+        print(
+            f"coverage of ±1.96σ on independent recordings: in 0.90..0.99 for "
+            f"{100 * result['coverage95_in_target']:.0f} % of the stages, median "
+            f"{result['coverage95_median']:.3f} (range {low:.3f}-{high:.3f})"
+        )
     if args.json:
         print(json.dumps({**result, "duration": duration, "cases": rows}))
 

@@ -16,7 +16,9 @@ diagnosis names what it can on the training recording, its terms are folded into
 and the correctors are trained on what they leave (each table then has the white-box + named
 terms column; the improvement is still against the plain white-box). With ``--json`` the last
 line is one JSON object
-``{"experiment1": {"EHV": {"wb_rmse", "gb_rmse", "improvement"}, ...}, "experiment2": {...}}``.
+``{"experiment1": {"EHV": {"wb_rmse", "gb_rmse", "improvement", "coverage68", "coverage95"},
+...}, "experiment2": {...}}``; the tables print the share of the validation rows inside the
+grey-box's ±1.96σ (its calibrated uncertainty) beside the errors.
 """
 
 from __future__ import annotations
@@ -139,7 +141,16 @@ def run_experiment(
         print(format_table(result.table, model.training["target_unit"]))
         paper = ", ".join(f"{k} {100 * v:.1f}%" for k, v in PAPER[name].items())
         print(f"paper: {paper}", flush=True)
-    keys = ("wb_rmse", "named_rmse", "gb_rmse", "wb_nrmse", "gb_nrmse", "improvement")
+    keys = (
+        "wb_rmse",
+        "named_rmse",
+        "gb_rmse",
+        "wb_nrmse",
+        "gb_nrmse",
+        "improvement",
+        "coverage68",
+        "coverage95",
+    )
     return {stage: {k: row[k] for k in keys if k in row} for stage, row in result.table.items()}
 
 
