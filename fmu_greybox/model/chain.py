@@ -24,8 +24,6 @@ from fmu_greybox.model.stage import TARGET_MODES, SourceLayout, StageLayout
 from fmu_greybox.project.config import AUTO, ProjectConfig
 
 ProgressCallback = Callable[[str, int, float], None]
-#: A corrector and the widened feature range it was fitted with.
-StageFit = tuple[SparseGPR, np.ndarray]
 
 #: Features are clipped to their training range widened by this share of the range.
 RANGE_MARGIN = 0.05
@@ -33,6 +31,8 @@ RANGE_MARGIN = 0.05
 SELECTION_TAIL = 0.2
 #: Relative free-run RMSE gain that makes "increment" win over "residual".
 SELECTION_MARGIN = 1e-3
+#: The calibration's two folds: the first and the second half of the training rows.
+CALIBRATION_HALVES = ("first", "second")
 
 
 class GreyBoxChain:
@@ -174,10 +174,10 @@ class GreyBoxChain:
         is ``None``, the chain is free-run over that share of the rows and every stage that
         does not beat its white-box there is passed through (:attr:`active_`), so the grey-box
         is never knowingly worse than the model it corrects. Then, with ``calibrate``, each
-        stage's reported variance is estimated (:attr:`calibration_`): a chain of correctors
-        fitted on the leading rows only (for a stage whose target was ``"auto"``, the fit
-        that chose it) free-runs over the last :data:`SELECTION_TAIL` of the rows, and its
-        residuals there, which no corrector of that chain saw, give ``a`` and ``b``
+        stage's reported variance is estimated (:attr:`calibration_`) by two-fold
+        cross-validation: each half of the rows is free-run by a chain whose correctors were
+        trained (hyperparameters and all) on the other half only, so no corrector has seen
+        the rows it predicts. The residuals of both halves give ``a`` and ``b``
         (:func:`~fmu_greybox.model.calibration.fit_calibration`), stage by stage in chain
         order (a stage's propagated variance holds the calibrated variances of the stages
         feeding it). The settings given to the
@@ -210,17 +210,14 @@ class GreyBoxChain:
         self.free_run_check_ = {}
         self.calibration_ = [UNCALIBRATED] * q_count
         self.calibration_check_ = {}
-        head_fits: list[StageFit | None] = [None] * q_count
         for q, stage in enumerate(self.stages):
             if stage.target_mode == AUTO:
-                stage.target_mode, head_fits[q] = self._choose_target(
-                    q, exo, y_wb, outputs, progress
-                )
+                stage.target_mode = self._choose_target(q, exo, y_wb, outputs, progress)
             self._fit_stage(q, exo, y_wb, outputs, progress, f"{stage.name} corrector")
         if self.check_tail is not None:
             self.free_run_check_ = self._check_free_run(exo, y_wb, outputs, self.check_tail)
         if self.calibrate:
-            self._calibrate(exo, y_wb, outputs, head_fits, progress)
+            self._calibrate(exo, y_wb, outputs, progress)
         return self
 
     def _fit_stage(
@@ -268,11 +265,6 @@ class GreyBoxChain:
         fed[start + 1 :, :q] = mean[:, :q]
         return fed
 
-    def _head_split(self, n: int) -> int:
-        """First of the trailing :data:`SELECTION_TAIL` of ``n`` training rows, which the
-        fits that choose a target and the calibration's fits leave out."""
-        return max(self.history + 2, int((1.0 - SELECTION_TAIL) * n))
-
     def _choose_target(
         self,
         q: int,
@@ -280,13 +272,12 @@ class GreyBoxChain:
         y_wb: np.ndarray,
         outputs: np.ndarray,
         progress: ProgressCallback | None,
-    ) -> tuple[str, StageFit]:
-        """``residual`` or ``increment`` for stage ``q`` (see :meth:`fit`), and the fit on the
-        leading rows that chose it."""
+    ) -> str:
+        """``residual`` or ``increment`` for stage ``q`` (see :meth:`fit`)."""
         stage = self.stages[q]
-        split = self._head_split(exo.shape[0])
+        split = max(self.history + 2, int((1.0 - SELECTION_TAIL) * exo.shape[0]))
         head = slice(0, split)
-        errors, fits = {}, {}
+        errors = {}
         with self._correcting_first(q + 1):
             for mode in ("residual", "increment"):
                 stage.target_mode = mode
@@ -298,20 +289,18 @@ class GreyBoxChain:
                     progress,
                     f"{stage.name} corrector on the leading rows, {mode} target (to choose it)",
                 )
-                fits[mode] = (self.correctors_[q], self.feature_bounds_[q])
                 mean, _ = self.free_run(exo, y_wb, outputs, split - 1)
                 errors[mode] = float(np.sqrt(np.mean((mean[:, q] - outputs[split:, q]) ** 2)))
         better = errors["increment"] < (1.0 - SELECTION_MARGIN) * errors["residual"]
         chosen = "increment" if better else "residual"
         self.selection_[stage.name] = {**errors, "chosen": chosen}
-        return chosen, fits[chosen]
+        return chosen
 
     def _calibrate(
         self,
         exo: np.ndarray,
         y_wb: np.ndarray,
         outputs: np.ndarray,
-        head_fits: list[StageFit | None],
         progress: ProgressCallback | None,
     ) -> None:
         """Set :attr:`calibration_` and :attr:`calibration_check_` (see :meth:`fit`).
@@ -320,40 +309,61 @@ class GreyBoxChain:
         ----------
         exo, y_wb, outputs : ndarray
             The training rows, as given to :meth:`fit`.
-        head_fits : list of (SparseGPR, ndarray) or None
-            Per stage, a fit on the leading rows already made (target ``"auto"``), or
-            ``None`` to make one here.
+        progress : callable, optional
+            As for :meth:`fit`.
         """
-        split = self._head_split(exo.shape[0])
-        head = copy.copy(self)
-        head.correctors_ = list(self.correctors_)
-        head.feature_bounds_ = list(self.feature_bounds_)
-        head.active_ = self.active_.copy()
-        head.calibration_ = list(self.calibration_)
-        for q, stage in enumerate(self.stages):
-            if not self.active_[q]:
-                continue  # passed through: its output is the white-box's, nothing to fit
-            if head_fits[q] is None:
-                head._fit_stage(
-                    q,
-                    exo[:split],
-                    y_wb[:split],
-                    outputs[:split],
-                    progress,
-                    f"{stage.name} corrector on the leading rows (to calibrate its uncertainty)",
-                )
-            else:
-                head.correctors_[q], head.feature_bounds_[q] = head_fits[q]
+        n = exo.shape[0]
+        middle = max(self.history + 2, n // 2)
+        halves = [(self.history, middle), (middle, n)]
+        trained_on = [slice(middle, n), slice(0, middle)]  # the other half
+        chains = [
+            self._trained_on(exo[rows], y_wb[rows], outputs[rows], progress, f"{other} half")
+            for rows, other in zip(trained_on, reversed(CALIBRATION_HALVES), strict=True)
+        ]
+        calibration = [UNCALIBRATED] * len(self.stages)
         for q, name in enumerate(self.stage_names):
-            run = head.free_run_variances(exo, y_wb, outputs, split - 1)
-            residual = outputs[split:, q] - run.mean[:, q]
-            head.calibration_[q] = fit_calibration(residual, run.latent_var[:, q])
+            residual, latent_var = [], []
+            for chain, (first, stop) in zip(chains, halves, strict=True):
+                chain.calibration_ = calibration  # the stages before q already calibrated
+                run = chain.free_run_variances(exo[:stop], y_wb[:stop], outputs[:stop], first - 1)
+                residual.append(outputs[first:stop, q] - run.mean[:, q])
+                latent_var.append(run.latent_var[:, q])
+            residual, latent_var = np.concatenate(residual), np.concatenate(latent_var)
+            calibration[q] = fit_calibration(residual, latent_var)
             self.calibration_check_[name] = {
                 "rows": int(residual.size),
                 "rmse": float(np.sqrt(np.mean(residual**2))),
-                "median_latent_std": float(np.median(np.sqrt(run.latent_var[:, q]))),
+                "median_latent_std": float(np.median(np.sqrt(latent_var))),
             }
-        self.calibration_ = head.calibration_
+        self.calibration_ = calibration
+
+    def _trained_on(
+        self,
+        exo: np.ndarray,
+        y_wb: np.ndarray,
+        outputs: np.ndarray,
+        progress: ProgressCallback | None,
+        rows: str,
+    ) -> GreyBoxChain:
+        """A copy of the chain (its stages' target modes, the stages it passes through) with
+        every other corrector trained on the rows given only.
+
+        Parameters
+        ----------
+        exo, y_wb, outputs : ndarray
+            Those rows.
+        rows : str
+            Which rows, in words (for ``progress``).
+        """
+        chain = copy.copy(self)
+        chain.correctors_ = list(self.correctors_)
+        chain.feature_bounds_ = list(self.feature_bounds_)
+        chain.active_ = self.active_.copy()
+        for q, stage in enumerate(self.stages):
+            if self.active_[q]:  # a stage passed through has nothing to train
+                label = f"{stage.name} corrector on the {rows} (to calibrate its uncertainty)"
+                chain._fit_stage(q, exo, y_wb, outputs, progress, label)
+        return chain
 
     # ------------------------------------------------------------------ running
     def start(self, outputs: np.ndarray, y_wb: np.ndarray, exo: np.ndarray) -> ChainState:
