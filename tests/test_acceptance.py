@@ -27,19 +27,26 @@ def parsed(acceptance: dict) -> AcceptanceConfig:
 
 
 def test_the_reference_project_states_the_defaults() -> None:
-    assert parse_config(RAW, REFERENCE).acceptance == AcceptanceConfig()
+    acceptance = parse_config(RAW, REFERENCE).acceptance
+    assert acceptance.default == Criteria()
+    assert acceptance.stages == {"ITFV": Criteria(input="load_force")}  # what drives it
     raw = copy.deepcopy(RAW)
     del raw["acceptance"]
-    assert parse_config(raw, REFERENCE).acceptance.default == Criteria()
+    assert parse_config(raw, REFERENCE).acceptance == AcceptanceConfig()
 
 
 def test_a_stage_table_overrides_the_default_and_false_unchecks() -> None:
     acceptance = parsed(
-        {"max_nrmse": 0.2, "coverage68": [0.6, 0.8], "ITFV": {"max_nrmse": False, "band": [1, 20]}}
+        {
+            "max_nrmse": 0.2,
+            "coverage68": [0.6, 0.8],
+            "ITFV": {"max_nrmse": False, "band": [1, 20], "input": "load_force"},
+        }
     )
     ehv, itfv = acceptance.for_stage("EHV"), acceptance.for_stage("ITFV")
     assert ehv.max_nrmse == 0.2 and ehv.band == (0.0, 50.0) and ehv.coverage68 == (0.6, 0.8)
     assert itfv.max_nrmse is None and itfv.band == (1.0, 20.0) and itfv.coverage68 == (0.6, 0.8)
+    assert ehv.input is None and itfv.input == "load_force"
     config = parse_config({**RAW, "acceptance": {"ITFV": {"max_nrmse": False}}}, REFERENCE)
     assert parse_config(config.to_dict(), REFERENCE) == config  # stored with the model
 
@@ -55,7 +62,8 @@ def test_a_stage_table_overrides_the_default_and_false_unchecks() -> None:
         ({"max_nrmse": "small"}, "acceptance.max_nrmse", "must be a number"),
         ({"ITVF": {}}, "acceptance.ITVF", "did you mean 'ITFV'"),
         ({"input": "valve_curent"}, "acceptance.input", "did you mean 'valve_current'"),
-        ({"EHV": {"input": "load_force"}}, "acceptance.EHV.input", "unknown field"),
+        ({"EHV": {"input": "load_forse"}}, "acceptance.EHV.input", "did you mean 'load_force'"),
+        ({"EHV": {"stages": 2}}, "acceptance.EHV.stages", "unknown field"),
     ],
 )
 def test_errors_name_the_field(table: dict, field: str, message: str) -> None:

@@ -169,6 +169,9 @@ class Criteria:
         band.
     coverage95, coverage68 : tuple of float or None
         ``(low, high)`` shares of the validation rows that must lie inside ±1.96σ and ±1σ.
+    input : str or None
+        Signal the stage's frequency response is taken from (``None``: the first input of the
+        first stage).
     """
 
     max_nrmse: float | None = 0.1
@@ -178,6 +181,7 @@ class Criteria:
     min_coherence: float | None = 0.6
     coverage95: tuple[float, float] | None = (0.90, 0.99)
     coverage68: tuple[float, float] | None = None
+    input: str | None = None
 
 
 @dataclass(frozen=True)
@@ -191,14 +195,10 @@ class AcceptanceConfig:
     stages : dict[str, Criteria]
         Stage -> its criteria, for the stages with an ``[acceptance.NAME]`` table (the
         default's values where that table gives none).
-    input : str or None
-        Signal the frequency responses are taken from (``None``: the first input of the first
-        stage).
     """
 
     default: Criteria = field(default_factory=Criteria)
     stages: dict[str, Criteria] = field(default_factory=dict)
-    input: str | None = None
 
     def for_stage(self, name: str) -> Criteria:
         """The criteria of stage ``name``."""
@@ -694,27 +694,34 @@ def _acceptance(
 ) -> AcceptanceConfig:
     names = [s.name for s in stages]
     criteria = [f.name for f in fields(Criteria)]
-    reader.keys(table, "acceptance", {*criteria, "input", *names})
-    default = _criteria(reader, table, "acceptance", Criteria())
+    reader.keys(table, "acceptance", {*criteria, *names})
+    default = _criteria(reader, table, "acceptance", Criteria(), signals)
     per_stage = {}
     for name in names:
         if name in table:
             where = f"acceptance.{name}"
             own = reader.table(table, name)
             reader.keys(own, where, set(criteria))
-            per_stage[name] = _criteria(reader, own, where, default)
-    source = reader.get(table, "input", str, None, "acceptance.")
-    if source is not None and source not in signals:
-        reader.fail(
-            "acceptance.input",
-            f"{source!r} is not a declared signal" + _did_you_mean(source, signals),
-        )
-    return AcceptanceConfig(default=default, stages=per_stage, input=source)
+            per_stage[name] = _criteria(reader, own, where, default, signals)
+    return AcceptanceConfig(default=default, stages=per_stage)
 
 
-def _criteria(reader: _Reader, table: Mapping[str, Any], where: str, base: Criteria) -> Criteria:
+def _criteria(
+    reader: _Reader,
+    table: Mapping[str, Any],
+    where: str,
+    base: Criteria,
+    signals: Mapping[str, Signal],
+) -> Criteria:
     """The criteria of one ``[acceptance]`` table, ``base``'s where it gives none."""
     values: dict[str, Any] = {}
+    if "input" in table:
+        source = values["input"] = reader.get(table, "input", str, None, where + ".")
+        if source not in signals:
+            reader.fail(
+                f"{where}.input",
+                f"{source!r} is not a declared signal" + _did_you_mean(source, signals),
+            )
     for name in ("max_nrmse", "max_gain_error_db", "max_phase_error_deg", "min_coherence"):
         if name in table:
             value = (
@@ -739,14 +746,15 @@ def _acceptance_table(acceptance: AcceptanceConfig) -> dict[str, Any]:
     """The ``[acceptance]`` table of :meth:`ProjectConfig.to_dict` (unchecked as ``false``)."""
 
     def table(criteria: Criteria) -> dict[str, Any]:
-        return {
+        limits = {
             f.name: False if value is None else list(value) if isinstance(value, tuple) else value
             for f in fields(criteria)
+            if f.name != "input"
             for value in [getattr(criteria, f.name)]
         }
+        return _without_none(limits | {"input": criteria.input})
 
-    stored = table(acceptance.default) | {n: table(c) for n, c in acceptance.stages.items()}
-    return _without_none(stored | {"input": acceptance.input})
+    return table(acceptance.default) | {n: table(c) for n, c in acceptance.stages.items()}
 
 
 def _without_none(table: Mapping[str, Any]) -> dict[str, Any]:

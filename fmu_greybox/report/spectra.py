@@ -1,8 +1,9 @@
 """Frequency-domain validation: frequency responses and coherences of recording and models.
 
 The paper leaves frequency-domain validation open; a test-bench engineer reads a model's fit as
-much from its Bode plot as from its time traces. For one excitation ``u`` (by default the first
-input of the first stage) and each stage output ``y`` this module estimates, with Welch
+much from its Bode plot as from its time traces. For each stage output ``y`` and an excitation
+``u`` (the stage's acceptance input: by default the first input of the first stage) this
+module estimates, with Welch
 averaging (Hann windows, 50 % overlap, segments of ``n / 8`` rounded down to a power of two):
 
 * the frequency response ``H1(f) = P_uy(f) / P_uu(f)`` of the recording, the white-box and the
@@ -28,7 +29,7 @@ trusted frequencies inside that band, from the same curves the figure draws.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -250,45 +251,3 @@ def frequency_response(
         match=match,
         segments=(n - nperseg) // (nperseg // 2) + 1,
     )
-
-
-def stage_responses(
-    u: np.ndarray,
-    recorded: np.ndarray,
-    models: Mapping[str, np.ndarray],
-    dt: float,
-    input_name: str,
-    output_names: Sequence[str],
-    stages: Sequence[str] | None = None,
-    units: tuple[str, Sequence[str]] | None = None,
-) -> list[FrequencyResponse]:
-    """One :class:`FrequencyResponse` per stage output.
-
-    Parameters
-    ----------
-    u : ndarray, shape (n,)
-    recorded : ndarray, shape (n, Q)
-    models : mapping of str to ndarray, shape (n, Q)
-        Model source -> its stage outputs.
-    dt : float
-    input_name : str
-    output_names : sequence of str, length Q
-    stages : sequence of str, length Q, optional
-        Stage names (default: the output names).
-    units : tuple, optional
-        The input's unit and the Q outputs' units.
-    """
-    stages = list(stages) if stages is not None else list(output_names)
-    input_unit, output_units = units if units is not None else ("", [""] * len(output_names))
-    return [
-        frequency_response(
-            u,
-            {"recording": recorded[:, q], **{k: v[:, q] for k, v in models.items()}},
-            dt,
-            input_name,
-            name,
-            stage=stages[q],
-            units=(input_unit, output_units[q]),
-        )
-        for q, name in enumerate(output_names)
-    ]

@@ -15,7 +15,7 @@ from fmu_greybox.model.store import GreyBoxModel
 from fmu_greybox.project.config import AcceptanceConfig
 from fmu_greybox.project.data import ProjectData, prepare, split_row
 from fmu_greybox.report.plots import calibration_figure, frequency_figure, save_png, trace_figure
-from fmu_greybox.report.spectra import FrequencyResponse, stage_responses
+from fmu_greybox.report.spectra import FrequencyResponse, frequency_response
 from fmu_greybox.workflow.acceptance import Acceptance, evaluate
 from fmu_greybox.workflow.master import MasterRun, run_master
 from fmu_greybox.workflow.metrics import stage_table, uncertainty_table
@@ -116,25 +116,34 @@ def validate_model(
 def validation_responses(
     model: GreyBoxModel, data: ProjectData, run: MasterRun, criteria: AcceptanceConfig
 ) -> list[FrequencyResponse]:
-    """Frequency responses of recording, white-box and grey-box over the master's rows, per
-    stage, from ``criteria.input`` (by default the first input of the first stage; none
-    when the first stage has no input)."""
-    config = model.config
-    source = criteria.input or next(iter(config.stages[0].inputs), None)
-    if source is None:
-        return []
-    signal = config.signals[source]
+    """Per stage, the frequency responses of recording, white-box and grey-box over the
+    master's rows, from the stage's acceptance ``input`` (by default the first input of the
+    first stage; no response for a stage without one)."""
+    config, chain = model.config, model.chain
     units = model.training.get("target_unit", {})
-    return stage_responses(
-        data.recording[signal.column][run.rows],
-        data.outputs[run.rows],
-        {"white-box": data.y_wb[run.rows], "grey-box": run.mean},
-        model.dt,
-        source,
-        model.chain.target_signals,
-        stages=model.chain.stage_names,
-        units=(signal.unit, [units.get(n, "") for n in model.chain.stage_names]),
-    )
+    default = next(iter(config.stages[0].inputs), None)
+    responses = []
+    for q, (stage, output) in enumerate(zip(chain.stage_names, chain.target_signals, strict=True)):
+        source = criteria.for_stage(stage).input or default
+        if source is None:
+            continue
+        signal = config.signals[source]
+        responses.append(
+            frequency_response(
+                data.recording[signal.column][run.rows],
+                {
+                    "recording": data.outputs[run.rows, q],
+                    "white-box": data.y_wb[run.rows, q],
+                    "grey-box": run.mean[:, q],
+                },
+                model.dt,
+                source,
+                output,
+                stage=stage,
+                units=(signal.unit, units.get(stage, "")),
+            )
+        )
+    return responses
 
 
 def frequency_table(validation: Validation) -> dict[str, dict]:
