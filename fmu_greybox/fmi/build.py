@@ -817,7 +817,14 @@ def fmi2_headers() -> Path:
     return folder
 
 
-def _compiler() -> str:
+def c_compiler() -> str:
+    """The C compiler: ``$CC`` or gcc.
+
+    Raises
+    ------
+    FmuBuildError
+        If it is not found.
+    """
     compiler = os.environ.get("CC", "gcc")
     found = shutil.which(compiler)
     if not found:
@@ -831,7 +838,7 @@ def _compile(model_dir: Path, entry: ModelEntry, generated: Path, library: Path)
         *sorted(model_dir.glob("*.c")),
         generated / "fmu_variables.c",
     ]
-    command = [_compiler(), *CFLAGS, "-shared"]
+    command = [c_compiler(), *CFLAGS, "-shared"]
     if not sys.platform.startswith("win"):
         command.append("-fPIC")
     for folder in (generated, model_dir, FRAMEWORK_DIR, fmi2_headers()):

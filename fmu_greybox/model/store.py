@@ -89,6 +89,13 @@ class GreyBoxModel:
         """Standard deviation of each stage's training target (for normalised RMSE)."""
         return self.training["target_std"]
 
+    def output_stages(self, outputs: Sequence[str]) -> list[int]:
+        """The stage each white-box output is read at: a stage's output at its stage, any
+        other output at the last stage (after every named term)."""
+        stage_of = {s.config.whitebox_output: s.stage_index for s in self.chain.stages}
+        last = len(self.chain.stages) - 1
+        return [stage_of.get(name, last) for name in outputs]
+
     def whitebox(
         self,
         archive: FmuArchive,
@@ -116,15 +123,13 @@ class GreyBoxModel:
         -------
         NamedModel
         """
-        stage_of = {s.config.whitebox_output: s.stage_index for s in self.chain.stages}
-        last = len(self.chain.stages) - 1
         return NamedModel(
             archive,
             inputs,
             outputs,
             self.dt,
             self.terms,
-            [stage_of.get(name, last) for name in outputs],
+            self.output_stages(outputs),
             self.config.parameters,
             start_values,
             start_time,

@@ -10,6 +10,7 @@ import numpy as np
 from tqdm import tqdm
 
 from fmu_greybox.data.recording import Recording
+from fmu_greybox.export.domain import training_ranges
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.model.store import GreyBoxModel, file_sha256
@@ -87,6 +88,8 @@ def train_model(
         "n_samples": data.n_samples,
         "train_rows": split + 1,
         "dt": recording.dt,
+        # the exported FMU's input domain is built from these (fmu_greybox/export/domain.py)
+        "input_ranges": training_ranges(data.binding.inputs, data.binding.matrix(recording)[rows]),
         "target_std": {
             name: float(np.std(data.outputs[rows, q])) for q, name in enumerate(chain.stage_names)
         },
