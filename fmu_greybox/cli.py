@@ -516,6 +516,13 @@ def demo(
     required=True,
     help="The grey-box FMU to write (NAME.fmu).",
 )
+@click.option(
+    "--runtime",
+    type=click.Choice(["native", "python"]),
+    default="native",
+    show_default=True,
+    help="native: a C binary, no Python in the bench's process; python: a pythonfmu FMU.",
+)
 @click.option("--author", default=None, help="Author in the model description (default: you).")
 @click.option(
     "--fmu-version", default="1.0", show_default=True, help="Version in the model description."
@@ -550,6 +557,7 @@ def export(
     ctx: click.Context,
     model_dir: Path,
     out: Path,
+    runtime: str,
     author: str | None,
     fmu_version: str,
     ood_threshold: float,
@@ -563,10 +571,15 @@ def export(
     output NAME_std and NAME_wb, plus domain_score, out_of_domain and the parameters
     correction_enabled and ood_threshold. See docs/bench.md.
 
+    The FMU is native by default: a C binary compiled here with gcc, which runs in any FMI
+    2.0 master (no Python needed in the bench's process); --runtime python writes a pythonfmu
+    FMU instead.
+
     \b
     Examples:
       fmu-greybox export model/ --out greybox.fmu
       fmu-greybox export model/ --out greybox.fmu --ssp bench.ssp --recording rec.csv
+      fmu-greybox export model/ --out greybox.fmu --runtime python
     """
     from fmu_greybox.export.fmu import export_greybox
     from fmu_greybox.export.ssp import make_bench
@@ -576,13 +589,18 @@ def export(
     if ssp is not None and recording_path is None:
         raise click.UsageError("--ssp needs --recording (the recording the bench plays back)")
     result = export_greybox(
-        model_dir, out, author=author, version=fmu_version, ood_threshold=ood_threshold
+        model_dir,
+        out,
+        runtime=runtime,
+        author=author,
+        version=fmu_version,
+        ood_threshold=ood_threshold,
     )
     ports = result.interface.ports
     counts = {k: sum(p.causality == k for p in ports) for k in ("input", "output", "parameter")}
     _info(
         ctx,
-        f"wrote {out} ({counts['input']} inputs, {counts['output']} outputs, "
+        f"wrote {out} ({runtime} FMU, {counts['input']} inputs, {counts['output']} outputs, "
         f"{counts['parameter']} parameters; model {result.model_sha256[:12]}, GUID {result.guid})",
     )
     if ssp is not None:

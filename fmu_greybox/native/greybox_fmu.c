@@ -76,7 +76,7 @@ static fmi2Status refuse(const Instance *inst, const char *call, const char *for
     va_start(args, format);
     vsnprintf(detail, sizeof detail, format, args);
     va_end(args);
-    snprintf(text, sizeof text, "%s: %s", call, detail);
+    snprintf(text, sizeof text, "%s failed: %s", call, detail);
     log_text(inst, fmi2Error, text);
     return fmi2Error;
 }
