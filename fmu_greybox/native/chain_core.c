@@ -138,6 +138,45 @@ static double dot(ptrdiff_t n, const double *restrict a, const double *restrict 
     return total;
 }
 
+/* e^x of every x[j] in place, in a loop the compiler vectorises (libm's exp is one call per
+ * number: 1200 of them took 9 us of a 40 us step at M = 400). x = n ln 2 + r with |r| <=
+ * ln(2)/2 (Cody and Waite's two-part ln 2), e^r by its Taylor polynomial to degree 13
+ * (truncation below 4e-18 relative), times 2^n assembled in the exponent bits. Within about
+ * one unit in the last place of libm's exp; arguments below EXP_LOWEST (kernel entries below
+ * 1e-307, far beyond any that counts) give 0. */
+#define EXP_LOWEST -708.0
+#define EXP_HIGHEST 709.0
+VECTOR_VERSIONS
+static void exp_in_place(ptrdiff_t m, double *restrict x) {
+    static const double shifter = 6755399441055744.0; /* 1.5 * 2^52: adding it rounds */
+    static const double log2e = 1.4426950408889634, ln2_hi = 0.6931471803691238,
+                        ln2_lo = 1.9082149292705877e-10;
+    for (ptrdiff_t j = 0; j < m; j++) {
+        const double v = x[j] < EXP_LOWEST ? EXP_LOWEST : x[j] > EXP_HIGHEST ? EXP_HIGHEST : x[j];
+        const double t = v * log2e + shifter, n = t - shifter;
+        const double r = (v - n * ln2_hi) - n * ln2_lo;
+        double p = 1.0 / 6227020800.0, scale;
+        uint64_t bits;
+        p = p * r + 1.0 / 479001600.0;
+        p = p * r + 1.0 / 39916800.0;
+        p = p * r + 1.0 / 3628800.0;
+        p = p * r + 1.0 / 362880.0;
+        p = p * r + 1.0 / 40320.0;
+        p = p * r + 1.0 / 5040.0;
+        p = p * r + 1.0 / 720.0;
+        p = p * r + 1.0 / 120.0;
+        p = p * r + 1.0 / 24.0;
+        p = p * r + 1.0 / 6.0;
+        p = p * r + 0.5;
+        p = p * r + 1.0;
+        p = p * r + 1.0;
+        memcpy(&bits, &t, sizeof bits);
+        bits = (bits + 1023) << 52; /* the low bits of t hold n */
+        memcpy(&scale, &bits, sizeof scale);
+        x[j] = x[j] < EXP_LOWEST ? 0.0 : p * scale;
+    }
+}
+
 /* Kernel row into k (M) for a scaled point xs (D), one dimension at a time over all inducing
  * points (vectorised); the gradient moments sum_m alpha_m k_m z_m (D) into moments[0..D-1]
  * and alpha . k into moments[D] when moments is not NULL (w: M doubles of scratch). Returns
@@ -155,8 +194,8 @@ static double kernel_row(const PosteriorView *p, const double *xs, double *restr
         const double xi = xs[i];
         for (ptrdiff_t j = 0; j < m; j++) k[j] += z[j] * xi;
     }
+    exp_in_place(m, k);
     for (ptrdiff_t j = 0; j < m; j++) {
-        k[j] = exp(k[j]);
         if (k[j] > largest) largest = k[j];
     }
     if (moments != NULL) {
