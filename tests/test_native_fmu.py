@@ -12,6 +12,7 @@ import subprocess
 import zipfile
 from pathlib import Path
 
+import c_master as master
 import numpy as np
 import pytest
 from fmpy import extract, read_model_description, simulate_fmu
@@ -37,7 +38,6 @@ from fmu_greybox.export.fmu import RUNTIMES, export_greybox
 from fmu_greybox.export.native import BUILD_DESCRIPTION, NATIVE_DIR
 from fmu_greybox.export.native_terms import NATIVE_KINDS
 from fmu_greybox.fmi.archive import open_fmu
-from fmu_greybox.fmi.build import fmi2_headers
 from fmu_greybox.fmi.instance import FmuInstance
 from fmu_greybox.model import terms as term_kinds
 from fmu_greybox.model.store import load_model, save_model
@@ -186,39 +186,14 @@ def test_state_with_terms_memory_continues_identically(
 @pytest.fixture(scope="session")
 def c_master(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """benchmarks/c_master.c compiled: a master with no Python in its process."""
-    program = tmp_path_factory.mktemp("c_master") / "c_master"
-    source = ROOT / "benchmarks" / "c_master.c"
-    command = ["gcc", "-O2", "-std=c11", f"-I{fmi2_headers()}", str(source), "-o", str(program)]
-    subprocess.run([*command, "-ldl"], check=True, capture_output=True)
-    return program
+    return master.build(tmp_path_factory.mktemp("c_master"))
 
 
 def run_c_master(program: Path, fmu: Path, rows: np.ndarray, folder: Path) -> np.ndarray:
-    """Run an FMU over input rows in the C master; its outputs per step (NAMES)."""
-    description = read_model_description(str(fmu))
-    refs = {v.name: v.valueReference for v in description.modelVariables}
-    unpacked = extract(str(fmu), str(folder / "fmu"))
-    np.savetxt(folder / "inputs.txt", rows, fmt="%.17g")
-    done = subprocess.run(
-        [
-            str(program),
-            unpacked,
-            description.coSimulation.modelIdentifier,
-            description.guid,
-            repr(float(description.defaultExperiment.stepSize)),
-            ",".join(str(refs[n]) for n in INPUTS),
-            ",".join(str(refs[n]) for n in NAMES),
-            str(folder / "inputs.txt"),
-            str(folder / "outputs.txt"),
-        ],
-        capture_output=True,
-        text=True,
-        check=False,
-        env={"PATH": "/usr/bin:/bin"},  # nothing of this Python's environment
-    )
-    assert done.returncode == 0, done.stderr
-    assert "python_in_process no" in done.stdout, done.stdout
-    return np.loadtxt(folder / "outputs.txt", ndmin=2)
+    """Run the native FMU over input rows in the C master; its outputs per step (NAMES)."""
+    done = master.run(program, fmu, list(INPUTS), NAMES, rows, folder)
+    assert not done.python_in_process
+    return done.outputs
 
 
 def test_bare_c_master_gives_the_masters_outputs_with_no_python(
