@@ -1,6 +1,6 @@
 """The corrector chain's state and its compiled step: one call per communication step.
 
-A :class:`ChainPlan` lays out once what ``fmu_greybox/native/chainstep.c`` needs to advance the
+A :class:`ChainPlan` lays out once what ``fmu_greybox/native/chain_core.c`` needs to advance the
 chain by one row — per stage its feature map
 (:meth:`~fmu_greybox.model.stage.StageLayout.feature_map`),
 the widened training range its features are clipped to, its packed posterior
@@ -48,7 +48,7 @@ class FittedChain(Protocol):
     feature_bounds_: list[np.ndarray | None]
 
 
-#: Target mode codes of the compiled step (``MODE_*`` in chainstep.c).
+#: Target mode codes of the compiled step (``MODE_*`` in chain_core.c).
 MODE_CODES = {"residual": 0, "increment": 1, "output": 2}
 
 

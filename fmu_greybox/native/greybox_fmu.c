@@ -565,10 +565,6 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
             return refuse(inst, "fmi2SetReal", "value reference %u is not a Real input or "
                           "tunable parameter", (unsigned)vr[i]);
         }
-        if (vr[i] == threshold && !(value[i] >= 0.0 && value[i] <= 1.0)) {
-            return refuse(inst, "fmi2SetReal", "ood_threshold = %g must lie in [0, 1]",
-                          value[i]);
-        }
     }
     for (size_t i = 0; i < nvr; i++) inst->reals[vr[i]] = value[i];
     return fmi2OK;
