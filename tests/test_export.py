@@ -447,19 +447,23 @@ def test_absurd_input_messages_name_the_input_and_its_domain(
     assert "load_force = nan" in refusal and "not a finite number" in refusal
 
 
+def tampered(fmu: Path, member: str, change, folder: Path) -> Path:
+    """A copy of an FMU with one member's bytes passed through ``change``."""
+    copy = folder / "tampered.fmu"
+    with zipfile.ZipFile(fmu) as zin, zipfile.ZipFile(copy, "w") as zout:
+        for item in zin.infolist():
+            data = zin.read(item)
+            zout.writestr(item, change(data) if item.filename == member else data)
+    return copy
+
+
 def test_tampered_model_file_refuses_instantiation(
     python_fmu: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    tampered = tmp_path / "tampered.fmu"
     member = f"resources/{MODEL_FOLDER}/stage_RAM.json"
-    with zipfile.ZipFile(python_fmu) as zin, zipfile.ZipFile(tampered, "w") as zout:
-        for item in zin.infolist():
-            data = zin.read(item)
-            if item.filename == member:
-                data = data.replace(b'"seed"', b'"seed" ', 1)
-            zout.writestr(item, data)
+    spaced = tampered(python_fmu, member, lambda d: d.replace(b'"seed"', b'"seed" ', 1), tmp_path)
     with caplog.at_level(logging.ERROR, logger=LOGGER), pytest.raises(Exception, match="instan"):
-        Slave(tampered, "tampered", np.zeros((1, 4)), logging_on=True)
+        Slave(spaced, "tampered", np.zeros((1, 4)), logging_on=True)
     assert "stage_RAM.json" in caplog.text and "hash" in caplog.text
 
 

@@ -30,6 +30,7 @@ from test_export import (
     input_rows,
     input_signal,
     master_run,
+    tampered,
     trained,
 )
 
@@ -275,18 +276,6 @@ def test_rebuild_from_the_shipped_sources_runs_identically(
         np.testing.assert_array_equal(rebuilt[name], shipped[name], err_msg=name)
 
 
-def tampered(fmu: Path, member: str, folder: Path) -> Path:
-    """A copy of an FMU with one byte of a member flipped."""
-    copy = folder / "tampered.fmu"
-    with zipfile.ZipFile(fmu) as zin, zipfile.ZipFile(copy, "w") as zout:
-        for item in zin.infolist():
-            data = zin.read(item)
-            if item.filename == member:
-                data = data[:100] + bytes([data[100] ^ 1]) + data[101:]
-            zout.writestr(item, data)
-    return copy
-
-
 @pytest.mark.parametrize(
     ("member", "named"),
     [
@@ -297,8 +286,11 @@ def tampered(fmu: Path, member: str, folder: Path) -> Path:
 def test_modified_resources_refuse_instantiation(
     native_fmu: Path, tmp_path: Path, member: str, named: str
 ) -> None:
-    copy = tampered(native_fmu, member, tmp_path)
-    with open_fmu(copy) as archive, pytest.raises(FmuError, match="fmi2Instantiate") as caught:
+    def flip(data: bytes) -> bytes:
+        return data[:100] + bytes([data[100] ^ 1]) + data[101:]
+
+    flipped = tampered(native_fmu, member, flip, tmp_path)
+    with open_fmu(flipped) as archive, pytest.raises(FmuError, match="fmi2Instantiate") as caught:
         FmuInstance(archive)
     assert named in str(caught.value) and "SHA-256" in str(caught.value)
     assert "Export the FMU again" in str(caught.value)
