@@ -136,6 +136,17 @@ void data_float64s(const DataSection *section, double *out) {
     memcpy(out, section->data, (size_t)section->count * sizeof(double));
 }
 
+void *data_copy(const DataSection *section, void *(*allocate)(size_t, size_t)) {
+    void *out = allocate((size_t)(section->count > 0 ? section->count : 1), 8);
+    if (out == NULL) return NULL;
+    if (section->type == DATA_INT64) {
+        data_int64s(section, out);
+    } else {
+        data_float64s(section, out);
+    }
+    return out;
+}
+
 void data_free(GreyboxData *data, void (*release)(void *)) {
     if (data->sections != NULL) release(data->sections);
     if (data->bytes != NULL) release(data->bytes);

@@ -57,6 +57,10 @@ const DataSection *data_section(const GreyboxData *data, const char *name, int t
 void data_int64s(const DataSection *section, int64_t *out);
 void data_float64s(const DataSection *section, double *out);
 
+/* A section's elements (int64 or float64) in new memory from allocate (calloc-like; at least
+ * one element), or NULL when out of memory. */
+void *data_copy(const DataSection *section, void *(*allocate)(size_t, size_t));
+
 void data_free(GreyboxData *data, void (*release)(void *));
 
 #endif /* GREYBOX_DATA_H */

@@ -119,18 +119,8 @@ static void *table(ptrdiff_t n, size_t item) { return calloc((size_t)(n > 0 ? n 
 static void *section_copy(const GreyboxData *d, const char *name, int type, ptrdiff_t count,
                           char *message) {
     const DataSection *s = data_section(d, name, type, count, message, MESSAGE_SIZE);
-    void *out;
-    if (s == NULL) return NULL;
-    out = table(s->count, 8);
-    if (out == NULL) {
-        snprintf(message, MESSAGE_SIZE, "out of memory");
-        return NULL;
-    }
-    if (type == DATA_INT64) {
-        data_int64s(s, out);
-    } else {
-        data_float64s(s, out);
-    }
+    void *out = s != NULL ? data_copy(s, calloc) : NULL;
+    if (s != NULL && out == NULL) snprintf(message, MESSAGE_SIZE, "out of memory");
     return out;
 }
 

@@ -234,18 +234,6 @@ static int part_sections(const GreyboxData *data, ptrdiff_t n_parts, ptrdiff_t n
                : -1;
 }
 
-/* Copy an int64 or float64 section into memory of its own (aligned for the element type). */
-static void *copy_section(Whitebox *w, const DataSection *s) {
-    void *out = table_of(w, s->count, 8);
-    if (out == NULL) return NULL;
-    if (s->type == DATA_INT64) {
-        data_int64s(s, out);
-    } else {
-        data_float64s(s, out);
-    }
-    return out;
-}
-
 /* The copies of the parts' sections stay for the white-box's life: kept in this block. */
 typedef struct {
     int64_t *part, *columns, *bound, *param_vr, *term_int, *channels, *input_vr;
@@ -265,15 +253,15 @@ static int build_parts(Whitebox *w, const GreyboxData *data, const char *instanc
     w->n_outputs = n[1];
     w->n_parts = n[4];
     if (part_sections(data, w->n_parts, n[5], &s, message, size) != 0) return -1;
-    t.part = copy_section(w, s.part);
-    t.columns = copy_section(w, s.columns);
-    t.bound = copy_section(w, s.bound);
-    t.param_vr = copy_section(w, s.param_vr);
-    t.param_value = copy_section(w, s.param_value);
-    t.term_int = copy_section(w, s.term_int);
-    t.term_real = copy_section(w, s.term_real);
-    t.channels = copy_section(w, s.channels);
-    t.input_vr = copy_section(w, s.input_vr);
+    t.part = data_copy(s.part, w->allocate);
+    t.columns = data_copy(s.columns, w->allocate);
+    t.bound = data_copy(s.bound, w->allocate);
+    t.param_vr = data_copy(s.param_vr, w->allocate);
+    t.param_value = data_copy(s.param_value, w->allocate);
+    t.term_int = data_copy(s.term_int, w->allocate);
+    t.term_real = data_copy(s.term_real, w->allocate);
+    t.channels = data_copy(s.channels, w->allocate);
+    t.input_vr = data_copy(s.input_vr, w->allocate);
     w->parts = table_of(w, w->n_parts, sizeof(WbPart));
     w->input_vr = table_of(w, w->n_inputs, sizeof(fmi2ValueReference));
     w->tables = w->allocate(1, sizeof t);
