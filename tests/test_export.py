@@ -447,6 +447,25 @@ def test_absurd_input_messages_name_the_input_and_its_domain(
     assert "load_force = nan" in refusal and "not a finite number" in refusal
 
 
+def test_absurd_inputs_at_initialisation_are_refused(
+    greybox_fmu: Path, validation: Recording
+) -> None:
+    """Native: fmi2ExitInitializationMode answers fmi2Error; Python: the slave records the
+    refusal there (pythonfmu answers fmi2OK) and refuses every step with it."""
+    u = input_rows(validation)[0].copy()
+    u[INPUTS.index("load_force")] = 1e30
+    start = dict(zip(INPUTS, u, strict=True))
+    with open_fmu(greybox_fmu) as archive, pytest.raises(FmuError) as caught:
+        instance = FmuInstance(archive, inputs=INPUTS, outputs=["ram_position"], start_values=start)
+        try:
+            instance.step(u, float(validation.dt))
+        finally:
+            instance.close()
+    call = {"native": "fmi2ExitInitializationMode", "python": "fmi2DoStep"}
+    assert caught.value.call == call[runtime_of(greybox_fmu)]
+    assert "load_force = 1e+30" in str(caught.value) and "input domain" in str(caught.value)
+
+
 def tampered(fmu: Path, member: str, change, folder: Path) -> Path:
     """A copy of an FMU with one member's bytes passed through ``change``."""
     copy = folder / "tampered.fmu"
