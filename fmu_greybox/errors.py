@@ -117,3 +117,7 @@ class ExportError(FmuGreyboxError):
 
 class BenchError(FmuGreyboxError):
     """A bench (SSP system structure) cannot be built or co-simulated as asked."""
+
+
+class ClusterError(FmuGreyboxError):
+    """A Dask cluster cannot be reached or started as asked (the message says which address)."""

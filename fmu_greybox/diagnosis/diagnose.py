@@ -35,7 +35,7 @@ from fmu_greybox.diagnosis.findings import (
 )
 from fmu_greybox.diagnosis.hypotheses import DataScales, generate_hypotheses
 from fmu_greybox.diagnosis.locate import Locator, regime_signals
-from fmu_greybox.diagnosis.runner import Experiment, Simulator
+from fmu_greybox.diagnosis.runner import Experiment, SimulationCluster, Simulator
 from fmu_greybox.diagnosis.select import ForwardSelection
 from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.errors import ConfigError
@@ -83,6 +83,9 @@ class Diagnosis:
         Settings of the grey-box trained on top of the named terms; ``None`` skips it.
     progress : callable, optional
         Called with a short message at each step.
+    cluster : SimulationCluster, optional
+        Run the hypothesis simulations on this cluster's workers instead of ``workers`` local
+        processes (``diagnose --scheduler``).
 
     Attributes
     ----------
@@ -116,6 +119,7 @@ class Diagnosis:
         max_findings: int = 5,
         greybox: GreyBoxSettings | None = GreyBoxSettings(),
         progress: Progress | None = None,
+        cluster: SimulationCluster | None = None,
     ) -> None:
         self.config = config
         self.workers = workers
@@ -123,6 +127,7 @@ class Diagnosis:
         self.max_findings = max_findings
         self.greybox = greybox
         self.progress = progress or (lambda message: None)
+        self.cluster = cluster
 
     # ------------------------------------------------------------------ fit
     def fit(self, recording: Recording) -> Diagnosis:
@@ -200,7 +205,7 @@ class Diagnosis:
         scales = data_scales(archive, signals, experiment, self.screen_rows)
         self.hypotheses_ = generate_hypotheses(signals, archive, scales, experiment.parameters)
         self.progress(f"testing {len(self.hypotheses_)} hypotheses")
-        with Simulator(experiment, self.workers) as simulator:
+        with Simulator(experiment, self.workers, self.cluster) as simulator:
             selection = ForwardSelection(
                 screen_rows=self.screen_rows, max_findings=self.max_findings
             ).fit(simulator, self.hypotheses_)
