@@ -9,7 +9,7 @@ scheduler hands it to every worker, including workers that join later, and calls
 ``teardown`` when it is unregistered):
 
 * :class:`FmuOnWorkers`: the white-box FMU's bytes, written into the worker's local directory
-  as ``fmu-greybox/SHA256.fmu`` (a campaign's tasks then open it from there);
+  as ``fmu-greybox/SHA256.fmu`` unless already there (a campaign's tasks open it from there);
 * :class:`ExperimentOnWorkers`: one diagnosis' experiment (the FMU's bytes and the recorded
   arrays), opened on the worker and kept under a key for the simulation tasks of that
   diagnosis (:class:`DaskSimulations`, the :class:`~fmu_greybox.diagnosis.runner.SimulationCluster`
@@ -119,10 +119,8 @@ class FmuBlob:
         return cls(hashlib.sha256(data).hexdigest(), data)
 
     def on_worker(self, directory: str | Path) -> Path:
-        """This FMU as a file in a worker's local ``directory``, written on first use."""
-        path = _FMU_FILES.get(self.sha256)
-        if path is not None and path.is_file():
-            return path
+        """This FMU as a file in a worker's local ``directory``, written on first use (the
+        file is named by its content, so campaigns and diagnoses that follow reuse it)."""
         path = Path(directory) / "fmu-greybox" / f"{self.sha256}.fmu"
         if not path.is_file():
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -163,11 +161,6 @@ class FmuOnWorkers(WorkerPlugin):
 
     def setup(self, worker) -> None:
         self.blob.on_worker(worker.local_directory)
-
-    def teardown(self, worker) -> None:
-        path = _FMU_FILES.pop(self.blob.sha256, None)
-        if path is not None:
-            path.unlink(missing_ok=True)
 
 
 class ExperimentOnWorkers(WorkerPlugin):

@@ -63,8 +63,9 @@ def trend_figure(trend: dict, labels: list[str]) -> plt.Figure:
     high = np.array([(trend["ci95"][i] or [v, v])[1] for i, v in zip(named, y, strict=True)])
     ax.errorbar(named, y, yerr=[y - low, high - y], fmt="o", capsize=4, color="tab:blue")
     if trend["slope"] is not None:
-        line = trend["intercept"] + trend["slope"] * np.arange(n)
-        ax.plot(np.arange(n), line, "--", color="tab:red", lw=1, label="weighted slope")
+        span = np.array([min(named), max(named)], dtype=float)
+        line = trend["intercept"] + trend["slope"] * span
+        ax.plot(span, line, "--", color="tab:red", lw=1, label="weighted slope")
         ax.legend(loc="best", fontsize=8)
     ax.set_xticks(range(n), labels, rotation=30 if n > 6 else 0, ha="right" if n > 6 else "center")
     ax.set_xlim(-0.5, n - 0.5)
