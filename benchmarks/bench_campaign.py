@@ -133,7 +133,7 @@ def main() -> None:
         folder = Path(tmp)
         files = recordings(folder, args.recordings, args.duration)
         peer = serial(files)
-        one, payload, stats1 = campaign(files, folder / "one", 1)
+        one, _, _ = campaign(files, folder / "one", 1)
         two, payload, stats2 = campaign(files, folder / "two", 2)
         diagnosis = one_diagnosis(files[0])
         config = load_config(CONFIG)
