@@ -14,6 +14,7 @@ import sys
 import time
 from pathlib import Path
 
+import dask
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -254,18 +255,19 @@ def test_one_diagnosis_runs_its_simulations_on_the_cluster(
 
 
 def test_an_unreachable_scheduler_is_a_clear_error(tmp_path) -> None:
-    result = CliRunner().invoke(
-        main,
-        [
-            "campaign",
-            str(ACTUATOR),
-            str(tmp_path / "x.csv"),
-            "--out",
-            str(tmp_path),
-            "--scheduler",
-            "tcp://127.0.0.1:9",
-        ],
-    )
+    with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
+        result = CliRunner().invoke(
+            main,
+            [
+                "campaign",
+                str(ACTUATOR),
+                str(tmp_path / "x.csv"),
+                "--out",
+                str(tmp_path),
+                "--scheduler",
+                "tcp://127.0.0.1:9",
+            ],
+        )
     assert result.exit_code == 1
     assert "cannot reach a Dask scheduler at 'tcp://127.0.0.1:9'" in result.output
     assert "Traceback" not in result.output
@@ -296,7 +298,8 @@ def test_drift_test_flags_change_and_keeps_its_false_alarm_rate() -> None:
     assert test.slope_ci95[0] < 25.0 < test.slope_ci95[1]
     # the weighted slope of exact data on a line is the line's
     exact = drift_test([1.0, 3.0, 5.0], [[0.0, 2.0], [2.5, 3.5], [4.0, 6.0]])
-    assert (exact.slope, exact.intercept, exact.chi2) == pytest.approx((2.0, 1.0, 0.0))
+    # chi-square about the weighted mean 3: (1 - 3)^2 / sigma^2 twice, sigma = 1 / Z95
+    assert (exact.slope, exact.intercept, exact.chi2) == pytest.approx((2.0, 1.0, 8 * Z95**2))
     # too few recordings with an interval: the data cannot decide
     single = drift_test([1.0, None, 2.0], [[0.5, 1.5], None, None])
     assert single.drift is None and single.slope is None

@@ -32,7 +32,9 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+import dask
 import numpy as np
+from dask.utils import parse_timedelta
 from distributed import Client, LocalCluster
 from distributed.diagnostics.plugin import WorkerPlugin
 
@@ -40,9 +42,6 @@ from fmu_greybox.atomic import atomic_write
 from fmu_greybox.diagnosis.runner import Experiment, SimulationTask
 from fmu_greybox.errors import ClusterError
 from fmu_greybox.fmi.archive import open_fmu
-
-#: Seconds to wait for a scheduler to answer, and for its first worker.
-CONNECT_TIMEOUT = 30
 
 #: Per worker process: FMU files by SHA-256, experiments by key, counters.
 _FMU_FILES: dict[str, Path] = {}
@@ -65,7 +64,8 @@ def connect(scheduler: str | None = None, workers: int = 2) -> Iterator[Client]:
     Raises
     ------
     ClusterError
-        If the scheduler does not answer, or has no worker, within :data:`CONNECT_TIMEOUT` s.
+        If the scheduler does not answer, or has no worker, within Dask's connect time-out
+        (``distributed.comm.timeouts.connect`` in the Dask configuration, 30 s by default).
     """
     if scheduler is None:
         with (
@@ -80,8 +80,9 @@ def connect(scheduler: str | None = None, workers: int = 2) -> Iterator[Client]:
         ):
             yield client
         return
+    timeout = parse_timedelta(dask.config.get("distributed.comm.timeouts.connect"))
     try:
-        client = Client(scheduler, timeout=CONNECT_TIMEOUT)
+        client = Client(scheduler, timeout=timeout)
     except (OSError, TimeoutError, ValueError) as exc:
         raise ClusterError(
             f"cannot reach a Dask scheduler at {scheduler!r} ({exc}); start one with "
@@ -90,10 +91,10 @@ def connect(scheduler: str | None = None, workers: int = 2) -> Iterator[Client]:
         ) from None
     with client:
         try:
-            client.wait_for_workers(1, timeout=CONNECT_TIMEOUT)
+            client.wait_for_workers(1, timeout=timeout)
         except TimeoutError:
             raise ClusterError(
-                f"the Dask scheduler at {scheduler} has no worker after {CONNECT_TIMEOUT} s; "
+                f"the Dask scheduler at {scheduler} has no worker after {timeout:g} s; "
                 f"start some with 'dask worker {scheduler}'"
             ) from None
         yield client
