@@ -134,15 +134,33 @@ def folder_name(source: str, sha256: str) -> str:
     return f"{stem}-{sha256[:12]}"
 
 
-def reusable(out_dir: Path, sha256: str, key: str) -> tuple[str, dict] | None:
+def earlier_diagnoses(out_dir: Path) -> dict[str, list[Path]]:
+    """The ``diagnosis.json`` files of an earlier run, by the first 12 digits of their
+    recording's SHA-256 (read from the folder names once, not per recording)."""
+    found: dict[str, list[Path]] = {}
+    for path in sorted((out_dir / RECORDINGS).glob("*-*/diagnosis.json")):
+        found.setdefault(path.parent.name.rsplit("-", 1)[1], []).append(path)
+    return found
+
+
+def reusable(earlier: dict[str, list[Path]], sha256: str, key: str) -> tuple[str, dict] | None:
     """An earlier diagnosis of this recording content under this key, if there is one.
+
+    Parameters
+    ----------
+    earlier : dict
+        :func:`earlier_diagnoses` of the campaign folder.
+    sha256 : str
+        The recording's :meth:`Recording.sha256`.
+    key : str
+        :func:`campaign_key` of this run.
 
     Returns
     -------
     (str, dict) or None
-        Its folder (relative to ``out_dir``) and its ``diagnosis.json``.
+        Its folder (relative to the campaign folder) and its ``diagnosis.json``.
     """
-    for path in sorted((out_dir / RECORDINGS).glob(f"*-{sha256[:12]}/diagnosis.json")):
+    for path in earlier.get(sha256[:12], []):
         try:
             payload = json.loads(path.read_text(encoding="utf-8"))
         except (OSError, ValueError):
@@ -196,6 +214,7 @@ def run_campaign(
     key = campaign_key(config, blob, greybox)
     task = RecordingTask(config, blob.sha256, str(fmu_path), greybox)
     outcomes = [RecordingOutcome(i, str(p)) for i, p in enumerate(recordings)]
+    earlier = earlier_diagnoses(out)
     report = _Reporter(len(outcomes), progress)
     plugin = FmuOnWorkers(blob)
     client.register_plugin(plugin)
@@ -204,7 +223,7 @@ def run_campaign(
         running = as_completed()
         limit = in_flight(client)
         for outcome in outcomes:
-            future = _submit(client, task, config, outcome, out, key)
+            future = _submit(client, task, config, outcome, (earlier, key))
             if future is None:
                 report(outcome)
                 continue
@@ -242,10 +261,10 @@ def _submit(
     task: RecordingTask,
     config: ProjectConfig,
     outcome: RecordingOutcome,
-    out: Path,
-    key: str,
+    resume: tuple[dict[str, list[Path]], str],
 ):
-    """Read a recording; reuse its earlier diagnosis, or submit it. ``None`` when done here."""
+    """Read a recording; reuse its earlier diagnosis (``resume``: :func:`earlier_diagnoses`
+    and the campaign key), or submit it. ``None`` when done here."""
     try:
         recording = load_project_recording(config, outcome.source)
     except FmuGreyboxError as exc:
@@ -253,9 +272,10 @@ def _submit(
         return None
     outcome.sha256 = recording.sha256()
     outcome.start_time = recording.metadata.get("time_origin")
-    earlier = reusable(out, outcome.sha256, key)
-    if earlier is not None:
-        outcome.folder, outcome.payload = earlier
+    earlier, key = resume
+    found = reusable(earlier, outcome.sha256, key)
+    if found is not None:
+        outcome.folder, outcome.payload = found
         outcome.status = "reused"
         return None
     outcome.folder = f"{RECORDINGS}/{folder_name(outcome.source, outcome.sha256)}"
