@@ -7,7 +7,8 @@ per recording, seed per recording) is run three ways in the same run on the same
 * the campaign on a local Dask cluster of 1 worker process, then of 2 (a fresh output folder
   each time, so nothing is reused).
 
-Then one ``diagnose --scheduler`` on the 2-worker cluster against the local two-process pool
+The client's own work per recording (read and hash) is timed alone. Then one
+``diagnose --scheduler`` on the 2-worker cluster against the local two-process pool
 (``--workers 2``), on the first recording. Data movement is measured, not estimated: the pickled
 size of what each task and each worker receive, of what each task returns, and the counters
 each worker keeps (:func:`fmu_greybox.campaign.cluster.worker_stats`: FMU files written,
@@ -75,6 +76,15 @@ def serial(files: list[Path]) -> float:
     for path in files:
         Diagnosis(config, workers=1, greybox=None).fit(load_project_recording(config, path))
     return time.perf_counter() - started
+
+
+def client_reading(files: list[Path]) -> float:
+    """What the client does per recording before submitting it: read and hash [s]."""
+    config = load_config(CONFIG)
+    started = time.perf_counter()
+    for path in files:
+        load_project_recording(config, path).sha256()
+    return (time.perf_counter() - started) / len(files)
 
 
 def campaign(files: list[Path], folder: Path, workers: int) -> tuple[float, dict, dict]:
@@ -150,6 +160,7 @@ def main() -> None:
             "overhead_1_worker_over_serial": round(one / peer, 2),
             "fmu_bytes_per_worker": len(FmuBlob.read(whitebox_path(config)).data),
             "fmu_files_written_per_worker": [s["fmu_files_written"] for s in stats2.values()],
+            "client_read_seconds_per_recording": round(client_reading(files), 3),
             "recording_bytes_per_task": len(pickle.dumps(recording)),
             "result_bytes_per_task": len(json.dumps(result)) + len(html),
             "worker_peak_rss_mb": round(max(s["peak_rss"] for s in stats2.values()) / 2**20),
