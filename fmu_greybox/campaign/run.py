@@ -214,25 +214,10 @@ def run_campaign(
     key = campaign_key(config, blob, greybox)
     task = RecordingTask(config, blob.sha256, str(fmu_path), greybox)
     outcomes = [RecordingOutcome(i, str(p)) for i, p in enumerate(recordings)]
-    earlier = earlier_diagnoses(out)
-    report = _Reporter(len(outcomes), progress)
     plugin = FmuOnWorkers(blob)
     client.register_plugin(plugin)
     try:
-        waiting: dict[str, RecordingOutcome] = {}
-        running = as_completed()
-        limit = in_flight(client)
-        for outcome in outcomes:
-            future = _submit(client, task, config, outcome, (earlier, key))
-            if future is None:
-                report(outcome)
-                continue
-            waiting[future.key] = outcome
-            running.add(future)
-            while running.count() >= limit:
-                _collect(next(running), waiting, out, key, report)
-        for future in running:
-            _collect(future, waiting, out, key, report)
+        _Submissions(client, task, out, key, progress).run(outcomes)
     finally:
         client.unregister_worker_plugin(plugin.name)
     payload = campaign_payload(config, str(fmu_path), blob, key, outcomes, client)
@@ -242,63 +227,90 @@ def run_campaign(
     return payload
 
 
-class _Reporter:
-    """Counts finished recordings and tells the progress callback."""
+class _Submissions:
+    """The recordings of one run on the cluster: read, reused or submitted, collected as they
+    finish (at most :func:`in_flight` at a time), each reported once.
 
-    def __init__(self, total: int, progress: Progress | None) -> None:
-        self.total = total
-        self.done = 0
+    Parameters
+    ----------
+    client : distributed.Client
+    task : RecordingTask
+    out : Path
+        The campaign folder.
+    key : str
+        :func:`campaign_key` of this run.
+    progress : callable or None
+    """
+
+    def __init__(
+        self, client: Client, task: RecordingTask, out: Path, key: str, progress: Progress | None
+    ) -> None:
+        self.client, self.task, self.out, self.key = client, task, out, key
         self.progress = progress
+        self.earlier = earlier_diagnoses(out)
+        self.waiting: dict[str, RecordingOutcome] = {}
+        self.done = 0
+        self.total = 0
 
-    def __call__(self, outcome: RecordingOutcome) -> None:
+    def run(self, outcomes: list[RecordingOutcome]) -> None:
+        """Fill every outcome in."""
+        self.total = len(outcomes)
+        running = as_completed()
+        limit = in_flight(self.client)
+        for outcome in outcomes:
+            future = self.submit(outcome)
+            if future is None:
+                self.report(outcome)
+                continue
+            self.waiting[future.key] = outcome
+            running.add(future)
+            while running.count() >= limit:
+                self.collect(next(running))
+        for future in running:
+            self.collect(future)
+
+    def submit(self, outcome: RecordingOutcome):
+        """Read a recording; reuse its earlier diagnosis, or submit it (its future; ``None``
+        when it is done here)."""
+        try:
+            recording = load_project_recording(self.task.config, outcome.source)
+        except FmuGreyboxError as exc:
+            outcome.error = str(exc)
+            return None
+        outcome.sha256 = recording.sha256()
+        outcome.start_time = recording.metadata.get("time_origin")
+        found = reusable(self.earlier, outcome.sha256, self.key)
+        if found is not None:
+            outcome.folder, outcome.payload = found
+            outcome.status = "reused"
+            return None
+        name = folder_name(outcome.source, outcome.sha256)
+        outcome.folder = f"{RECORDINGS}/{name}"
+        shipped = self.client.scatter(recording, hash=False)
+        key = f"fmu-greybox-diagnose-{name}-{uuid.uuid4().hex[:8]}"
+        return self.client.submit(self.task, shipped, key=key, pure=False)
+
+    def collect(self, future) -> None:
+        """Write a finished recording's results (or note its error) and report it."""
+        outcome = self.waiting.pop(future.key)
+        try:
+            result = future.result()
+        except Exception as exc:  # any error of one recording is reported; the others go on
+            outcome.error = str(exc) if isinstance(exc, FmuGreyboxError) else repr(exc)
+            outcome.folder = None
+        else:
+            payload = {**result["payload"], "campaign_key": self.key}
+            write_report_files(payload, result["html"], self.out / outcome.folder)
+            outcome.payload, outcome.status = payload, "diagnosed"
+            outcome.seconds, outcome.worker = result["seconds"], result["worker"]
+        future.release()
+        self.report(outcome)
+
+    def report(self, outcome: RecordingOutcome) -> None:
+        """Count a finished recording and tell the progress callback."""
         self.done += 1
         if self.progress is not None:
             self.progress(outcome, self.done, self.total)
-
-
-def _submit(
-    client: Client,
-    task: RecordingTask,
-    config: ProjectConfig,
-    outcome: RecordingOutcome,
-    resume: tuple[dict[str, list[Path]], str],
-):
-    """Read a recording; reuse its earlier diagnosis (``resume``: :func:`earlier_diagnoses`
-    and the campaign key), or submit it. ``None`` when done here."""
-    try:
-        recording = load_project_recording(config, outcome.source)
-    except FmuGreyboxError as exc:
-        outcome.error = str(exc)
-        return None
-    outcome.sha256 = recording.sha256()
-    outcome.start_time = recording.metadata.get("time_origin")
-    earlier, key = resume
-    found = reusable(earlier, outcome.sha256, key)
-    if found is not None:
-        outcome.folder, outcome.payload = found
-        outcome.status = "reused"
-        return None
-    outcome.folder = f"{RECORDINGS}/{folder_name(outcome.source, outcome.sha256)}"
-    shipped = client.scatter(recording, hash=False)
-    name = f"fmu-greybox-diagnose-{outcome.folder.split('/')[-1]}-{uuid.uuid4().hex[:8]}"
-    return client.submit(task, shipped, key=name, pure=False)
-
-
-def _collect(future, waiting: dict, out: Path, key: str, report: _Reporter) -> None:
-    """Write a finished recording's results (or note its error) and report it."""
-    outcome = waiting.pop(future.key)
-    try:
-        result = future.result()
-    except Exception as exc:  # any error of one recording is reported; the others go on
-        outcome.error = str(exc) if isinstance(exc, FmuGreyboxError) else repr(exc)
-        outcome.folder = None
-    else:
-        payload = {**result["payload"], "campaign_key": key}
-        write_report_files(payload, result["html"], out / outcome.folder)
-        outcome.payload, outcome.status = payload, "diagnosed"
-        outcome.seconds, outcome.worker = result["seconds"], result["worker"]
-    future.release()
-    report(outcome)
 
 
 def campaign_order(outcomes: Sequence[RecordingOutcome]) -> tuple[list[RecordingOutcome], str]:
