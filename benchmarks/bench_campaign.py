@@ -21,7 +21,6 @@ Usage: ``.venv/bin/python benchmarks/bench_campaign.py [--recordings N] [--durat
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import pickle
 import sys
@@ -112,12 +111,7 @@ def one_diagnosis(path: Path) -> dict:
         cluster_seconds = time.perf_counter() - started
         stats = client.run(worker_stats)
     experiment = remote.experiment_
-    fields = {
-        f.name: getattr(experiment, f.name)
-        for f in dataclasses.fields(experiment)
-        if f.name not in ("archive", "_cache")
-    }
-    plugin = ExperimentOnWorkers("key", FmuBlob.read(experiment.archive.path), fields)
+    plugin = ExperimentOnWorkers.of(experiment, "key")
     terms = remote.findings_[0].details["terms"]
     return {
         "pool_seconds": round(pool_seconds, 1),

@@ -67,48 +67,17 @@ def dask_cluster(tmp_path_factory):
     scheduler_file = folder / "scheduler.json"
     started = []
     try:
-        started.append(
-            _start(
-                [
-                    DASK,
-                    "scheduler",
-                    "--host",
-                    "127.0.0.1",
-                    "--port",
-                    "0",
-                    "--no-dashboard",
-                    "--scheduler-file",
-                    scheduler_file,
-                ],
-                folder / "scheduler.log",
-            )
-        )
+        options = "--host 127.0.0.1 --no-dashboard".split()
+        scheduler = ["scheduler", *options, "--port", "0", "--scheduler-file", scheduler_file]
+        started.append(_start([DASK, *scheduler], folder / "scheduler.log"))
         deadline = time.monotonic() + 60
         while not scheduler_file.is_file() and time.monotonic() < deadline:
             time.sleep(0.2)
         address = json.loads(scheduler_file.read_text())["address"]
         for i in range(2):
-            started.append(
-                _start(
-                    [
-                        DASK,
-                        "worker",
-                        address,
-                        "--nworkers",
-                        "1",
-                        "--nthreads",
-                        "1",
-                        "--host",
-                        "127.0.0.1",
-                        "--no-dashboard",
-                        "--name",
-                        f"w{i}",
-                        "--local-directory",
-                        folder / f"w{i}",
-                    ],
-                    folder / f"worker{i}.log",
-                )
-            )
+            worker = ["worker", address, *options, "--nworkers", "1", "--nthreads", "1"]
+            worker += ["--name", f"w{i}", "--local-directory", folder / f"w{i}"]
+            started.append(_start([DASK, *worker], folder / f"worker{i}.log"))
         with Client(address, timeout=60) as client:
             client.wait_for_workers(2, timeout=120)
             workers = sorted(client.nthreads())

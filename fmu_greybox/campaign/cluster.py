@@ -193,6 +193,16 @@ class ExperimentOnWorkers(WorkerPlugin):
         if experiment is not None:
             experiment.archive.close()
 
+    @classmethod
+    def of(cls, experiment: Experiment, key: str) -> ExperimentOnWorkers:
+        """The placement of an experiment opened here: its FMU file's bytes, its fields."""
+        fields = {
+            f.name: getattr(experiment, f.name)
+            for f in dataclasses.fields(experiment)
+            if f.name not in ("archive", "_cache")
+        }
+        return cls(key, FmuBlob.read(experiment.archive.path), fields)
+
 
 def _simulate_placed(key: str, terms: list, rows: int) -> np.ndarray | None:
     """A simulation task on a worker: the experiment placed under ``key``."""
@@ -206,13 +216,7 @@ class PlacedOnDask:
     def __init__(self, client: Client, experiment: Experiment) -> None:
         self.client = client
         self.key = f"fmu-greybox-experiment-{uuid.uuid4().hex}"
-        fields = {
-            f.name: getattr(experiment, f.name)
-            for f in dataclasses.fields(experiment)
-            if f.name not in ("archive", "_cache")
-        }
-        blob = FmuBlob.read(experiment.archive.path)
-        client.register_plugin(ExperimentOnWorkers(self.key, blob, fields))
+        client.register_plugin(ExperimentOnWorkers.of(experiment, self.key))
 
     def run(self, tasks: list[SimulationTask]) -> list[np.ndarray | None]:
         """Simulate every task on the cluster (results in the order of ``tasks``)."""
