@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import csv
 import decimal
-import difflib
 import hashlib
 import json
+import logging
 import math
 import numbers
 import os
@@ -34,7 +34,9 @@ import numpy as np
 import pandas as pd
 
 from fmu_greybox.atomic import atomic_write
-from fmu_greybox.errors import RecordingError
+from fmu_greybox.errors import RecordingError, UnitMismatchError
+from fmu_greybox.suggest import did_you_mean
+from fmu_greybox.units import UnitSyntaxError, conversion, normalise_unit, units_compatible
 
 __all__ = [
     "SAVE_FORMATS",
@@ -71,13 +73,13 @@ _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 _HEADER_UNIT = re.compile(r"^(?P<name>.*?\S)\s*\[(?P<unit>[^\[\]]*)\]$")
 _PANDAS_INDEX = re.compile(r"^__index_level_\d+__$")
 _DECIMAL_COMMA = re.compile(r"^\s*[-+]?\d+,\d+\s*$")
-_TIME_SCALES = {"": 1.0, "s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9, "min": 60.0, "h": 3600.0}
 _RESAMPLE_HINT = (
     "load with resample=DT (CLI: --resample DT; project file: resample under [recording]) to "
     "interpolate onto a uniform grid"
 )
 _TIME_NAMES = {"t", "tout", "time_s", "timestamp", "times", "zeit", "temps"}
 _TIME_COLUMN_HINT = "time_column='NAME' (project file: time_column under [recording])"
+_log = logging.getLogger(__name__)
 
 
 # --------------------------------------------------------------------------------------------
@@ -106,27 +108,6 @@ def _at(rows: _Rows | None, row: int) -> str:
 # --------------------------------------------------------------------------------------------
 
 
-def _closest(name: Any, candidates: Iterable[str]) -> list[str]:
-    """Up to three candidates that look like ``name`` (case-insensitive), best first."""
-    name = str(name)
-    by_lower: dict[str, str] = {}
-    for candidate in candidates:
-        by_lower.setdefault(candidate.lower(), candidate)
-    if name.lower() in by_lower:
-        return [by_lower[name.lower()]]
-    hits = difflib.get_close_matches(name.lower(), list(by_lower), n=3, cutoff=0.6)
-    return [by_lower[hit] for hit in hits]
-
-
-def _did_you_mean(name: str, candidates: Iterable[str], likely: Iterable[str] = ()) -> str:
-    """``"; did you mean 'x'? "`` or ``"; "``, to be followed by the rest of a sentence.
-
-    ``likely`` are fallback suggestions when no candidate looks like ``name``.
-    """
-    hits = _closest(name, candidates) or list(likely)
-    return "; did you mean " + " or ".join(repr(h) for h in hits) + "? " if hits else "; "
-
-
 def _listing(names: Iterable[str], limit: int = 20) -> str:
     """``'a', 'b', ... (and 7 more)`` for an error message."""
     names = list(names)
@@ -140,15 +121,14 @@ def _not_found(missing: list[str], available: list[str], what: str, context: str
     needed = f" (needed by {context})" if context else ""
     if len(missing) == 1:
         name = missing[0]
-        head = f"{what} {name!r} not found{needed}{_did_you_mean(name, available)}"
-        return f"{head}available: {_listing(available)}"
+        head = f"{what} {name!r} not found{needed}{did_you_mean(name, available)}"
+        return f"{head} (available: {_listing(available)})"
     parts = []
     for name in missing:
-        hits = _closest(name, available)
-        hint = " (did you mean " + " or ".join(repr(h) for h in hits) + "?)" if hits else ""
-        parts.append(f"{name!r}{hint}")
+        hint = did_you_mean(name, available)
+        parts.append(f"{name!r} ({hint[2:]})" if hint else repr(name))
     head = f"{len(missing)} {what}s not found{needed}: " + ", ".join(parts)
-    return f"{head}; available: {_listing(available)}"
+    return f"{head} (available: {_listing(available)})"
 
 
 def _check_names(names: Iterable[Any], path: str | None) -> None:
@@ -303,17 +283,18 @@ def _float_column(values: Any, name: str, path: str | None, rows: _Rows | None) 
 
 
 def _time_scale(unit: str, name: str, path: str | None) -> float:
-    """Factor converting the time column's unit to seconds."""
-    key = normalise_unit(unit)
-    if key not in _TIME_SCALES:
-        known = ", ".join(k for k in _TIME_SCALES if k)
+    """Factor converting the time column's unit to seconds (no unit: seconds)."""
+    if not normalise_unit(unit):
+        return 1.0
+    try:
+        return conversion(unit, "s").scale
+    except UnitSyntaxError as error:
         raise RecordingError(
-            f"time unit {unit!r} is not understood; use one of {known} "
-            "(time is converted to seconds)",
+            f"time unit {unit!r} is not a unit of time ({error}); use e.g. s, ms, us, ns, min "
+            "or h (time is converted to seconds)",
             path,
             name,
-        )
-    return _TIME_SCALES[key]
+        ) from error
 
 
 def _time_seconds(
@@ -440,7 +421,7 @@ def _check_unit_names(
         if name not in known:
             raise RecordingError(
                 f"{where} gives a unit for {name!r}, which is not a signal"
-                f"{_did_you_mean(name, known)}available: {_listing(known)}",
+                f"{did_you_mean(name, known)} (available: {_listing(known)})",
                 path,
                 name,
             )
@@ -659,6 +640,60 @@ class Recording:
         signals = {n: self.signals[n] for n in wanted}
         return self._replace(self.time, signals, {n: self.units[n] for n in wanted})
 
+    def converted(self, units: Mapping[str, str]) -> Recording:
+        """A copy with columns converted to the given units (a note for each in the log).
+
+        Parameters
+        ----------
+        units : mapping of str to str
+            Column -> the unit it is wanted in. Columns absent from the recording, without a
+            recorded unit, or wanted without a unit are left as they are.
+
+        Returns
+        -------
+        Recording
+            Converted columns carry their new unit; ``metadata["unit_conversions"]`` lists
+            what was converted (``self`` when nothing was).
+
+        Raises
+        ------
+        UnitMismatchError
+            If a recorded unit cannot be converted to the wanted one (another quantity, or a
+            unit symbol this tool does not know); the message names the file and the column.
+        """
+        signals: dict[str, np.ndarray] = {}
+        new_units: dict[str, str] = {}
+        notes = []
+        for name, wanted in units.items():
+            recorded = self.units.get(name, "")
+            if not (recorded and wanted) or units_compatible(recorded, wanted):
+                continue
+            try:
+                change = conversion(recorded, wanted)
+            except UnitSyntaxError as error:
+                raise UnitMismatchError(
+                    f"column {name!r} is recorded in {recorded!r}, which cannot be converted to "
+                    f"{wanted!r} ({error}); record it in {wanted!r} or correct its unit",
+                    path=self.source or None,
+                ) from error
+            signals[name] = self.signals[name] * change.scale + change.offset
+            new_units[name] = wanted
+            notes.append(f"{name}: {recorded} -> {wanted}")
+            _log.warning(
+                "%s: column %r converted from %r to %r (x %.9g%s)",
+                self.source or "recording",
+                name,
+                recorded,
+                wanted,
+                change.scale,
+                f" + {change.offset:.9g}" if change.offset else "",
+            )
+        if not signals:
+            return self
+        converted = self.with_signals(signals, new_units)
+        metadata = {**self.metadata, "unit_conversions": "; ".join(notes)}
+        return Recording(converted.time, converted.signals, converted.units, self.source, metadata)
+
     def with_signals(
         self, signals: Mapping[str, Any], units: Mapping[str, str] | None = None
     ) -> Recording:
@@ -792,8 +827,8 @@ def _missing_time(table: _Table, time_column: str) -> str:
     found = list(table.columns)
     likely = [name for name in found if name.lower() in _TIME_NAMES]
     return (
-        f"no time {kind} {time_column!r}{_did_you_mean(time_column, found, likely)}{kind}s found: "
-        f"{_listing(found)}. Name the time {kind} with {_TIME_COLUMN_HINT}"
+        f"no time {kind} {time_column!r}{did_you_mean(time_column, found, likely)} ({kind}s found: "
+        f"{_listing(found)}). Name the time {kind} with {_TIME_COLUMN_HINT}"
     )
 
 
@@ -1334,150 +1369,3 @@ def save_recording(recording: Recording, path: str | os.PathLike[str]) -> Path:
             str(file),
         ) from error
     return file
-
-
-# --------------------------------------------------------------------------------------------
-# Units
-# --------------------------------------------------------------------------------------------
-
-_DIMENSIONLESS = {"", "1", "-", "none", "dimensionless"}
-_SYMBOL_ALIASES = {
-    "sec": "s",
-    "secs": "s",
-    "°": "deg",
-    "degree": "deg",
-    "degrees": "deg",
-    "°C": "degC",
-    "l": "L",
-    "ohm": "Ω",
-}
-_UNICODE = str.maketrans(
-    {
-        **dict(zip("⁰¹²³⁴⁵⁶⁷⁸⁹⁻⁺", "0123456789-+", strict=True)),
-        "·": ".",
-        "⋅": ".",
-        "*": ".",
-        "×": ".",
-        "µ": "u",
-        "μ": "u",
-    }
-)
-_UNIT_TOKEN = re.compile(r"(?P<num>\d+)|(?P<op>[./^()+\-])|(?P<sym>[^\d./^()+\-]+)")
-
-
-class _UnitParser:
-    """Recursive-descent parser of unit strings into ``{symbol: power}`` (UCUM-like syntax).
-
-    ``expr := ['/'] factor (('.' | '/') factor)*``; ``factor := (symbol | '1' | '(' expr ')')
-    [['^'] [sign] digits]``. A ``/`` divides by the next factor only, as in UCUM.
-    """
-
-    def __init__(self, text: str) -> None:
-        self.tokens: list[tuple[str, str]] = []
-        for match in _UNIT_TOKEN.finditer(text):
-            kind = match.lastgroup or ""
-            self.tokens.append((kind, match[kind]))
-        self.pos = 0
-
-    def parse(self) -> dict[str, int]:
-        powers = self._expr()
-        if self.pos != len(self.tokens):
-            raise ValueError("trailing tokens")
-        return powers
-
-    def _peek(self, *ops: str) -> bool:
-        return self.pos < len(self.tokens) and self.tokens[self.pos] in [("op", o) for o in ops]
-
-    def _next(self) -> tuple[str, str]:
-        if self.pos >= len(self.tokens):
-            raise ValueError("unexpected end")
-        self.pos += 1
-        return self.tokens[self.pos - 1]
-
-    def _expr(self) -> dict[str, int]:
-        powers: dict[str, int] = {}
-        sign = -1 if self._peek("/") else 1
-        if sign < 0:
-            self._next()
-        while True:
-            for symbol, power in self._factor().items():
-                powers[symbol] = powers.get(symbol, 0) + sign * power
-            if not self._peek(".", "/"):
-                return powers
-            sign = -1 if self._next()[1] == "/" else 1
-
-    def _factor(self) -> dict[str, int]:
-        kind, value = self._next()
-        if (kind, value) == ("op", "("):
-            inner = self._expr()
-            if self._next() != ("op", ")"):
-                raise ValueError("unbalanced parenthesis")
-        elif kind == "sym":
-            inner = {_SYMBOL_ALIASES.get(value, value): 1}
-        elif (kind, value) == ("num", "1"):
-            inner = {}
-        else:
-            raise ValueError(f"unexpected {value!r}")
-        exponent = self._exponent()
-        return {symbol: power * exponent for symbol, power in inner.items()}
-
-    def _exponent(self) -> int:
-        caret = self._peek("^")
-        if caret:
-            self._next()
-        sign = -1 if self._peek("-") else 1
-        signed = self._peek("-", "+")
-        if signed:
-            self._next()
-        if self.pos < len(self.tokens) and self.tokens[self.pos][0] == "num":
-            return sign * int(self._next()[1])
-        if caret or signed:
-            raise ValueError("exponent without digits")
-        return 1
-
-
-def _format_powers(powers: dict[str, int]) -> str:
-    """Canonical text: sorted numerator joined by '.', then '/'-separated denominator."""
-    numerator = [f"{s}{p if p != 1 else ''}" for s, p in sorted(powers.items()) if p > 0]
-    denominator = [f"{s}{-p if p != -1 else ''}" for s, p in sorted(powers.items()) if p < 0]
-    if not numerator and not denominator:
-        return ""
-    return ".".join(numerator or ["1"]) + "".join("/" + d for d in denominator)
-
-
-def normalise_unit(unit: str) -> str:
-    """Canonical spelling of a unit, for comparisons only (units are stored as given).
-
-    Equivalent spellings map to one string: ``"m^3/s"``, ``"m3/s"``, ``"m³·s⁻¹"`` → ``"m3/s"``;
-    ``"N·s/m"``, ``"N*s/m"``, ``"N s/m"`` → ``"N.s/m"``; ``""``, ``"1"``, ``"-"``, ``"none"`` →
-    ``""`` (dimensionless or unknown); ``"µm"`` → ``"um"``; ``"sec"`` → ``"s"``. Symbols are
-    case-sensitive and prefixes are not converted (``"mm"`` is not ``"m"``). A string that does
-    not parse is returned stripped.
-
-    Parameters
-    ----------
-    unit : str
-
-    Returns
-    -------
-    str
-    """
-    text = unit.strip().translate(_UNICODE)
-    if text.lower() in _DIMENSIONLESS:
-        return ""
-    text = re.sub(r"\s*([./^()])\s*", r"\1", text)
-    text = re.sub(r"\s+", ".", text)
-    try:
-        return _format_powers(_UnitParser(text).parse())
-    except ValueError:
-        return text
-
-
-def units_compatible(a: str, b: str) -> bool:
-    """Whether two unit strings denote the same unit up to spelling (see :func:`normalise_unit`).
-
-    No conversion is attempted: ``units_compatible("mm", "m")`` is false. ``""`` (unknown or
-    dimensionless) matches only ``""``, ``"1"``, ``"-"``; a caller that treats an empty recorded
-    unit as *unknown* should skip the comparison.
-    """
-    return normalise_unit(a) == normalise_unit(b)

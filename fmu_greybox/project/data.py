@@ -56,12 +56,18 @@ class ProjectData:
 
 
 def load_project_recording(config: ProjectConfig, override: str | Path | None = None) -> Recording:
-    """The recording named on the command line, or else the project's default one.
+    """The recording named on the command line, or else the project's default one, in the
+    project's units.
+
+    A column recorded in another unit than its signal's (``mm`` for ``m``, ``bar`` for ``Pa``)
+    is converted, with a note in the log.
 
     Raises
     ------
     ConfigError
         If neither is given.
+    UnitMismatchError
+        If a column's unit cannot be converted to its signal's.
     """
     path = Path(override) if override is not None else config.recording
     if path is None:
@@ -70,7 +76,8 @@ def load_project_recording(config: ProjectConfig, override: str | Path | None = 
             field="recording.path",
             path=str(config.path) if config.path else None,
         )
-    return load_recording(path, time_column=config.time_column, resample=config.resample)
+    recording = load_recording(path, time_column=config.time_column, resample=config.resample)
+    return recording.converted({s.column: s.unit for s in config.signals.values()})
 
 
 def check_step(config: ProjectConfig, recording: Recording) -> None:
@@ -82,6 +89,29 @@ def check_step(config: ProjectConfig, recording: Recording) -> None:
             " or change whitebox.step",
             path=recording.source,
         )
+
+
+def check_fixed_inputs(config: ProjectConfig, recording: Recording) -> None:
+    """An FMU input the project holds constant must not be recorded as well.
+
+    Raises
+    ------
+    ConfigError
+        Naming the ``[whitebox] fixed_inputs`` entry and the column: held constant, the
+        recorded values would be silently ignored.
+    """
+    mapping = config.input_mapping()
+    for name, value in config.fixed_inputs.items():
+        column = mapping.get(name, name)
+        if column in recording.signals:
+            raise ConfigError(
+                f"FMU input {name!r} is held constant at {value:g} but {recording.source} records "
+                f"it (column {column!r}), and the recording would be ignored; remove {name!r} "
+                "from [whitebox] fixed_inputs to use the recording, or drop the column from the "
+                "recording to hold the input constant on purpose",
+                field=f"whitebox.fixed_inputs.{name}",
+                path=str(config.path) if config.path else None,
+            )
 
 
 def prepare(
@@ -116,6 +146,7 @@ def prepare(
     ProjectData
     """
     check_step(config, recording)
+    check_fixed_inputs(config, recording)
     signals = config.signals
     columns = [signals[n].column for n in chain.exo_names + chain.target_signals]
     recording.require(columns, context=f"project {config.name}")
