@@ -393,7 +393,8 @@ def test_directory_is_not_a_recording(tmp_path):
 
 def test_unsupported_extension_lists_supported(tmp_path):
     error = load_error(write(tmp_path, "r.xlsx", "x"))
-    assert "unsupported recording format '.xlsx'; supported: .csv, .mat, .parquet" in str(error)
+    supported = ".csv, .mat, .mdf, .mf4, .parquet"
+    assert f"unsupported recording format '.xlsx'; supported: {supported}" in str(error)
     assert "'(no extension)'" in str(load_error(write(tmp_path, "r", "x")))
 
 
@@ -531,11 +532,11 @@ def test_mat_errors(tmp_path):
     assert "is not a readable MATLAB file" in str(load_error(tmp_path / "junk.mat"))
 
 
-def test_mat_v73_is_detected(tmp_path):
+def test_damaged_mat_v73_is_named(tmp_path):
     header = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, HDF5 schema 1.00 .".ljust(128, b" ")
     (tmp_path / "r.mat").write_bytes(header.ljust(512, b"\0") + b"\x89HDF\r\n\x1a\n" + bytes(64))
     text = str(load_error(tmp_path / "r.mat"))
-    assert "MATLAB v7.3 (HDF5)" in text and "'-v7'" in text
+    assert "r.mat: is not a readable MATLAB v7.3 (HDF5) file" in text
 
 
 # -- saving -----------------------------------------------------------------------------------

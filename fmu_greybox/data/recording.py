@@ -6,7 +6,9 @@ and every problem is reported as a :class:`~fmu_greybox.errors.RecordingError` n
 the column and the row, with a way to mend it.
 
 Formats: CSV (header row; units from ``name [unit]`` headers or a ``FILE.units.json`` sidecar),
-Parquet (units in the schema metadata) and MATLAB ``.mat`` up to v7 (variables as signals). See
+Parquet (units in the schema metadata), MATLAB ``.mat`` v4 to v7.3 (variables as signals;
+:mod:`fmu_greybox.data.mat`) and ASAM MDF (channels with their units; :mod:`fmu_greybox.data.mdf`).
+Units other than the ones wanted are converted by :meth:`Recording.converted`. See
 ``docs/recordings.md``.
 """
 
@@ -15,16 +17,15 @@ from __future__ import annotations
 import csv
 import decimal
 import hashlib
+import io
 import json
 import logging
 import math
 import numbers
 import os
 import re
-import struct
 import unicodedata
 import warnings
-import zlib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,6 +35,8 @@ import numpy as np
 import pandas as pd
 
 from fmu_greybox.atomic import atomic_write
+from fmu_greybox.data.mat import read_mat
+from fmu_greybox.data.mdf import read_mdf
 from fmu_greybox.errors import RecordingError, UnitMismatchError
 from fmu_greybox.suggest import did_you_mean
 from fmu_greybox.units import UnitSyntaxError, conversion, normalise_unit, units_compatible
@@ -56,20 +59,13 @@ TIME = "time"
 UNIFORM_RTOL = 1e-6
 """Largest relative deviation of one time step from the median step on a uniform grid."""
 
-SUPPORTED_FORMATS = (".csv", ".mat", ".parquet")
+SUPPORTED_FORMATS = (".csv", ".mat", ".mdf", ".mf4", ".parquet")
 SAVE_FORMATS = (".csv", ".parquet")
 SIDECAR_SUFFIX = ".units.json"
 UNITS_KEY = b"fmu_greybox.units"
 METADATA_KEY = b"fmu_greybox.metadata"
 
 _MAX_UPSAMPLING = 100
-_MI_INT32, _MI_UINT32, _MI_MATRIX, _MI_COMPRESSED = 5, 6, 14, 15
-_MX_OPAQUE = 17
-_MAT5_ELEMENT_TYPES = frozenset({1, 2, 3, 4, 5, 6, 7, 9, 12, 13, 14, 16, 17, 18})
-# data parts after flags, dims and name (plus one if complex), by array class:
-# char 4, sparse 5 (row indices, column pointers, values), double 6 ... uint64 15
-_MAT5_DATA_PARTS = {4: 1, 5: 3, **dict.fromkeys(range(6, 16), 1)}
-_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 _HEADER_UNIT = re.compile(r"^(?P<name>.*?\S)\s*\[(?P<unit>[^\[\]]*)\]$")
 _PANDAS_INDEX = re.compile(r"^__index_level_\d+__$")
 _DECIMAL_COMMA = re.compile(r"^\s*[-+]?\d+,\d+\s*$")
@@ -860,11 +856,12 @@ def _assemble(table: _Table, *, time_column: str, source: str, resample: float |
     return Recording(time, signals, units, source, {**table.metadata, **notes})
 
 
-def _read_head(path: Path) -> bytes:
-    """First bytes of the file, turning any OS problem into a clear error."""
+def _read_bytes(path: Path) -> bytes:
+    """The whole file, read once (a named pipe or a stream can be read only once), turning any
+    OS problem into a clear error."""
     try:
         with path.open("rb") as handle:
-            return handle.read(1024)
+            return handle.read()
     except OSError as error:
         reason = error.strerror or str(error)
         where = "" if path.is_absolute() else f" (relative to {os.getcwd()})"
@@ -907,13 +904,9 @@ def _sniff_delimiter(line: str) -> str:
     return next((d for d in (",", ";", "\t") if d in bare), ",")
 
 
-def _csv_header(path: Path) -> tuple[str, list[str]]:
-    """Delimiter and header cells of a CSV file."""
-    try:
-        with path.open(encoding="utf-8-sig", newline="") as handle:
-            line = handle.readline()
-    except UnicodeDecodeError as error:
-        raise _not_utf8(path, error) from error
+def _csv_header(path: Path, text: str) -> tuple[str, list[str]]:
+    """Delimiter and header cells of a CSV file's text."""
+    line = io.StringIO(text, newline="").readline()
     if not line.strip():
         what = "the file is empty" if not line else "the first line is empty"
         raise RecordingError(
@@ -939,39 +932,35 @@ def _not_utf8(path: Path, error: UnicodeDecodeError) -> RecordingError:
     )
 
 
-def _first_ragged_line(path: Path, delimiter: str, width: int) -> str | None:
+def _first_ragged_line(text: str, delimiter: str, width: int) -> str | None:
     """Describe the first line whose field count differs from the header's, if any."""
-    with path.open(encoding="utf-8-sig", newline="") as handle:
-        reader = csv.reader(handle, delimiter=delimiter)
-        next(reader, None)
-        for fields in reader:
-            if fields and len(fields) > width:
-                return (
-                    f"line {reader.line_num} has {len(fields)} fields but the header has "
-                    f"{width}; remove the extra fields or name the column in the header"
-                )
+    reader = csv.reader(io.StringIO(text, newline=""), delimiter=delimiter)
+    next(reader, None)
+    for fields in reader:
+        if fields and len(fields) > width:
+            return (
+                f"line {reader.line_num} has {len(fields)} fields but the header has "
+                f"{width}; remove the extra fields or name the column in the header"
+            )
     return None
 
 
-def _csv_body(path: Path, delimiter: str, width: int) -> pd.DataFrame:
+def _csv_body(path: Path, text: str, delimiter: str, width: int) -> pd.DataFrame:
     """All data rows as a DataFrame; blank lines kept so that row r is file line r + 2."""
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error", pd.errors.ParserWarning)
             frame = pd.read_csv(
-                path,
+                io.StringIO(text, newline=""),
                 sep=delimiter,
                 header=0,
                 index_col=False,
                 skip_blank_lines=False,
                 skipinitialspace=True,
-                encoding="utf-8-sig",
                 low_memory=False,
             )
-    except UnicodeDecodeError as error:
-        raise _not_utf8(path, error) from error
     except (pd.errors.ParserError, pd.errors.ParserWarning, ValueError, csv.Error) as error:
-        raise RecordingError(_parse_failure(path, delimiter, width, error), str(path)) from error
+        raise RecordingError(_parse_failure(text, delimiter, width, error), str(path)) from error
     blank = frame.isna().all(axis=1).to_numpy()
     end = len(blank)
     while end and blank[end - 1]:
@@ -979,20 +968,24 @@ def _csv_body(path: Path, delimiter: str, width: int) -> pd.DataFrame:
     return frame.iloc[:end]
 
 
-def _parse_failure(path: Path, delimiter: str, width: int, error: Exception) -> str:
+def _parse_failure(text: str, delimiter: str, width: int, error: Exception) -> str:
     """Why pandas could not parse the file: the first over-long line if there is one."""
     try:
-        ragged = _first_ragged_line(path, delimiter, width)
-    except (csv.Error, UnicodeDecodeError, OSError):
+        ragged = _first_ragged_line(text, delimiter, width)
+    except csv.Error:
         ragged = None
     return ragged or f"cannot be parsed as CSV ({error}); check quotes and delimiters"
 
 
-def _read_csv(path: Path, head: bytes) -> _Table:
-    delimiter, cells = _csv_header(path)
+def _read_csv(path: Path, data: bytes) -> _Table:
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as error:
+        raise _not_utf8(path, error) from error
+    delimiter, cells = _csv_header(path, text)
     trailing = len(cells) > 1 and not cells[-1].strip()  # "a,b," lines from some loggers
     names, units = _header_columns(cells[:-1] if trailing else cells, str(path), "column")
-    frame = _csv_body(path, delimiter, len(cells))
+    frame = _csv_body(path, text, delimiter, len(cells))
     if trailing and not frame.iloc[:, -1].isna().all():
         raise RecordingError(
             f"column {len(cells)} holds values but has no name in the header; name it",
@@ -1038,12 +1031,12 @@ def _arrow_column(column: Any, name: str, path: Path) -> np.ndarray:
         ) from error
 
 
-def _read_parquet(path: Path, head: bytes) -> _Table:
+def _read_parquet(path: Path, data: bytes) -> _Table:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     try:
-        table = pq.read_table(path)
+        table = pq.read_table(pa.BufferReader(data))
     except (pa.ArrowException, OSError, ValueError, TypeError) as error:
         raise RecordingError(
             f"is not a readable Parquet file ({error}); re-export it, e.g. with "
@@ -1075,158 +1068,24 @@ def _field_units(schema: Any, keep: list[int], names: list[str]) -> dict[str, st
     return units
 
 
-# -- MATLAB ------------------------------------------------------------------------------------
+# -- MATLAB and MDF4: own modules, which return plain columns ---------------------------------
 
 
-def _is_hdf5(head: bytes) -> bool:
-    return head[:8] == _HDF5_SIGNATURE or head[512:520] == _HDF5_SIGNATURE
-
-
-def _mat_v73_error(path: Path) -> RecordingError:
-    return RecordingError(
-        "is a MATLAB v7.3 (HDF5) file, which cannot be read here; in MATLAB save it with "
-        "save(FILE, ..., '-v7') or export it to CSV or Parquet",
-        str(path),
-    )
-
-
-def _mat_tag(data: bytes, pos: int, end: int, order: str) -> tuple[int, int, int, int]:
-    """Decode a v5 data-element tag at ``pos``: (type, size, body start, next element start)."""
-    if pos + 8 > end:
-        raise ValueError(f"truncated element tag at byte {pos}")
-    first, second = struct.unpack_from(order + "II", data, pos)
-    if first >> 16:  # small data element: type and size share one word, data in the next
-        return first & 0xFFFF, first >> 16, pos + 4, pos + 8
-    body = pos + 8
-    if body + second > end:
-        raise ValueError(f"element at byte {pos} runs past the end of its container")
-    return first, second, body, body + second + (-second % 8)
-
-
-def _mat5_elements(data: bytes, pos: int, end: int, order: str) -> list[tuple[int, int, int]]:
-    """The (type, size, body start) of the elements that exactly fill ``data[pos:end]``."""
-    elements = []
-    while pos < end:
-        kind, size, body, pos = _mat_tag(data, pos, end, order)
-        if kind not in _MAT5_ELEMENT_TYPES:
-            raise ValueError(f"unknown data type {kind} at byte {body - 8}")
-        elements.append((kind, size, body))
-    if pos != end:
-        raise ValueError(f"element sizes do not add up to their container ending at byte {end}")
-    return elements
-
-
-def _scan_mat5_matrix(data: bytes, pos: int, end: int, order: str) -> None:
-    """Check one miMATRIX body, recursing into cells, structs and objects.
-
-    scipy reads the parts of an array one after the other without checking the array's own
-    size, so a numeric, char or sparse array must hold exactly its header (flags, dims, name)
-    and its data parts, none of them a nested array.
-    """
-    elements = _mat5_elements(data, pos, end, order)
-    if not elements:
-        return  # an empty array
-    kind, size, body = elements[0]
-    if kind != _MI_UINT32 or size < 8:
-        raise ValueError(f"array flags missing at byte {body - 8}")
-    flags = struct.unpack_from(order + "I", data, body)[0]
-    array_class, is_complex = flags & 0xFF, bool(flags & 0x800)
-    if array_class != _MX_OPAQUE:
-        kind, size, body = elements[1] if len(elements) > 1 else (0, 0, end + 8)
-        if kind not in (_MI_INT32, _MI_UINT32) or size < 8 or size % 4:
-            raise ValueError(f"array dimensions missing at byte {body - 8}")
-    parts = _MAT5_DATA_PARTS.get(array_class)
-    if parts is not None:
-        expected = 3 + parts + (1 if is_complex else 0)
-        if len(elements) != expected or any(k == _MI_MATRIX for k, _, _ in elements):
-            raise ValueError(f"array at byte {pos - 8} does not have {expected} parts")
-        return
-    for kind, size, body in elements[1:]:
-        if kind == _MI_MATRIX:
-            _scan_mat5_matrix(data, body, body + size, order)
-
-
-def _scan_mat5(data: bytes) -> None:
-    """Walk every data element of a v5/v7 MAT file before scipy reads it.
-
-    scipy's compiled reader trusts the element type codes and can crash the interpreter on a
-    damaged file (it indexes a table with them); this pure-Python walk raises ``ValueError``
-    instead.
-    """
-    order = "<" if data[126:128] == b"IM" else ">"
-    pos = 128
-    while pos < len(data):
-        kind, size, body, _ = _mat_tag(data, pos, len(data), order)
-        pos = body + size
-        if kind == _MI_COMPRESSED:
-            try:
-                inner = zlib.decompress(data[body:pos])
-            except zlib.error as error:
-                raise ValueError(f"damaged compressed element at byte {body - 8}") from error
-            kind, size, body, _ = _mat_tag(inner, 0, len(inner), order)
-            if kind != _MI_MATRIX:
-                raise ValueError(f"compressed element at byte {body - 8} holds no array")
-            _scan_mat5_matrix(inner, body, body + size, order)
-        elif kind == _MI_MATRIX:
-            _scan_mat5_matrix(data, body, pos, order)
-        else:
-            raise ValueError(f"unexpected data type {kind} at byte {body - 8}")
-
-
-def _mat_vector(value: Any) -> np.ndarray | None:
-    """A numeric vector (n,), (n, 1) or (1, n) with n >= 2 as shape (n,); else ``None``."""
-    if not isinstance(value, np.ndarray) or value.dtype.kind not in "fiubc":
-        return None
-    if value.size < 2 or value.ndim > 2 or (value.ndim == 2 and min(value.shape) != 1):
-        return None
-    return value.reshape(-1)
-
-
-def _mat_variables(content: dict[str, Any]) -> tuple[dict[str, Any], dict[str, str]]:
-    """Top-level variables, or the fields of a lone top-level struct."""
-    variables = {k: v for k, v in content.items() if not k.startswith("__")}
-    if len(variables) == 1:
-        [(name, value)] = variables.items()
-        if isinstance(value, np.ndarray) and value.dtype.names and value.size == 1:
-            record = value.reshape(-1)[0]
-            return {f: record[f] for f in value.dtype.names}, {"struct": name}
-    return variables, {}
-
-
-def _read_mat(path: Path, head: bytes) -> _Table:
-    if _is_hdf5(head):
-        raise _mat_v73_error(path)
-    from scipy.io import loadmat
-
-    try:
-        if head[126:128] in (b"IM", b"MI"):
-            _scan_mat5(path.read_bytes())
-        content = loadmat(path, squeeze_me=False, struct_as_record=True)
-    except NotImplementedError as error:
-        raise _mat_v73_error(path) from error
-    except Exception as error:  # scipy raises many types on damaged files
-        raise RecordingError(
-            f"is not a readable MATLAB file ({type(error).__name__}: {error}); save it from "
-            "MATLAB with save(FILE, ..., '-v7')",
-            str(path),
-        ) from error
-    variables, notes = _mat_variables(content)
-    columns: dict[str, Any] = {}
-    ignored = []
-    for name, value in variables.items():
-        vector = _mat_vector(value)
-        if vector is None:
-            ignored.append(name)
-        else:
-            columns[name] = vector
-    if ignored:
-        notes["ignored_variables"] = ", ".join(ignored)
+def _read_mat(path: Path, data: bytes) -> _Table:
+    columns, notes = read_mat(path, data)
     return _Table(columns, {}, notes, _Rows("MATLAB index", 1), "variable")
+
+
+def _read_mdf(path: Path, data: bytes) -> _Table:
+    columns, units, notes = read_mdf(path, data)
+    return _Table(columns, units, notes, None, "channel")
 
 
 _READERS: dict[str, Callable[[Path, bytes], _Table]] = {
     ".csv": _read_csv,
     ".mat": _read_mat,
+    ".mf4": _read_mdf,
+    ".mdf": _read_mdf,
     ".parquet": _read_parquet,
 }
 
@@ -1238,7 +1097,9 @@ def load_recording(
     resample: float | None = None,
     units: Mapping[str, str] | None = None,
 ) -> Recording:
-    """Load a recording from CSV, Parquet or MATLAB ``.mat`` (v4 to v7).
+    """Load a recording from CSV, Parquet, MATLAB ``.mat`` (v4 to v7.3) or MDF (``.mf4``).
+
+    The file is read once, so a named pipe or a stream works as a path.
 
     Parameters
     ----------
@@ -1270,7 +1131,7 @@ def load_recording(
             f"{', '.join(SUPPORTED_FORMATS)}. Export the data to one of these",
             str(file),
         )
-    table = reader(file, _read_head(file))
+    table = reader(file, _read_bytes(file))
     sidecar = _read_sidecar(file)
     _check_unit_names(sidecar, table.columns, "the units file", str(_sidecar_path(file)))
     given = _units_mapping(units or {}, "the units argument", str(file))

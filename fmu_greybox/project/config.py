@@ -419,6 +419,14 @@ def _signals(reader: _Reader, table: Mapping[str, Any]) -> dict[str, Signal]:
             role=role,
             unit=unit,
         )
+        for other in list(signals)[:-1]:
+            if signals[other].column == signals[name].column:
+                reader.fail(
+                    where + ".column",
+                    f"signals {other!r} and {name!r} both read column {signals[name].column!r}; "
+                    'a column is one signal: give one of them its own column = "..." (or '
+                    "remove one)",
+                )
     return signals
 
 

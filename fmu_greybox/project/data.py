@@ -153,7 +153,14 @@ def prepare(
     for sig in signals.values():
         if sig.column in recording.signals and sig.variable in archive.variables:
             check_unit(archive, sig.variable, recording, sig.column)
-    binding = bind_inputs(archive, recording, config.input_mapping(), config.fixed_inputs)
+    where = f"in {config.path}, " if config.path else ""
+    remedy = (
+        f"{where}give each a [signals.NAME] table whose variable is the input and whose column "
+        "is the recorded one, or hold it constant in [whitebox] fixed_inputs"
+    )
+    binding = bind_inputs(
+        archive, recording, config.input_mapping(), config.fixed_inputs, remedy=remedy
+    )
     y_wb = simulate_with_terms(
         archive,
         binding.inputs,
