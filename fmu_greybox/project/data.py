@@ -80,15 +80,42 @@ def load_project_recording(config: ProjectConfig, override: str | Path | None = 
     return recording.converted({s.column: s.unit for s in config.signals.values()})
 
 
+def check_sample_time(recording: Recording, step: float, owner: str) -> None:
+    """A recording must be sampled at the step of what it drives.
+
+    Parameters
+    ----------
+    recording : Recording
+    step : float
+        The communication step [s] it must match (to a relative 1e-6).
+    owner : str
+        Whose step it is, for the message (e.g. ``"the model (the step it was trained at)"``).
+
+    Raises
+    ------
+    RecordingError
+        With both steps and how to resample; a time column in milliseconds without a unit
+        (a step of exactly 1000 times the expected one) is pointed out.
+    """
+    if math.isclose(recording.dt, step, rel_tol=1e-6):
+        return
+    hint = ""
+    if math.isclose(recording.dt, 1000.0 * step, rel_tol=1e-3):
+        hint = (
+            " (is its time column in milliseconds? Give its unit, e.g. a header 'time [ms]', and"
+            " it is converted to seconds)"
+        )
+    raise RecordingError(
+        f"sampled every {recording.dt:g} s but {owner} runs at {step:g} s{hint}; resample the "
+        f"recording onto {step:g} s (project file: resample = {step:g} under [recording])",
+        path=recording.source,
+    )
+
+
 def check_step(config: ProjectConfig, recording: Recording) -> None:
     """The communication step must equal the recording's sample time when both are given."""
-    if config.step is not None and not math.isclose(config.step, recording.dt, rel_tol=1e-6):
-        raise RecordingError(
-            f"sample time {recording.dt:g} s differs from the project's communication step "
-            f"{config.step:g} s; resample the recording ([recording] resample = {config.step:g})"
-            " or change whitebox.step",
-            path=recording.source,
-        )
+    if config.step is not None:
+        check_sample_time(recording, config.step, "the project (whitebox.step)")
 
 
 def check_fixed_inputs(config: ProjectConfig, recording: Recording) -> None:
