@@ -9,7 +9,7 @@ attributes end in ``_``):
    roles allow (:func:`~.hypotheses.generate_hypotheses`) and keep the few the data support
    (:class:`~.select.ForwardSelection`);
 3. fold the kept terms into the white-box
-   (:func:`~fmu_greybox.model.whitebox.simulate_with_terms`) and train the grey-box correctors
+   (:func:`~fmu_greybox.model.simulate.simulate_with_terms`) and train the grey-box correctors
    (:class:`~fmu_greybox.model.chain.GreyBoxChain`) on what remains;
 4. compare white-box, white-box + named terms and grey-box on held-out rows.
 
