@@ -8,7 +8,10 @@ raster first). See ``docs/recordings.md``.
 
 from __future__ import annotations
 
+import gc
 import io
+import re
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +20,13 @@ import numpy as np
 from fmu_greybox.errors import RecordingError
 
 __all__ = ["read_mdf"]
+
+#: How asammdf names the in-memory file it was given, in its messages.
+_BUFFER = re.compile(r"'?<_io\.BytesIO object at 0x[0-9a-fA-F]+>'?")
+
+
+def _ignore(unraisable: object) -> None:
+    """Drop the complaint of asammdf's ``MDF4.__del__`` about a file it could not read."""
 
 
 def read_mdf(
@@ -49,17 +59,30 @@ def read_mdf(
     """
     from asammdf import MDF
 
-    try:
-        with MDF(io.BytesIO(data)) as mdf:
-            return _channels(path, mdf)
-    except RecordingError:
-        raise
-    except Exception as error:  # asammdf raises many types on damaged files
+    if not data.startswith(b"MDF"):
         raise RecordingError(
-            f"is not a readable MDF file ({type(error).__name__}: {error}); export it again "
-            "from the logger, or convert it to MDF 4 with asammdf",
+            "is not an MDF file (it does not start with 'MDF'); export it again from the logger",
             str(path),
-        ) from error
+        )
+    failure = ""
+    kept_hook = sys.unraisablehook
+    sys.unraisablehook = _ignore  # asammdf's __del__ fails on a half-read file
+    try:
+        try:
+            with MDF(io.BytesIO(data)) as mdf:
+                return _channels(path, mdf)
+        except RecordingError:
+            raise
+        except Exception as error:  # asammdf raises many types on damaged files
+            failure = _BUFFER.sub("the file", f"{type(error).__name__}: {error}")
+        gc.collect()  # the half-read file sits in a reference cycle: collect it here
+    finally:
+        sys.unraisablehook = kept_hook
+    raise RecordingError(
+        f"is not a readable MDF file ({failure}); export it again from the logger, or convert "
+        "it to MDF 4 with asammdf",
+        str(path),
+    )
 
 
 def _channels(path: Path, mdf: Any) -> tuple[dict[str, np.ndarray], dict[str, str], dict[str, str]]:
