@@ -407,19 +407,22 @@ def test_project_recording_in_other_units_is_converted(
 def test_unfed_input_names_the_project_fields_not_command_line_options(
     whitebox_fmu: Path, workspace: Path, model: GreyBoxModel, tmp_path: Path
 ) -> None:
-    """Before: validate suggested --map and --fix, which it does not have."""
+    """Before: validate (and train, diagnose) suggested --map and --fix, which only simulate
+    has."""
     raw = project(whitebox_fmu)
     del raw["signals"]["engage"]
     path = write_project(raw, tmp_path / "noengage.toml")
     config = parse_config(tomllib.loads(path.read_text()), path)
     full = load_recording(workspace / "rec.csv")
     recording = full.select([n for n in full.names if n != "engage"])
-    with pytest.raises(RecordingError) as info:
-        train_model(config, recording)
-    text = str(info.value)
-    assert "'engage' needs column 'engage'" in text
-    assert f"in {path}, give each a [signals.NAME] table" in text and "fixed_inputs" in text
-    assert "--map" not in text and "--fix" not in text
+    longer = shifted(recording, np.arange(1000) % recording.n_samples, "long.csv")
+    for run in (lambda: train_model(config, recording), lambda: Diagnosis(config).fit(longer)):
+        with pytest.raises(RecordingError) as info:
+            run()
+        text = str(info.value)
+        assert "'engage' needs column 'engage'" in text
+        assert f"in {path}, give each a [signals.NAME] table" in text and "fixed_inputs" in text
+        assert "--map" not in text and "--fix" not in text
 
 
 def test_two_signals_reading_one_column_are_refused(whitebox_fmu: Path) -> None:

@@ -141,6 +141,30 @@ def check_fixed_inputs(config: ProjectConfig, recording: Recording) -> None:
             )
 
 
+def bind_project_inputs(
+    config: ProjectConfig, archive: FmuArchive, recording: Recording
+) -> InputBinding:
+    """The FMU's inputs fed as the project says (its signals' columns, its constants).
+
+    Raises
+    ------
+    ConfigError
+        An input held constant is recorded as well (:func:`check_fixed_inputs`).
+    RecordingError
+        An input is neither recorded nor held constant; the message says which project fields
+        mend it (not the ``simulate`` command's options).
+    """
+    check_fixed_inputs(config, recording)
+    where = f"in {config.path}, " if config.path else ""
+    remedy = (
+        f"{where}give each a [signals.NAME] table whose variable is the input and whose column "
+        "is the recorded one, or hold it constant in [whitebox] fixed_inputs"
+    )
+    return bind_inputs(
+        archive, recording, config.input_mapping(), config.fixed_inputs, remedy=remedy
+    )
+
+
 def prepare(
     config: ProjectConfig,
     chain: GreyBoxChain,
@@ -173,21 +197,13 @@ def prepare(
     ProjectData
     """
     check_step(config, recording)
-    check_fixed_inputs(config, recording)
     signals = config.signals
     columns = [signals[n].column for n in chain.exo_names + chain.target_signals]
     recording.require(columns, context=f"project {config.name}")
     for sig in signals.values():
         if sig.column in recording.signals and sig.variable in archive.variables:
             check_unit(archive, sig.variable, recording, sig.column)
-    where = f"in {config.path}, " if config.path else ""
-    remedy = (
-        f"{where}give each a [signals.NAME] table whose variable is the input and whose column "
-        "is the recorded one, or hold it constant in [whitebox] fixed_inputs"
-    )
-    binding = bind_inputs(
-        archive, recording, config.input_mapping(), config.fixed_inputs, remedy=remedy
-    )
+    binding = bind_project_inputs(config, archive, recording)
     y_wb = simulate_with_terms(
         archive,
         binding.inputs,
