@@ -305,12 +305,15 @@ def train(
 ) -> None:
     """Train the stage correctors of a project (teacher forcing).
 
+    The --out folder is locked while training: a second run into it is refused.
+
     \b
     Examples:
       fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv --out model/
       fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv \\
           --terms diag/diagnosis.json --out model/
     """
+    from fmu_greybox.atomic import output_lock
     from fmu_greybox.model.store import save_model
     from fmu_greybox.model.whitebox import read_terms
     from fmu_greybox.project.config import load_config
@@ -318,10 +321,11 @@ def train(
     from fmu_greybox.workflow.train import train_model, with_inducing
 
     config = with_inducing(load_config(config_path), inducing)
-    recording = load_project_recording(config, recording_path)
-    terms = read_terms(terms_path) if terms_path is not None else []
-    model = train_model(config, recording, progress=not ctx.obj["quiet"], terms=terms)
-    save_model(model, out_dir)
+    with output_lock(out_dir, "--out"):
+        recording = load_project_recording(config, recording_path)
+        terms = read_terms(terms_path) if terms_path is not None else []
+        model = train_model(config, recording, progress=not ctx.obj["quiet"], terms=terms)
+        save_model(model, out_dir)
     named = f", named terms: {', '.join(t.effect for t in terms)}" if terms else ""
     _info(
         ctx,
@@ -364,6 +368,10 @@ def validate(
 ) -> None:
     """Free-run the grey-box on held-out data; write metrics.json and plots.
 
+    CONFIG must be the project the model was trained with. Rows the model was trained on are
+    recognised by their values, in any recording, and are not scored; metrics.json lists the
+    rows scored (scored_rows).
+
     \b
     Example:
       fmu-greybox validate bench_configs/hydraulic_actuator.toml --model model/ \\
@@ -374,10 +382,11 @@ def validate(
     from fmu_greybox.project.data import load_project_recording
     from fmu_greybox.report.plots import save_png, trace_figure
     from fmu_greybox.workflow.metrics import format_table
-    from fmu_greybox.workflow.validate import validate_model, write_metrics
+    from fmu_greybox.workflow.validate import check_project, validate_model, write_metrics
 
     config = load_config(config_path)
     model = load_model(model_dir)
+    check_project(config, model, model_dir)
     recording = load_project_recording(config, recording_path)
     result = validate_model(model, recording, progress=not (ctx.obj["quiet"] or as_json))
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -568,6 +577,7 @@ def export(
       fmu-greybox export model/ --out greybox.fmu
       fmu-greybox export model/ --out greybox.fmu --ssp bench.ssp --recording rec.csv
     """
+    from fmu_greybox.atomic import prepare_output
     from fmu_greybox.export.fmu import export_greybox
     from fmu_greybox.export.ssp import make_bench
     from fmu_greybox.model.store import load_model
@@ -575,6 +585,9 @@ def export(
 
     if ssp is not None and recording_path is None:
         raise click.UsageError("--ssp needs --recording (the recording the bench plays back)")
+    prepare_output(out, "--out")
+    if ssp is not None:
+        prepare_output(ssp, "--ssp")
     result = export_greybox(
         model_dir, out, author=author, version=fmu_version, ood_threshold=ood_threshold
     )

@@ -121,3 +121,8 @@ class BenchError(FmuGreyboxError):
 
 class ClusterError(FmuGreyboxError):
     """A Dask cluster cannot be reached or started as asked (the message says which address)."""
+
+
+class OutputError(FmuGreyboxError):
+    """An output cannot be written where asked: its folder cannot be made, or another run is
+    writing it."""

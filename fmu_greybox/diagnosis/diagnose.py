@@ -9,7 +9,7 @@ attributes end in ``_``):
    roles allow (:func:`~.hypotheses.generate_hypotheses`) and keep the few the data support
    (:class:`~.select.ForwardSelection`);
 3. fold the kept terms into the white-box
-   (:func:`~fmu_greybox.model.whitebox.simulate_with_terms`) and train the grey-box correctors
+   (:func:`~fmu_greybox.model.simulate.simulate_with_terms`) and train the grey-box correctors
    (:class:`~fmu_greybox.model.chain.GreyBoxChain`) on what remains;
 4. compare white-box, white-box + named terms and grey-box on held-out rows.
 
@@ -38,7 +38,7 @@ from fmu_greybox.diagnosis.locate import Locator, regime_signals
 from fmu_greybox.diagnosis.runner import Experiment, SimulationCluster, Simulator
 from fmu_greybox.diagnosis.select import ForwardSelection
 from fmu_greybox.diagnosis.signals import SignalMap
-from fmu_greybox.errors import ConfigError
+from fmu_greybox.errors import ConfigError, RecordingError
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu, real_outputs
 from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.model.simulate import simulate_with_terms
@@ -49,6 +49,9 @@ from fmu_greybox.workflow.metrics import improvement, rmse
 
 #: Largest share of a recording used for training in a diagnosis.
 MAX_TRAIN_FRACTION = 0.8
+#: Fewest rows a diagnosis runs on: its held-out part (at least the last 20 %) then has 200
+#: rows, enough for the spectra and for a finding to be tested rather than fitted to noise.
+MIN_ROWS = 1000
 
 Progress = Callable[[str], None]
 
@@ -142,11 +145,19 @@ class Diagnosis:
         ------
         ConfigError
             If no recorded signal corresponds to an FMU output (nothing to compare).
+        RecordingError
+            If the recording has fewer than :data:`MIN_ROWS` rows.
         """
         started = time.perf_counter()
         self.timings_: dict[str, float] = {}
         config = self.config
         check_step(config, recording)
+        if recording.n_samples < MIN_ROWS:
+            raise RecordingError(
+                f"holds {recording.n_samples} rows; a diagnosis needs at least {MIN_ROWS} (it "
+                "holds out the last 20 % to test what it finds). Diagnose a longer recording",
+                path=recording.source,
+            )
         self.fmu_path_ = whitebox_path(config)
         with open_fmu(self.fmu_path_) as archive:
             config.check_against_fmu(archive)

@@ -25,10 +25,10 @@ from fmu_greybox.data.recording import Recording
 from fmu_greybox.diagnosis.signals import SignalMap, noise_level
 from fmu_greybox.errors import FmuError
 from fmu_greybox.fmi.archive import FmuArchive
-from fmu_greybox.fmi.binding import bind_inputs
 from fmu_greybox.model.simulate import simulate_with_terms
 from fmu_greybox.model.terms import Term
 from fmu_greybox.project.config import ProjectConfig
+from fmu_greybox.project.data import bind_project_inputs
 
 
 @dataclass
@@ -86,7 +86,7 @@ class Experiment:
         """Arrange a recording of a project: inputs bound as the project says, every observed
         signal with its noise level (floored at 1e-6 of its RMS, for noise-free recordings).
         """
-        binding = bind_inputs(archive, recording, config.input_mapping(), config.fixed_inputs)
+        binding = bind_project_inputs(config, archive, recording)
         recorded = np.column_stack([recording[s.column] for s in signals.observed])
         sigma = np.array([noise_level(x) for x in recorded.T])
         floor = 1e-6 * np.sqrt(np.mean(recorded**2, axis=0)) + 1e-300
