@@ -7,6 +7,7 @@ once); tests taking ``bench`` run for a bench of each. Bench runs stop after abo
 
 from __future__ import annotations
 
+import tempfile
 import threading
 import zipfile
 from pathlib import Path
@@ -28,7 +29,7 @@ from test_export import (
 
 from fmu_greybox.cli import main
 from fmu_greybox.data.recording import Recording, load_recording, save_recording
-from fmu_greybox.errors import BenchError
+from fmu_greybox.errors import BenchError, RecordingError
 from fmu_greybox.export.fmu import RUNTIMES
 from fmu_greybox.export.slave import GreyBoxSlave
 from fmu_greybox.export.ssp import SSD_FILE, build_playback_fmu, make_bench, read_layout, run_bench
@@ -218,13 +219,31 @@ def test_bench_refuses_another_sample_time(
         signals={n: v[::2] for n, v in validation.signals.items()},
         units=validation.units,
     )
-    with pytest.raises(BenchError, match="resample"):
+    with pytest.raises(RecordingError, match=r"but the grey-box FMU .* runs at 0.001 s; resample"):
         make_bench(greybox_fmu, coarse, tmp_path / "b.ssp")
 
 
 def test_a_failing_fmu_stops_libcosim_cleanly(bench: Path) -> None:
     with pytest.raises(BenchError, match="failed in libcosim"):
         run_bench(bench, "libcosim", stop_time=0.01, step=0.002)  # not the trained step
+
+
+def test_a_failing_fmpy_bench_leaves_no_unpacked_fmus(
+    greybox_fmu: Path, validation: Recording, tmp_path: Path, monkeypatch
+) -> None:
+    """Before: fmpy removed the unpacked SSP and FMUs (about 5 MB) only after a run that
+    succeeded. Here the white-box fails at row 100 (an absurd valve current)."""
+    temp = tmp_path / "temp"
+    temp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))  # a temporary folder to look into
+    current = validation["valve_current"].copy()
+    current[100:] = 1e300
+    absurd = first_rows(validation, 0.3).with_signals({"valve_current": current[:301]})
+    ssp = make_bench(greybox_fmu, absurd, tmp_path / "absurd.ssp")
+    before = sorted(temp.iterdir())
+    with pytest.raises(BenchError, match="failed in fmpy"):
+        run_bench(ssp, "fmpy")
+    assert sorted(temp.iterdir()) == before
 
 
 def test_run_bench_errors_are_clear(bench: Path, tmp_path: Path) -> None:
