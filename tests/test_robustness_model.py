@@ -294,12 +294,16 @@ def test_manifest_that_is_not_an_object(saved: Path, tmp_path: Path) -> None:
 def test_a_folder_written_before_calibration_loads_uncalibrated(
     saved: Path, tmp_path: Path
 ) -> None:
-    """Format 2 knew no calibration: its stages report the propagated variance (a = 1, b = 0)."""
+    """Formats 1 to 3 knew no calibration: their stages report the propagated variance
+    (a = 1, b = 0); from format 4 on a stage without one is refused."""
     folder = copy_of(saved, tmp_path)
     manifest = read(folder)
     for stage in manifest["stages"]:
         del stage["calibration"]
-    manifest["format_version"] = 2
+    manifest["format_version"] = FORMAT_VERSION
+    write_rehashed(folder, manifest)
+    refused(folder, r"stage '\w+' has a calibration that is not a table")
+    manifest["format_version"] = 3
     write_rehashed(folder, manifest)
     old = load_model(folder)
     assert old.chain.calibration_ == [UNCALIBRATED] * 3
@@ -308,3 +312,73 @@ def test_a_folder_written_before_calibration_loads_uncalibrated(
     state = chain.start(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((2, len(chain.exo_names))))
     chain.plan().step(state, np.zeros(len(chain.exo_names)), np.zeros(3))
     np.testing.assert_array_equal(state.out_var, state.latent_var)
+
+
+def _paths(value: Any, prefix: tuple = ()) -> list[tuple]:
+    """Every key path into nested JSON objects and arrays (the root excluded)."""
+    if not isinstance(value, dict | list):
+        return []
+    found = []
+    for key, inner in value.items() if isinstance(value, dict) else enumerate(value):
+        found.append((*prefix, key))
+        found += _paths(inner, (*prefix, key))
+    return found
+
+
+JSON_VALUES = st.recursive(
+    st.none()
+    | st.booleans()
+    | st.integers(-(2**70), 2**70)
+    | st.floats(allow_nan=True, allow_infinity=True)
+    | st.text(max_size=12),
+    lambda inner: (
+        st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=8), inner, max_size=3)
+    ),
+    max_leaves=6,
+)
+
+
+@FUZZ
+@given(data=st.data())
+def test_any_manifest_field_set_to_any_value_and_rehashed(
+    saved: Path, tmp_path_factory: pytest.TempPathFactory, data: st.DataObject
+) -> None:
+    """A forger sets any field of model.json, at any depth, to any JSON value and recomputes
+    every hash: the folder loads or is refused naming it, never with another exception."""
+    folder = copy_of(saved, tmp_path_factory.mktemp("field"))
+    manifest = read(folder)
+    path = data.draw(st.sampled_from([p for p in _paths(manifest) if p[0] != MANIFEST_HASH]))
+    parent = manifest
+    for key in path[:-1]:
+        parent = parent[key]
+    parent[path[-1]] = data.draw(JSON_VALUES)
+    write_rehashed(folder, manifest)
+    try:
+        load_model(folder)
+    except ModelFormatError as error:
+        assert str(folder) in str(error), str(error)
+
+
+@FUZZ
+@given(
+    digests=st.one_of(
+        st.lists(st.integers(0, 2**64 - 1), max_size=5).map(lambda v: np.array(v, np.uint64)),
+        st.lists(st.floats(), min_size=1, max_size=5).map(np.array),
+        st.lists(st.integers(-5, 5), min_size=1, max_size=4).map(
+            lambda v: np.array(v, np.int64).reshape(-1, 1)
+        ),
+    ),
+    key=st.sampled_from(["digests", "rows"]),
+)
+def test_training_row_digests_replaced_by_any_array(
+    saved: Path, tmp_path_factory: pytest.TempPathFactory, digests: np.ndarray, key: str
+) -> None:
+    """training_rows.npz holding any array under any name, hashes recomputed: a vector of
+    uint64 under 'digests' loads; anything else is refused naming the file."""
+    folder = copy_of(saved, tmp_path_factory.mktemp("digests"))
+    np.savez(folder / "training_rows.npz", **{key: digests})
+    write_rehashed(folder, read(folder))
+    if key == "digests" and digests.dtype == np.uint64 and digests.ndim == 1:
+        np.testing.assert_array_equal(load_model(folder).trained_rows, digests)
+    else:
+        refused(folder, r"training_rows\.npz: ")

@@ -24,6 +24,7 @@ from fmu_greybox.errors import ConfigError
 from fmu_greybox.fmi.archive import FmuArchive, FmuVariable, real_outputs
 from fmu_greybox.fmi.instance import FmuInstance
 from fmu_greybox.progress import track
+from fmu_greybox.suggest import did_you_mean
 
 #: Standard deviation of each sensor's white noise at ``noise = 1`` [SI units of the signal].
 SENSOR_NOISE: dict[str, float] = {
@@ -177,12 +178,9 @@ def check_effects(effects: Mapping[str, float], truth: FmuArchive, whitebox: Fmu
     offered = [v.name for v in list_effects(truth, whitebox)]
     for name in effects:
         if name not in offered:
-            import difflib
-
-            close = difflib.get_close_matches(name, offered, n=2)
-            hint = f"did you mean {', '.join(close)}? " if close else ""
             raise ConfigError(
-                f"unknown effect {name!r}; {hint}effects offered: {', '.join(offered)} "
+                f"unknown effect {name!r}{did_you_mean(name, offered)}; effects offered: "
+                f"{', '.join(offered)} "
                 "(see 'fmu-greybox synth --list-effects')",
                 field="--effect",
             )

@@ -3,22 +3,34 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.data.recording import Recording
+from fmu_greybox.errors import ConfigError, RecordingError
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.store import GreyBoxModel
-from fmu_greybox.project.config import AcceptanceConfig
-from fmu_greybox.project.data import ProjectData, prepare, split_row
+from fmu_greybox.project.config import AcceptanceConfig, ProjectConfig
+from fmu_greybox.project.data import ProjectData, check_sample_time, prepare, split_row
+from fmu_greybox.project.fingerprint import data_rows, trained_mask
 from fmu_greybox.report.plots import calibration_figure, frequency_figure, save_png, trace_figure
 from fmu_greybox.report.spectra import FrequencyResponse, frequency_response
 from fmu_greybox.workflow.acceptance import Acceptance, evaluate
 from fmu_greybox.workflow.master import MasterRun, run_master
 from fmu_greybox.workflow.metrics import stage_table, uncertainty_table
+
+#: Fewest rows ``validate`` scores: an error measure over fewer says little.
+MIN_SCORED_ROWS = 50
+#: Project tables that decide what is validated (how the recording is read and fed, the
+#: stages); [gp] and [split] only steer training (``train --inducing`` overrides [gp]).
+_COMPARED_TABLES = ("whitebox", "recording", "signals", "stages")
+#: Fields of those tables that may differ: the recording's file, the white-box's location.
+_FREE_FIELDS = (("recording", "path"), ("whitebox", "fmu"))
 
 
 @dataclass
@@ -28,19 +40,22 @@ class Validation:
     Attributes
     ----------
     run : MasterRun
-        The master's output over the held-out rows.
+        The master's output over the rows after its start.
     data : ProjectData
         The recording arranged for the chain.
     table : dict
         Stage -> ``wb_rmse``, ``gb_rmse``, ``wb_nrmse``, ``gb_nrmse``, ``improvement`` (the
         grey-box against the plain white-box), and for a model with named terms
         ``named_rmse``, ``named_nrmse`` (white-box + terms, without the correctors); the
-        coverage of its uncertainty (:func:`~fmu_greybox.workflow.metrics.uncertainty_table`).
+        coverage of its uncertainty (:func:`~fmu_greybox.workflow.metrics.uncertainty_table`);
+        all over the scored rows.
     held_out : str
-        Which rows were held out, in words.
+        Which rows were scored, in words.
+    scored : ndarray of int, shape (m,)
+        The rows scored: those of the run that the model was not trained on.
     responses : list of FrequencyResponse
-        Per stage, from the acceptance's input (:func:`validation_responses`) over the same
-        rows.
+        Per stage, from the acceptance's input (:func:`validation_responses`) over the longest
+        run of consecutive scored rows.
     criteria : AcceptanceConfig
         The acceptance criteria.
     acceptance : Acceptance or None
@@ -51,6 +66,7 @@ class Validation:
     data: ProjectData
     table: dict[str, dict[str, float]]
     held_out: str
+    scored: np.ndarray
     responses: list[FrequencyResponse] = field(default_factory=list)
     criteria: AcceptanceConfig = field(default_factory=AcceptanceConfig)
     acceptance: Acceptance | None = None
@@ -61,52 +77,101 @@ class Validation:
         return self.data.y_wb[self.run.rows]
 
 
+def check_project(config: ProjectConfig, model: GreyBoxModel, model_dir: str | Path) -> None:
+    """The project given to ``validate`` must read and feed recordings as the project the model
+    was trained with did.
+
+    Compared: the [whitebox], [recording], [signals] and [stages] tables, but for the
+    recording's path and the white-box's location (the model carries its white-box FMU).
+
+    Raises
+    ------
+    ConfigError
+        Naming the first field that differs, with both values.
+    """
+    given, trained = _comparable(config), _comparable(model.config)
+    difference = _first_difference(given, trained, "")
+    if difference is not None:
+        field, here, there = difference
+        raise ConfigError(
+            f"{_shown(here)} here but {_shown(there)} in the project {model_dir} was trained "
+            f"with; validate with the project the model was trained with (it is stored in "
+            f"{Path(model_dir) / 'model.json'}, under 'project') or retrain",
+            field=field,
+            path=str(config.path) if config.path else None,
+        )
+
+
 def validate_model(
     model: GreyBoxModel,
     recording: Recording,
     progress: bool = False,
     acceptance: AcceptanceConfig | None = None,
 ) -> Validation:
-    """Free-run the grey-box over held-out rows, compare with the white-box, and check the
-    acceptance criteria (``acceptance``, by default those stored with the model's project).
+    """Free-run the grey-box over a recording, score the rows it was not trained on and check
+    the acceptance criteria (``acceptance``, by default those stored with the model's project).
 
-    ``data.y_wb`` is the plain white-box; ``run.whitebox`` what the correctors start from (the
-    same, or white-box + the model's named terms).
+    Training rows are recognised by their values (:mod:`fmu_greybox.project.fingerprint`), in
+    any file. The chain's memory starts from the recorded outputs at the end of a leading run
+    of training rows (the training recording's split), else at the first row; training rows
+    later in the recording are run through but not scored. ``data.y_wb`` is the plain
+    white-box; ``run.whitebox`` what the correctors start from (the same, or white-box + the
+    model's named terms).
 
-    On the training recording the held-out rows are those after the training split; on any
-    other recording, every row after the first.
+    Raises
+    ------
+    RecordingError
+        A sample time other than the model's step, or fewer than :data:`MIN_SCORED_ROWS`
+        rows that were not used in training.
 
     Returns
     -------
     Validation
     """
+    check_sample_time(recording, model.dt, "the model (the step it was trained at)")
     with open_fmu(model.whitebox_fmu) as archive:
         data = prepare(model.config, model.chain, archive, recording, progress)
-    if recording.sha256() == model.training.get("recording_sha256"):
-        start = split_row(model.config, data.n_samples)
-        held_out = f"rows {start + 1}..{data.n_samples - 1} of the training recording"
-    else:
-        start = 0
-        held_out = f"all {data.n_samples - 1} rows of a recording not used in training"
+    trained = _trained(model, data)
+    leading = int(np.argmin(trained)) if not trained.all() else trained.size
+    start = max(0, leading - 1)
+    unseen = int((~trained[start + 1 :]).sum())
+    if unseen < MIN_SCORED_ROWS:
+        raise RecordingError(
+            f"only {unseen} of its {data.n_samples} rows were not used in training (training "
+            f"rows are recognised by their values); validation needs at least {MIN_SCORED_ROWS}."
+            " Validate on held-out data: the tail of the training recording after its "
+            "train_fraction, or another recording",
+            path=recording.source,
+        )
     run = run_master(model, data, start, progress)
+    keep = ~trained[run.rows]
     table = stage_table(
         model.chain.stage_names,
-        data.outputs[run.rows],
-        data.y_wb[run.rows],  # the plain white-box (prepare folds no terms)
-        run.mean,
+        data.outputs[run.rows][keep],
+        data.y_wb[run.rows][keep],  # the plain white-box (prepare folds no terms)
+        run.mean[keep],
         model.target_std,
-        named=run.whitebox if model.terms else None,
+        named=run.whitebox[keep] if model.terms else None,
     )
-    names, recorded = model.chain.stage_names, data.outputs[run.rows]
-    for name, row in uncertainty_table(names, recorded, run.mean, run.std, run.latent_std).items():
+    scored = run.rows[keep]
+    skipped = int(trained[run.rows].sum())
+    held_out = f"{scored.size} rows not used in training ({_ranges_text(scored)})"
+    if skipped:
+        held_out += f"; {skipped} training rows in the run not scored"
+    names, recorded = model.chain.stage_names, data.outputs[run.rows][keep]
+    uncertainty = uncertainty_table(
+        names, recorded, run.mean[keep], run.std[keep], run.latent_std[keep]
+    )
+    for name, row in uncertainty.items():
         table[name].update(row)
     criteria = acceptance if acceptance is not None else model.config.acceptance
-    responses = validation_responses(model, data, run, criteria)
+    responses = validation_responses(model, data, run, scored, criteria)
     return Validation(
         run=run,
         data=data,
         table=table,
         held_out=held_out,
+        scored=scored,
         responses=responses,
         criteria=criteria,
         acceptance=evaluate(criteria, table, responses),
@@ -114,14 +179,22 @@ def validate_model(
 
 
 def validation_responses(
-    model: GreyBoxModel, data: ProjectData, run: MasterRun, criteria: AcceptanceConfig
+    model: GreyBoxModel,
+    data: ProjectData,
+    run: MasterRun,
+    scored: np.ndarray,
+    criteria: AcceptanceConfig,
 ) -> list[FrequencyResponse]:
     """Per stage, the frequency responses of recording, white-box and grey-box over the
-    master's rows, from the stage's acceptance ``input`` (by default the first input of the
-    first stage; no response for a stage without one)."""
+    longest run of consecutive scored rows (a spectrum needs evenly spaced samples), from the
+    stage's acceptance ``input`` (by default the first input of the first stage; no response
+    for a stage without one)."""
     config, chain = model.config, model.chain
     units = model.training.get("target_unit", {})
     default = next(iter(config.stages[0].inputs), None)
+    first, last = max(_ranges(scored), key=lambda r: r[1] - r[0])
+    rows = np.arange(first, last + 1)
+    in_run = rows - run.rows[0]
     responses = []
     for q, (stage, output) in enumerate(zip(chain.stage_names, chain.target_signals, strict=True)):
         source = criteria.for_stage(stage).input or default
@@ -130,11 +203,11 @@ def validation_responses(
         signal = config.signals[source]
         responses.append(
             frequency_response(
-                data.recording[signal.column][run.rows],
+                data.recording[signal.column][rows],
                 {
-                    "recording": data.outputs[run.rows, q],
-                    "white-box": data.y_wb[run.rows, q],
-                    "grey-box": run.mean[:, q],
+                    "recording": data.outputs[rows, q],
+                    "white-box": data.y_wb[rows, q],
+                    "grey-box": run.mean[in_run, q],
                 },
                 model.dt,
                 source,
@@ -167,10 +240,12 @@ def frequency_table(validation: Validation) -> dict[str, dict]:
 
 
 def write_metrics(validation: Validation, model: GreyBoxModel, path: Path) -> dict:
-    """Write ``metrics.json`` atomically; returns its content."""
+    """Write ``metrics.json`` atomically (``scored_rows``: the scored rows as ``[first, last]``
+    ranges, both included); returns its content."""
     payload = {
         "held_out": validation.held_out,
-        "n_rows": int(validation.run.rows.size),
+        "n_rows": int(validation.scored.size),
+        "scored_rows": _ranges(validation.scored),
         "units": model.training.get("target_unit", {}),
         "stages": validation.table,
         "frequency": frequency_table(validation),
@@ -187,11 +262,14 @@ def write_plots(validation: Validation, model: GreyBoxModel, out_dir: Path) -> l
     run, names = validation.run, model.chain.stage_names
     units = [model.training.get("target_unit", {}).get(n, "") for n in names]
     recorded = validation.data.outputs[run.rows]
+    keep = validation.scored - run.rows[0]
     figures = {
         "traces.png": trace_figure(
             run.time, recorded, validation.whitebox, run.mean, run.std, names, units
         ),
-        "calibration.png": calibration_figure(recorded, run.mean, run.std, run.latent_std, names),
+        "calibration.png": calibration_figure(
+            recorded[keep], run.mean[keep], run.std[keep], run.latent_std[keep], names
+        ),
     }
     if validation.responses:
         bands = [validation.criteria.for_stage(r.stage).band for r in validation.responses]
@@ -199,3 +277,59 @@ def write_plots(validation: Validation, model: GreyBoxModel, out_dir: Path) -> l
     for name, fig in figures.items():
         save_png(fig, out_dir / name)
     return list(figures)
+
+
+def _trained(model: GreyBoxModel, data: ProjectData) -> np.ndarray:
+    """Which rows the model was trained on, shape (n,); a model folder without row digests
+    recognises only its training recording, as a whole (its units included)."""
+    if model.trained_rows is not None:
+        return trained_mask(data_rows(data), model.trained_rows)
+    trained = np.zeros(data.n_samples, dtype=bool)
+    if data.recording.sha256() == model.training.get("recording_sha256"):
+        trained[: split_row(model.config, data.n_samples) + 1] = True
+    return trained
+
+
+def _ranges(rows: np.ndarray) -> list[list[int]]:
+    """Sorted row indices as ``[first, last]`` runs of consecutive rows."""
+    if rows.size == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(rows) != 1)
+    firsts = np.concatenate([[rows[0]], rows[breaks + 1]])
+    lasts = np.concatenate([rows[breaks], [rows[-1]]])
+    return [[int(a), int(b)] for a, b in zip(firsts, lasts, strict=True)]
+
+
+def _ranges_text(rows: np.ndarray, limit: int = 4) -> str:
+    runs = [f"{a}..{b}" if a != b else f"{a}" for a, b in _ranges(rows)]
+    more = f" and {len(runs) - limit} more runs" if len(runs) > limit else ""
+    return "rows " + ", ".join(runs[:limit]) + more
+
+
+def _comparable(config: ProjectConfig) -> dict[str, Any]:
+    """The project's tables that must match, without the fields that may differ."""
+    tables = {k: v for k, v in config.to_dict().items() if k in _COMPARED_TABLES}
+    for table, key in _FREE_FIELDS:
+        tables.get(table, {}).pop(key, None)
+    return tables
+
+
+def _first_difference(a: Any, b: Any, where: str) -> tuple[str, Any, Any] | None:
+    """The dotted field where two TOML-like values first differ, with both values."""
+    if isinstance(a, Mapping) and isinstance(b, Mapping):
+        for key in [*a, *(k for k in b if k not in a)]:
+            found = _first_difference(a.get(key), b.get(key), f"{where}.{key}" if where else key)
+            if found is not None:
+                return found
+        return None
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            found = _first_difference(x, y, f"{where}[{i}]")
+            if found is not None:
+                return found
+        return None
+    return None if a == b else (where, a, b)
+
+
+def _shown(value: Any) -> str:
+    return "(not set)" if value is None else repr(value)
