@@ -630,7 +630,7 @@ def model_cases(tmp: Path, saved: Path) -> list[Case]:
         Case(
             "model",
             "model: format version 4",
-            tampered("version", manifest_edit(lambda m: m.update(format_version=4))),
+            tampered("version", manifest_edit(lambda m: m.update(format_version=5))),
             here + "test_valid_json_edits_of_the_manifest_are_refused",
         ),
         Case(

@@ -35,6 +35,7 @@ from fmu_greybox.export.runtime import LOGGER, runtime_message
 from fmu_greybox.export.slave import MODEL_FOLDER, check_python
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.instance import FmuInstance
+from fmu_greybox.model.calibration import VarianceCalibration
 from fmu_greybox.model.simulate import simulate_recording
 from fmu_greybox.model.store import MANIFEST, GreyBoxModel, file_sha256, load_model, save_model
 from fmu_greybox.project.config import load_config
@@ -272,6 +273,40 @@ def test_simulate_fmu_gives_the_masters_outputs(
     assert_matches_master({n: result[n][1:] for n in names}, run)
 
 
+@pytest.mark.parametrize("runtime", RUNTIMES)
+def test_calibrated_std_equals_the_masters(
+    model_dir: Path, validation: Recording, tmp_path: Path, runtime: str
+) -> None:
+    """A model whose stages report a·V + b with a, b far from (1, 0), set by hand: the FMU's
+    ``_std`` is the master's calibrated σ = sqrt(a·V + b), V the master's latent variance."""
+    model = load_model(model_dir)
+    spread = np.std(master_run(model_dir, validation).mean, axis=0)
+    model.chain.calibration_ = [
+        VarianceCalibration(latent_scale=3.0 + q, residual_variance=(0.01 * spread[q]) ** 2)
+        for q in range(len(STAGE_OUTPUTS))
+    ]
+    save_model(model, tmp_path / "model")
+    fmu = export_greybox(tmp_path / "model", tmp_path / "g.fmu", runtime=runtime).path
+    run = master_run(tmp_path / "model", validation)
+    expected = np.sqrt(
+        [c.variance(run.latent_std[:, q] ** 2) for q, c in enumerate(model.chain.calibration_)]
+    ).T
+    np.testing.assert_allclose(run.std, expected, rtol=1e-12)
+    assert np.all(run.std > 1.7 * run.latent_std)  # the calibration is far from the identity
+    names = [o + "_std" for o in STAGE_OUTPUTS]
+    result = simulate_fmu(
+        str(fmu),
+        start_time=0.0,
+        stop_time=validation.time[-1],
+        step_size=validation.dt,
+        output_interval=validation.dt,
+        input=input_signal(validation),
+        output=names,
+    )
+    for q, name in enumerate(names):
+        assert_close(result[name][1:], run.std[:, q], name)
+
+
 def test_correction_disabled_gives_the_whitebox_exactly(
     greybox_fmu: Path, model_dir: Path, validation: Recording
 ) -> None:
@@ -289,7 +324,9 @@ def test_correction_disabled_gives_the_whitebox_exactly(
     )
     for name in plain.names:
         np.testing.assert_array_equal(greybox[name], plain[name], err_msg=name)
-    assert not greybox["spool_position_std"].any()
+    # no corrector runs: the stage reports its residual variance b alone
+    b = load_model(model_dir).chain.calibration_[0].residual_variance
+    np.testing.assert_allclose(greybox["spool_position_std"][1:], np.sqrt(b), rtol=1e-12)
     assert not greybox["out_of_domain"].any()
     assert (greybox["domain_score"] == 1.0).all()
 

@@ -68,7 +68,7 @@ class VarianceCalibration:
         return self.latent_scale * np.asarray(latent_var) + self.residual_variance
 
 
-#: What an uncalibrated model (a folder of format 2 or older) reports: the propagated variance.
+#: What an uncalibrated model (a folder of format 3 or older) reports: the propagated variance.
 UNCALIBRATED = VarianceCalibration()
 
 
