@@ -260,6 +260,7 @@ COMMANDS = [
     ["export"],
     ["cosim"],
     ["diagnose"],
+    ["campaign"],
 ]
 
 
