@@ -65,7 +65,7 @@ def trace_figure(
     fig, axes = plt.subplots(
         q_count,
         2,
-        figsize=(11, 2.5 * q_count + 0.6),
+        figsize=(11, 2.8 * q_count + 0.6),
         squeeze=False,
         gridspec_kw={"width_ratios": [2.2, 1]},
     )
@@ -80,7 +80,7 @@ def trace_figure(
         inside = coverage(residual, std[:, q], Z95)
         rmse = [np.sqrt(np.mean((recorded[:, q] - m) ** 2)) for m in (whitebox[:, q], mean[:, q])]
         left.set_title(
-            f"{names[q]}: recording − grey-box [{units[q]}]; RMSE white-box {rmse[0]:.3g}, "
+            f"{names[q]}: recording − grey-box [{units[q]}]\nRMSE white-box {rmse[0]:.3g}, "
             f"grey-box {rmse[1]:.3g}; {100 * inside:.1f} % inside ±1.96σ",
             fontsize="medium",
             loc="left",
