@@ -197,6 +197,10 @@ def test_buffers_of_the_wrong_kind_are_refused_with_their_name() -> None:
         _chainstep.step(
             plan._plan, plan._params, plan._work, short.values[:-1], exo[399], wb[400], True
         )
+    uncalibrated = plan._plan.copy()
+    uncalibrated[0] = 1  # a plan laid out before the stages carried their calibration
+    with pytest.raises(ValueError, match=r"plan of another version \(1; this code reads version 2"):
+        _chainstep.step(uncalibrated, plan._params, plan._work, state.values, exo[399], wb[400], 1)
     with pytest.raises(TypeError, match="state: a C-contiguous writable"):
         _chainstep.step(
             plan._plan,
