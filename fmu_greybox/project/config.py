@@ -708,7 +708,7 @@ def _acceptance(
     for name in names:
         if name in table:
             where = f"acceptance.{name}"
-            own = reader.table(table, name)
+            own = reader.table(table, name, prefix="acceptance.")
             reader.keys(own, where, set(criteria))
             per_stage[name] = _criteria(reader, own, where, default, signals)
     return AcceptanceConfig(default=default, stages=per_stage)
@@ -799,14 +799,18 @@ class _Reader:
                     + f" (allowed here: {', '.join(sorted(allowed))})",
                 )
 
-    def table(self, raw: Mapping[str, Any], key: str, required: bool = False) -> Mapping[str, Any]:
+    def table(
+        self, raw: Mapping[str, Any], key: str, required: bool = False, prefix: str = ""
+    ) -> Mapping[str, Any]:
+        """``raw[key]``, checked to be a table (``prefix``: the dotted path of ``raw``)."""
         value = raw.get(key)
+        field_name = prefix + key
         if value is None:
             if required:
-                self.fail(key, f"missing; add a [{key}] table")
+                self.fail(field_name, f"missing; add a [{field_name}] table")
             return {}
         if not isinstance(value, Mapping):
-            self.fail(key, f"must be a table ([{key}]), not {type(value).__name__}")
+            self.fail(field_name, f"must be a table ([{field_name}]), not {type(value).__name__}")
         return value
 
     def get(
