@@ -234,8 +234,8 @@ static double predict_point(const PosteriorView *p, const double *x, double *mea
 
 /* ------------------------------------------------------------------ the chain */
 
-/* State (float64), Q stages, n_exo inputs, history depth H (fmu_greybox/stage.py,
- * SourceLayout; fmu_greybox/chain_step.py, ChainState):
+/* State (float64), Q stages, n_exo inputs, history depth H (fmu_greybox/model/stage.py,
+ * SourceLayout; fmu_greybox/model/chain_step.py, ChainState):
  *   for h = 0..H: wb[Q] out[Q]          white-box and stage outputs of row j - h
  *   for h = 0..H: exo[n_exo]            exogenous inputs of row j - 1 - h
  *                                       (together: the shared sources, S0 of them)
