@@ -56,22 +56,46 @@ def diagnosis_payload(diagnosis, recording) -> dict:
         "stages": [s.to_dict() for s in diagnosis.locator_.stages_],
         "findings": findings,
         "fit": diagnosis.fit_,
+        "inferred_roles": [r.to_dict() for r in diagnosis.signals_.inferred_roles],
+        "input_noise": dict(zip(exp.inputs, exp.input_sigma, strict=True)),
         "hypotheses_tested": [h.key for h in diagnosis.hypotheses_],
-        "selection": [
-            {"screened": r.screened, "refined": r.refined, "accepted": r.accepted}
-            for r in (selection.rounds_ if selection is not None else [])
-        ],
+        "selection": selection_rounds(selection),
         "simulations": diagnosis.simulations_,
         "timings": diagnosis.timings_,
     }
 
 
+def selection_rounds(selection) -> list[dict]:
+    """``diagnosis.json``'s ``selection``: per round what was screened, refined (with the reason
+    a candidate was rejected for harm, or the margins of an alternative) and accepted; the
+    hypotheses dropped after the rounds for worsening a held-out signal are listed under the
+    last round's ``dropped``."""
+    if selection is None:
+        return []
+    rounds = [
+        {"screened": r.screened, "refined": r.refined, "accepted": r.accepted, "dropped": []}
+        for r in selection.rounds_
+    ]
+    if rounds:
+        rounds[-1]["dropped"] = selection.dropped_
+    return rounds
+
+
 def verdict_lines(diagnosis) -> list[str]:
     """The verdict in a few lines of text (what the terminal prints)."""
     lines = []
+    read = [r for r in diagnosis.signals_.inferred_roles if r.source != "unit"]
+    if read:
+        roles = ", ".join(f"{r.variable} {r.role} ('{r.evidence}')" for r in read)
+        lines.append(
+            f"Roles read from the FMU's names and descriptions: {roles} (declare them under "
+            "[signals] to override)."
+        )
     stages = diagnosis.locator_.stages_
+    drift = diagnosis.experiment_.whitening is not None
+    noise = "sensor noise and the drift its inputs' noise explains" if drift else "sensor noise"
     if diagnosis.origin_stage_ is None:
-        lines.append("No significant mismatch: every stage matches within sensor noise.")
+        lines.append(f"No significant mismatch: every stage matches within {noise}.")
     else:
         before = [s.name for s in stages if stages.index(s) < diagnosis.locator_.origin_]
         matched = f" ({', '.join(before)} match{'es' if len(before) == 1 else ''} within noise)"
