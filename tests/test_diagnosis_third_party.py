@@ -71,8 +71,9 @@ def test_missing_friction_is_named_from_roles_read_in_descriptions(
                 "evidence": "speed",
             }
         ]
-        assert "Roles read from the FMU's names and descriptions: w velocity" in (
-            payload["verdict"][0]
+        assert (
+            "Roles read from the FMU's names and descriptions: w velocity"
+            in (payload["verdict"][0])
         )
         assert (source["source"], source["rate"]) == ("w", False)
     else:
