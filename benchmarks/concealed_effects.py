@@ -306,6 +306,7 @@ def run_case(case: Case, paths: dict, workers: int, duration: float) -> dict:
         alternatives = [named_physics(a) for a in top.get("alternatives", [])]
         consistent = correct or any(a in truth_effects for a in alternatives)
         estimate = in_truth_units(top, named, whitebox) if correct and case.effects else None
+        harmful = _harmful(diagnosis)
     true_value = true_magnitude(case, named) if correct else None
     affected = [diagnosis.fit_[s] for s in moved if s in diagnosis.fit_]
     improvement = (
@@ -328,7 +329,7 @@ def run_case(case: Case, paths: dict, workers: int, duration: float) -> dict:
         "consistent": consistent,
         "alternatives": alternatives,
         "findings": [named_physics(f) for f in findings],
-        "harmful_kept": _harmful(diagnosis),
+        "harmful_kept": harmful,
         "estimate": estimate,
         "true": true_value,
         "improvement": improvement,

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fmu_greybox.diagnosis.alternatives import separation
-from fmu_greybox.diagnosis.hypotheses import Hypothesis, _fmt
+from fmu_greybox.diagnosis.hypotheses import Hypothesis, quantity
 from fmu_greybox.diagnosis.locate import Regime, StageResidual
 from fmu_greybox.diagnosis.noise import SIGNIFICANT_STRUCTURE, structure_left
 from fmu_greybox.diagnosis.runner import Experiment
@@ -238,7 +238,7 @@ def _add_alternatives(
             }
         )
         magnitude = alt.magnitude or {}
-        shown = _fmt(magnitude.get("value", math.nan), magnitude.get("unit", ""))
+        shown = quantity(magnitude.get("value", math.nan), magnitude.get("unit", ""))
         where = (
             ""
             if apart is None

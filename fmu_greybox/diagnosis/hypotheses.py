@@ -152,7 +152,7 @@ class Hypothesis(ABC):
         return {}
 
 
-def _fmt(value: float, unit: str = "") -> str:
+def quantity(value: float, unit: str = "") -> str:
     """A number with 2-3 significant digits and its unit."""
     text = f"{value:.3g}" if abs(value) >= 1e-3 and abs(value) < 1e5 else f"{value:.2e}"
     return f"{text} {unit}".strip() if unit and unit != "1" else text
@@ -202,7 +202,7 @@ class ParameterMismatch(Hypothesis):
         physics = f" ({self.physics.replace('_', ' ')})" if self.physics else ""
         return (
             f"Parameter {self.name}{physics} is about {abs(100 * change):.3g} % {direction} "
-            f"than set: {_fmt(value, self.unit)} instead of {_fmt(self.nominal, self.unit)}"
+            f"than set: {quantity(value, self.unit)} instead of {quantity(self.nominal, self.unit)}"
         )
 
     def extra(self, theta: np.ndarray) -> dict:
@@ -277,7 +277,7 @@ class Offset(_CommandHypothesis):
 
     def phrase(self, theta: np.ndarray) -> str:
         return (
-            f"An offset (null bias) of about {_fmt(float(theta[0]), self.unit)} acts on "
+            f"An offset (null bias) of about {quantity(float(theta[0]), self.unit)} acts on "
             f"{self.input}{self._path()}"
         )
 
@@ -298,7 +298,7 @@ class Deadband(_CommandHypothesis):
 
     def phrase(self, theta: np.ndarray) -> str:
         return (
-            f"A deadband of about +/-{_fmt(float(theta[0]), self.unit)} of {self.input} is "
+            f"A deadband of about +/-{quantity(float(theta[0]), self.unit)} of {self.input} is "
             f"missing{self._path()}"
         )
 
@@ -342,7 +342,7 @@ class Hysteresis(_CommandHypothesis):
 
     def phrase(self, theta: np.ndarray) -> str:
         return (
-            f"A play (hysteresis or backlash) of about {_fmt(float(theta[0]), self.unit)} in "
+            f"A play (hysteresis or backlash) of about {quantity(float(theta[0]), self.unit)} in "
             f"total acts on {self.input}{self._path()}"
         )
 
@@ -368,7 +368,7 @@ class Saturation(_CommandHypothesis):
 
     def phrase(self, theta: np.ndarray) -> str:
         return (
-            f"{self.input} saturates at about +/-{_fmt(abs(float(theta[0])), self.unit)}"
+            f"{self.input} saturates at about +/-{quantity(abs(float(theta[0])), self.unit)}"
             f"{self._path()}"
         )
 
@@ -397,8 +397,8 @@ class AsymmetricSaturation(_CommandHypothesis):
 
     def phrase(self, theta: np.ndarray) -> str:
         return (
-            f"{self.input} saturates at about {_fmt(float(theta[0]), self.unit)} and "
-            f"{_fmt(float(theta[1]), self.unit)}{self._path()}"
+            f"{self.input} saturates at about {quantity(float(theta[0]), self.unit)} and "
+            f"{quantity(float(theta[1]), self.unit)}{self._path()}"
         )
 
 
@@ -460,7 +460,7 @@ class CoulombFriction(_ForceHypothesis):
     def phrase(self, theta: np.ndarray) -> str:
         f = float(theta[0])
         return (
-            f"A Coulomb-like friction force of about {_fmt(abs(f), self.force_unit)} "
+            f"A Coulomb-like friction force of about {quantity(abs(f), self.force_unit)} "
             f"{self._sense(f)} {self.source} is missing"
         )
 
@@ -495,8 +495,8 @@ class AsymmetricCoulombFriction(_ForceHypothesis):
         f, a = float(theta[0]), float(theta[1])
         return (
             f"A Coulomb-like friction force stronger in one direction is missing: about "
-            f"{_fmt(abs(f + a), self.force_unit)} {self._sense(f + a)} positive {self.source}, "
-            f"{_fmt(abs(f - a), self.force_unit)} {self._sense(f - a)} negative"
+            f"{quantity(abs(f + a), self.force_unit)} {self._sense(f + a)} positive {self.source}, "
+            f"{quantity(abs(f - a), self.force_unit)} {self._sense(f - a)} negative"
         )
 
 
@@ -517,7 +517,7 @@ class ViscousFriction(_ForceHypothesis):
     def phrase(self, theta: np.ndarray) -> str:
         c = float(theta[0])
         return (
-            f"A viscous force of about {_fmt(abs(c), self.units[0])} {self._sense(c)} "
+            f"A viscous force of about {quantity(abs(c), self.units[0])} {self._sense(c)} "
             f"{self.source} is missing"
         )
 
@@ -549,9 +549,9 @@ class StribeckFriction(_ForceHypothesis):
     def phrase(self, theta: np.ndarray) -> str:
         f = float(theta[0])
         return (
-            f"A breakaway (Stribeck) friction force of about {_fmt(abs(f), self.force_unit)} "
+            f"A breakaway (Stribeck) friction force of about {quantity(abs(f), self.force_unit)} "
             f"{self._sense(f)} {self.source}, fading above "
-            f"{_fmt(float(theta[1]), self.velocity_unit)}, is missing"
+            f"{quantity(float(theta[1]), self.velocity_unit)}, is missing"
         )
 
 
@@ -581,7 +581,7 @@ class ConstantForce(Hypothesis):
 
     def phrase(self, theta: np.ndarray) -> str:
         return (
-            f"A constant force of about {_fmt(float(theta[0]), self.force_unit)} on "
+            f"A constant force of about {quantity(float(theta[0]), self.force_unit)} on "
             f"{self.input} is missing"
         )
 
@@ -628,7 +628,7 @@ class Stiffness(Hypothesis):
         k = float(theta[0])
         sense = "restoring" if k * self.opposes >= 0 else "destabilising"
         return (
-            f"A {sense} spring of about {_fmt(abs(k), self.units[0])} from {self.position} "
+            f"A {sense} spring of about {quantity(abs(k), self.units[0])} from {self.position} "
             f"onto {self.input} is missing"
         )
 
@@ -667,7 +667,7 @@ class SupplyDroop(Hypothesis):
     def phrase(self, theta: np.ndarray) -> str:
         return (
             f"{self.input} droops with {self.flow}: a line resistance of about "
-            f"{_fmt(float(theta[0]), self.units[0])}"
+            f"{quantity(float(theta[0]), self.units[0])}"
         )
 
 
@@ -750,7 +750,9 @@ class SensorBias(_SensorHypothesis):
         return [SensorOffset(output=self.output, offset=float(theta[0]), entry=self.entry)]
 
     def phrase(self, theta: np.ndarray) -> str:
-        return f"The sensor of {self.output} is offset by about {_fmt(float(theta[0]), self.unit)}"
+        return (
+            f"The sensor of {self.output} is offset by about {quantity(float(theta[0]), self.unit)}"
+        )
 
 
 @dataclass
