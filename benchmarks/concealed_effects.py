@@ -46,6 +46,7 @@ summary figures and the cases.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import statistics
 import sys
@@ -306,7 +307,7 @@ def run_case(case: Case, paths: dict, workers: int, duration: float) -> dict:
         alternatives = [named_physics(a) for a in top.get("alternatives", [])]
         consistent = correct or any(a in truth_effects for a in alternatives)
         estimate = in_truth_units(top, named, whitebox) if correct and case.effects else None
-        harmful = _harmful(diagnosis)
+        harmful = _harmful(diagnosis, whitebox)
     true_value = true_magnitude(case, named) if correct else None
     affected = [diagnosis.fit_[s] for s in moved if s in diagnosis.fit_]
     improvement = (
@@ -337,7 +338,7 @@ def run_case(case: Case, paths: dict, workers: int, duration: float) -> dict:
     }
 
 
-def _harmful(diagnosis) -> int:
+def _harmful(diagnosis, whitebox: FmuArchive) -> int:
     """Kept findings without which some observed signal's held-out fit is better by more than
     5 % (the selection's own check, repeated here on the final model)."""
     selection = diagnosis.selection_
@@ -345,7 +346,7 @@ def _harmful(diagnosis) -> int:
         return 0
     selected = selection.selected_
     pairs = list(zip(selected.hypotheses, selected.split(), strict=True))
-    experiment = diagnosis.experiment_
+    experiment = dataclasses.replace(diagnosis.experiment_, archive=whitebox, _cache={})
     rows = experiment.train_rows
     kept = experiment.residual(selected.simulated[rows:], rows)
     count = 0
