@@ -73,7 +73,14 @@ def selection_rounds(selection) -> list[dict]:
     if selection is None:
         return []
     rounds = [
-        {"screened": r.screened, "refined": r.refined, "accepted": r.accepted, "dropped": []}
+        {
+            "screen_rows": r.screen_rows,
+            "refine_rows": r.refine_rows,
+            "screened": r.screened,
+            "refined": r.refined,
+            "accepted": r.accepted,
+            "dropped": [],
+        }
         for r in selection.rounds_
     ]
     if rounds:

@@ -2,7 +2,9 @@
 
 Each round, on top of the hypotheses already kept:
 
-1. **screen** every remaining hypothesis on a short leading window of the training rows: one
+1. **screen** every remaining hypothesis on a leading window of the training rows (at least
+   ``screen_rows``, and long enough to hold 30 % of the residual's energy beyond noise: a
+   simulation starts at the first row, and the mismatch may show only later): one
    linearised (Gauss-Newton) step from "no effect" on top of the kept hypotheses, with
    sensitivities over a long difference step (two scales), tried at two step lengths, on the
    low-passed residual, the raw one and the spectrum; a hypothesis ranks by its best view (a
@@ -11,7 +13,8 @@ Each round, on top of the hypotheses already kept:
    is also compared with probes at a few multiples of its scale) and is refined
    from its low-passed step, or from its spectrum step when the spectrum ranked it best. The
    best ``refine_top`` of distinct physics go on;
-2. **refine** them on a longer leading window (damped Gauss-Newton; the spectrum-ranked ones on
+2. **refine** them on a longer leading window (at least ``refine_rows``, and 60 % of the
+   energy beyond noise; damped Gauss-Newton; the spectrum-ranked ones on
    the spectrum first, which brings a mode's frequency into the narrow valley the time-domain
    misfit has around it) with the kept
    magnitudes free (an offset kept first may have absorbed part of a leakage's drift: the
@@ -78,12 +81,16 @@ class Round:
         Key of the hypothesis kept.
     alternatives : list of Candidate
         Refined candidates nearly as good as the accepted one, best first.
+    screen_rows, refine_rows : int
+        Rows of the screening and the refinement windows.
     """
 
     screened: list[tuple[str, float]] = field(default_factory=list)
     refined: list[dict] = field(default_factory=list)
     accepted: str | None = None
     alternatives: list[Candidate] = field(default_factory=list)
+    screen_rows: int = 0
+    refine_rows: int = 0
 
 
 class ForwardSelection:
@@ -170,15 +177,6 @@ class ForwardSelection:
         experiment = simulator.experiment
         n = experiment.n_samples
         full = Calibrator(simulator, n)
-        screen_rows = min(self.screen_rows, experiment.train_rows)
-        windows = [
-            Calibrator(simulator, screen_rows, self.smoothing, 2.0),
-            Calibrator(simulator, screen_rows, 0.0, 2.0),
-            Calibrator(simulator, screen_rows, 0.0, 2.0, spectrum=True),
-        ]
-        refine_rows = min(self.refine_rows, experiment.train_rows)
-        longer = Calibrator(simulator, refine_rows, self.smoothing)
-        spectral = Calibrator(simulator, refine_rows, spectrum=True)
         joint_fit = Calibrator(simulator, n, self.smoothing)
         current = Candidate([], np.zeros(0))
         full.evaluate([current])
@@ -188,6 +186,18 @@ class ForwardSelection:
         while len(current.hypotheses) < self.max_findings and not self._within_noise(full, current):
             round_ = Round()
             self.rounds_.append(round_)
+            train = experiment.residual(current.simulated[: experiment.train_rows])
+            round_.screen_rows = max(self.screen_rows, informative_rows(train, 0.3))
+            round_.refine_rows = max(self.refine_rows, informative_rows(train, 0.6))
+            screen_rows = min(round_.screen_rows, experiment.train_rows)
+            windows = [
+                Calibrator(simulator, screen_rows, self.smoothing, 2.0),
+                Calibrator(simulator, screen_rows, 0.0, 2.0),
+                Calibrator(simulator, screen_rows, 0.0, 2.0, spectrum=True),
+            ]
+            refine_rows = min(round_.refine_rows, experiment.train_rows)
+            longer = Calibrator(simulator, refine_rows, self.smoothing)
+            spectral = Calibrator(simulator, refine_rows, spectrum=True)
             top = self._screen(windows, current, remaining, round_)
             if not top:
                 break
@@ -410,6 +420,30 @@ def _probe(window: Calibrator, candidates: list[Candidate]) -> None:
     for c, p in probes:
         if p.cost < c.cost:
             c.theta, c.cost, c.simulated, c.heldout = p.theta, p.cost, p.simulated, p.heldout
+
+
+def informative_rows(residual: np.ndarray, share: float) -> int:
+    """Rows from the start within which ``share`` of a residual's energy beyond noise lies.
+
+    A window that starts at the first row (a simulation starts there) must reach the rows where
+    the mismatch shows: an amplifier that saturates only on the large commands of the test's
+    second half leaves its first seconds at noise level.
+
+    Parameters
+    ----------
+    residual : ndarray, shape (n, n_observed)
+        Noise-normalised residual (noise alone: unit mean square).
+    share : float
+
+    Returns
+    -------
+    int
+        Between 1 and ``n``.
+    """
+    excess = np.cumsum(np.sum(np.maximum(residual**2 - 1.0, 0.0), axis=1))
+    if excess.size == 0 or excess[-1] <= 0:
+        return residual.shape[0]
+    return int(np.searchsorted(excess, share * excess[-1])) + 1
 
 
 def _joined(pairs: list[tuple[Hypothesis, np.ndarray]], left: Hypothesis) -> np.ndarray:
