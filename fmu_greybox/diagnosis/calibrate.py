@@ -9,7 +9,7 @@ parallel) inside the hypotheses' admissible ranges.
 
 A calibrator fits one **view** of the residual: the time-domain residual (optionally low-passed)
 or its **spectrum**: the log power spectral densities of every observed output, simulated
-against recorded (both lifted to one noise floor), per frequency. The spectrum ignores phase, so a
+against recorded, per frequency (:class:`SpectrumView`). The spectrum ignores phase, so a
 lightly damped mode whose frequency a parameter sets gives a smooth, single valley in it, where
 the time-domain misfit of the ringing is flat far from the right value and ripples near it
 (once simulated and recorded ringing drift out of phase, no local step helps).
@@ -80,13 +80,14 @@ def autocorrelation_time(residual: np.ndarray, max_lag: int | None = None) -> fl
 class SpectrumView:
     """The spectrum view of a residual over the first ``rows`` rows of an experiment.
 
-    The residual is, per observed output and Welch frequency bin, ``log(S_sim + F) -
-    log(S_rec + F)``: ``S`` the power spectral densities (Welch, segments of
-    :data:`SEGMENT` samples, a quarter of the rows at most), ``F`` the noise floor both are
-    lifted to, the sensor noise's density plus that of the drift input noise drives (each
-    side carries one of the two; lifting both to their sum leaves a bin where noise dominates
-    without weight, whatever the error of either estimate). Each is scaled by the square root
-    of the number of segments averaged, which makes it about unit variance.
+    The residual is, per observed output and Welch frequency bin, ``w (log(S_sim + N) -
+    log(S_rec + N))``: ``S`` the power spectral densities (Welch, segments of
+    :data:`SEGMENT` samples, a quarter of the rows at most), ``N`` the sensor noise's density
+    (the recording carries it, the simulation does not), ``w`` the whitening gain against the
+    drift input noise drives (:class:`~.noise.DriftWhitening`): the simulation carries that
+    drift and the recording does not, so where it dominates (an integrating output's low
+    frequencies) a bin says nothing about the hypotheses and has no weight. Each is scaled by
+    the square root of the number of segments averaged, which makes it about unit variance.
 
     Parameters
     ----------
@@ -103,19 +104,19 @@ class SpectrumView:
         self.segment = max(8, min(self.SEGMENT, rows // 4))
         self.fs = 1.0 / experiment.dt
         freq, recorded = welch(experiment.recorded[:rows], fs=self.fs, nperseg=self.segment, axis=0)
-        white = 2.0 * experiment.dt * experiment.sigma**2
-        self.floor = np.broadcast_to(white, recorded.shape).copy()
+        self.white = 2.0 * experiment.dt * experiment.sigma**2
+        self.log_recorded = np.log(recorded + self.white)
+        scale = math.sqrt(max(1.0, 2.0 * rows / self.segment - 1.0))
+        self.weight = np.full(recorded.shape, scale)
         whitening = experiment.whitening
         if whitening is not None:
             for j, ratio in enumerate(whitening.ratio.T):
-                self.floor[:, j] += white[j] * np.interp(freq, whitening.frequency, ratio)
-        self.log_recorded = np.log(recorded + self.floor)
-        self.scale = math.sqrt(max(1.0, 2.0 * rows / self.segment - 1.0))
+                self.weight[:, j] /= np.sqrt(1.0 + np.interp(freq, whitening.frequency, ratio))
 
     def residual(self, simulated: np.ndarray) -> np.ndarray | None:
         """The spectrum residual of a simulation of the rows, flattened (None if not finite)."""
         _, power = welch(simulated, fs=self.fs, nperseg=self.segment, axis=0)
-        r = (np.log(power + self.floor) - self.log_recorded) * self.scale
+        r = (np.log(power + self.white) - self.log_recorded) * self.weight
         return r.ravel() if np.all(np.isfinite(r)) else None
 
 

@@ -159,9 +159,9 @@ class DriftWhitening:
     def __init__(self, deviations: np.ndarray, sigma: np.ndarray, dt: float) -> None:
         n = deviations.shape[1]
         self.dt = dt
-        self.frequency = np.fft.rfftfreq(n, dt)
-        power = np.mean(np.abs(np.fft.rfft(deviations, axis=1)) ** 2, axis=0)
-        self.ratio = _smooth(power / (n * sigma**2))
+        self.frequency = np.fft.rfftfreq(2 * n, dt)
+        power = np.mean(np.abs(np.fft.rfft(_mirrored(deviations, 1), axis=1)) ** 2, axis=0)
+        self.ratio = _smooth(power / (2 * n * sigma**2))
         self.drift = np.sqrt(np.mean(deviations**2, axis=(0, 1))) / sigma
 
     def weights(self, n: int) -> np.ndarray:
@@ -174,12 +174,22 @@ class DriftWhitening:
         return 1.0 / np.sqrt(1.0 + ratio)
 
     def __call__(self, residual: np.ndarray) -> np.ndarray:
-        """The residual, whitened column by column (a new array, same shape (n, n_observed))."""
+        """The residual, whitened column by column (a new array, same shape (n, n_observed)).
+
+        The filter runs over the residual followed by its mirror image, so that it sees no jump
+        where the discrete transform wraps the end onto the start: a drift that ends far from
+        where it started would otherwise leave transients at both ends.
+        """
         n = residual.shape[0]
         if n < 2:
             return residual.copy()
-        spectrum = np.fft.rfft(residual, axis=0) * self.weights(n)
-        return np.fft.irfft(spectrum, n=n, axis=0)
+        spectrum = np.fft.rfft(_mirrored(residual, 0), axis=0) * self.weights(2 * n)
+        return np.fft.irfft(spectrum, n=2 * n, axis=0)[:n]
+
+
+def _mirrored(x: np.ndarray, axis: int) -> np.ndarray:
+    """``x`` followed by its mirror image along ``axis`` (twice as long, no jump at the wrap)."""
+    return np.concatenate([x, np.flip(x, axis=axis)], axis=axis)
 
 
 def _smooth(power: np.ndarray) -> np.ndarray:
