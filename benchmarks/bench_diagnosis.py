@@ -69,7 +69,7 @@ def main() -> None:
         "hypotheses": len(diagnosis.hypotheses_),
         "timings": diagnosis.timings_,
         "top_finding": top.summary,
-        "target_seconds": 120.0,
+        "target_seconds": 60.0,
     }
     if args.json:
         print(json.dumps(result))
@@ -79,7 +79,7 @@ def main() -> None:
     print(
         f"diagnosis: {seconds:.1f} s = {seconds / peer:.0f} white-box simulations "
         f"({result['simulations']} simulations run, {result['hypotheses']} hypotheses, "
-        f"{args.workers} workers); target < 120 s"
+        f"{args.workers} workers); target < 60 s"
     )
     print(f"steps [s]: {diagnosis.timings_}")
     print(f"top finding: {top.summary}")
