@@ -2,36 +2,43 @@
 
 The three-stage hydraulic actuator (EHV -> RAM -> ITFV) is trained on a synthetic 6 s recording
 with M inducing points per stage (a few optimiser iterations: the cost of a step depends on M
-and the number of features, not on how well the hyperparameters fit), exported, and stepped:
+and the number of features, not on how well the hyperparameters fit), exported for both
+runtimes (native and Python), and stepped; the bare white-box FMU is stepped the same way in the
+same run (``x white-box`` is the ratio to it in the same engine):
 
+- ``C master``: ``c_master.c``, a bare FMI master in C with no Python in its process (native
+  grey-box and white-box only): per step set the four inputs, ``fmi2DoStep``, get every Real
+  output -- what a native bench does;
 - ``fmpy``: fmpy's ``FMU2Slave``; per step set the four inputs (from the recording),
   ``fmi2DoStep``, get every Real output (and ``out_of_domain`` for the grey-box) -- what a
   Python master does;
 - ``libcosim``: the FMU alone in libcosim (libcosimpy), inputs held at their first recorded
   values, a last-value observer attached, all steps in one ``step(n)`` call -- libcosim's loop
-  with no Python between steps (the FMU's own Python runs inside ``fmi2DoStep``);
+  with no Python between steps (a Python FMU's own Python runs inside ``fmi2DoStep``);
 - ``libcosim 1 core``: the same with the process held on one CPU core while libcosim starts its
   worker threads (they inherit it). libcosim hands each step to whichever worker is free, so on a
   multi-core machine consecutive steps of the FMU run on different cores, and each core's cache
   must fetch the correctors' factors again (about 1.9 MB at M = 400 and three stages); a
   real-time bench pins its threads (``taskset -c N``) and gets this figure;
-- ``in-process``: the grey-box's slave class called directly from Python (set, step, get), i.e.
-  without pythonfmu's C++ wrapper -- the difference to ``fmpy`` is that wrapper's cost.
+- ``in-process``: the Python grey-box's slave class called directly from Python (set, step,
+  get), i.e. without pythonfmu's C++ wrapper -- the difference to ``fmpy`` is that wrapper's
+  cost; its breakdown shows where a step's time goes (white-box FMU step, the chain of
+  correctors with their out-of-domain score, the rest of the slave);
+- ``chain step``: the compiled chain step alone (``native/chain_core.c``, the code both
+  runtimes run) over the recording's white-box outputs, called from a Python loop (about a
+  microsecond of each call is Python's).
 
-The bare white-box FMU is measured the same way in the same run (``x white-box`` is the ratio).
-Figures are CPU time of the process per step (wall time in brackets: it also counts time the
-process waited for a shared CPU), after :data:`SETTLE` s and :data:`WARMUP` untimed steps, of
-the run with the least CPU time out of ``--repeats``; the
-in-process breakdown shows where a step's time goes (white-box FMU step, the chain of
-correctors with their out-of-domain score, the rest of the slave).
+Figures are CPU time of the process per step (wall time in brackets where measured: it also
+counts time the process waited for a shared CPU), after :data:`SETTLE` s and :data:`WARMUP`
+untimed steps (the C master: its first run), of the run with the least CPU time out of
+``--repeats``.
 
-With ``--equivalence`` it also runs the grey-box of the first M on a separate 2.048 s validation
-recording in fmpy's ``simulate_fmu``, in fmpy's SSP simulation and in libcosim (the SSP bench of
-:func:`fmu_greybox.export.ssp.make_bench`) and prints the largest difference to the in-process
-master
+With ``--equivalence`` it also runs the grey-box FMUs of the first M on a separate 2.048 s
+validation recording -- the native one in the C master, in fmpy's ``simulate_fmu``, in fmpy's
+SSP simulation and in libcosim (the SSP bench of :func:`fmu_greybox.export.ssp.make_bench`), the
+Python one in the last three -- and prints the largest difference to the in-process master
 (:func:`fmu_greybox.workflow.master.run_master`, memory from the white-box), relative to each
-signal's
-range, over the corrected outputs, their standard deviations and the white-box outputs.
+signal's range, over the corrected outputs, their standard deviations and the white-box outputs.
 
 Usage: ``.venv/bin/python benchmarks/bench_export.py [--inducing 50,100,200,400] [--steps N]
 [--repeats R] [--equivalence] [--json]``.
@@ -43,6 +50,7 @@ import argparse
 import contextlib
 import dataclasses
 import json
+import math
 import os
 import sys
 import tempfile
@@ -54,7 +62,9 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from fmu_greybox.export.fmu import export_greybox
+import c_master
+
+from fmu_greybox.export.fmu import RUNTIMES, export_greybox
 from fmu_greybox.export.slave import GreyBoxSlave
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import reference_fmus
@@ -65,7 +75,6 @@ from fmu_greybox.workflow.train import train_model, with_inducing
 
 ROOT = Path(__file__).resolve().parent.parent
 INPUTS = ("valve_current", "supply_pressure", "load_force", "engage")
-TARGET_US = 100.0
 #: Steps run before the clock starts (caches, branch predictors).
 WARMUP = 500
 #: Seconds to wait before them: loading a model factorises its posteriors with multi-threaded
@@ -88,16 +97,19 @@ def recording(duration: float = 6.0, seed: int = 3):
         return synth.synthesise(truth, whitebox, request)
 
 
-def export(rec, inducing: int, folder: Path) -> Path:
-    """Train with ``inducing`` points per stage (5 iterations) and export."""
+def export(rec, inducing: int, folder: Path) -> dict[str, Path]:
+    """Train with ``inducing`` points per stage (5 iterations) and export for each runtime."""
     project = load_config(ROOT / "bench_configs" / "hydraulic_actuator.toml")
     config = with_inducing(project, inducing)
     config = dataclasses.replace(
         config,
         gp=dataclasses.replace(config.gp, max_iter=5),
     )
-    save_model(train_model(config, rec), folder / f"model{inducing}")
-    return export_greybox(folder / f"model{inducing}", folder / f"greybox{inducing}.fmu").path
+    model = save_model(train_model(config, rec), folder / f"model{inducing}")
+    return {
+        runtime: export_greybox(model, folder / f"{runtime}{inducing}.fmu", runtime=runtime).path
+        for runtime in RUNTIMES
+    }
 
 
 class Clock:
@@ -242,8 +254,11 @@ def in_process(fmu: Path, u: np.ndarray, parts: Parts | None = None) -> Clock:
     return clock
 
 
-def equivalence(model_dir: Path, fmu: Path, folder: Path) -> dict[str, float]:
-    """Largest relative difference to the master per engine (see the module docstring)."""
+def equivalence(
+    model_dir: Path, fmus: dict[str, Path], program: Path, folder: Path
+) -> dict[str, float]:
+    """Largest relative difference to the master per runtime and engine (see the module
+    docstring)."""
     from fmpy import simulate_fmu
 
     from fmu_greybox.data.recording import Recording
@@ -254,47 +269,93 @@ def equivalence(model_dir: Path, fmu: Path, folder: Path) -> dict[str, float]:
 
     rec = recording(duration=2.048, seed=8)  # 2048 steps: its mean step is exactly 1 ms
     model = load_model(model_dir)
+    names = [n + s for n in model.chain.whitebox_outputs for s in ("", "_std", "_wb")]
 
     def master(r: Recording):
         with open_fmu(model.whitebox_fmu) as archive:
             data = prepare(model.config, model.chain, archive, r)
         return run_master(model, data, 0, memory_from="whitebox")
 
-    def worst(columns, run) -> float:
+    def worst(columns: dict[str, np.ndarray], run) -> float:
         largest = 0.0
         for q, name in enumerate(model.chain.whitebox_outputs):
             for suffix, ref in (("", run.mean), ("_std", run.std), ("_wb", run.whitebox)):
                 ref = ref[:, q]
                 scale = max(np.ptp(ref), np.max(np.abs(ref)))
-                largest = max(largest, float(np.max(np.abs(columns(name + suffix) - ref)) / scale))
+                largest = max(largest, float(np.max(np.abs(columns[name + suffix] - ref)) / scale))
         return largest
 
     reference = master(rec)
-    signal = np.zeros(rec.n_samples, dtype=[("time", float)] + [(n, float) for n in INPUTS])
-    signal["time"] = rec.time
-    for name in INPUTS:
-        signal[name] = rec[name]
-    names = [n + s for n in model.chain.whitebox_outputs for s in ("", "_std", "_wb")]
-    result = simulate_fmu(
-        str(fmu),
-        stop_time=rec.time[-1],
-        step_size=rec.dt,
-        output_interval=rec.dt,
-        input=signal,
-        output=names,
-    )
-    figures = {"fmpy simulate_fmu": worst(lambda n: result[n][1:], reference)}
-    bench = make_bench(fmu, rec, folder / "bench.ssp")
-    cosim = run_bench(bench, "libcosim")
-    figures["libcosim (SSP)"] = worst(lambda n: cosim[f"greybox.{n}"], reference)
     # fmpy's SSP simulation feeds 0 to connected inputs in its first step: so does the master
     signals = {n: np.array(v) for n, v in rec.signals.items()}
     for name in INPUTS:
         signals[name][0] = 0.0
     zeroed = master(Recording(time=rec.time, signals=signals, units=rec.units))
-    ssp = run_bench(bench, "fmpy")
-    figures["fmpy SSP"] = worst(lambda n: ssp[f"greybox.{n}"], zeroed)
+    signal = np.zeros(rec.n_samples, dtype=[("time", float)] + [(n, float) for n in INPUTS])
+    signal["time"] = rec.time
+    for name in INPUTS:
+        signal[name] = rec[name]
+    figures = {}
+    for runtime, fmu in fmus.items():
+        if runtime == "native":
+            rows = np.column_stack([rec[n] for n in INPUTS])[:-1]
+            done = c_master.run(program, fmu, list(INPUTS), names, rows, folder / "eq_c")
+            columns = {n: done.outputs[:, i] for i, n in enumerate(names)}
+            figures["native, C master"] = worst(columns, reference)
+        result = simulate_fmu(
+            str(fmu),
+            stop_time=rec.time[-1],
+            step_size=rec.dt,
+            output_interval=rec.dt,
+            input=signal,
+            output=names,
+        )
+        columns = {n: result[n][1:] for n in names}
+        figures[f"{runtime}, fmpy simulate_fmu"] = worst(columns, reference)
+        bench = make_bench(fmu, rec, folder / f"bench_{runtime}.ssp")
+        cosim = run_bench(bench, "libcosim")
+        columns = {n: cosim[f"greybox.{n}"] for n in names}
+        figures[f"{runtime}, libcosim (SSP)"] = worst(columns, reference)
+        ssp = run_bench(bench, "fmpy")
+        figures[f"{runtime}, fmpy SSP"] = worst({n: ssp[f"greybox.{n}"] for n in names}, zeroed)
     return figures
+
+
+def c_master_run(program: Path, fmu: Path, u: np.ndarray, repeats: int) -> dict[str, float]:
+    """CPU time per step [us] in the C master (every Real output read), least of ``repeats``."""
+    description = read_model_description(str(fmu))
+    reals = [
+        v.name for v in description.modelVariables if v.causality == "output" and v.type == "Real"
+    ]
+    with tempfile.TemporaryDirectory() as folder:
+        done = c_master.run(program, fmu, list(INPUTS), reals, u, Path(folder), repeats)
+    return {"cpu_us": done.cpu_us, "wall_us": None}  # the C master measures CPU time only
+
+
+def chain_step(model_dir: Path, rec, steps: int, repeats: int) -> dict[str, float]:
+    """CPU time per call [us] of the compiled chain step over the recording's white-box
+    outputs, called from a Python loop; least of ``repeats``."""
+    from fmu_greybox.model.store import load_model
+    from fmu_greybox.project.data import prepare
+
+    model = load_model(model_dir)
+    chain = model.chain
+    with open_fmu(model.whitebox_fmu) as archive:
+        data = prepare(model.config, chain, archive, rec)
+    exo = np.ascontiguousarray(data.exo[: steps + 1])
+    y_wb = np.ascontiguousarray(data.y_wb[: steps + 1])
+    plan = chain.plan()
+    time.sleep(SETTLE)
+    clocks = []
+    for _ in range(repeats):
+        state = plan.start(y_wb[0], exo[0])
+        with Clock() as clock:
+            for j in range(1, exo.shape[0]):
+                plan.step(state, exo[j - 1], y_wb[j])
+        clocks.append(clock)
+    clock = min(clocks, key=lambda c: c.cpu)
+    n = exo.shape[0] - 1
+    return {"cpu_us": clock.cpu / n * 1e6, "wall_us": clock.wall / n * 1e6}
 
 
 def libcosim_one_core(fmu: Path, u: np.ndarray) -> Clock:
@@ -318,6 +379,13 @@ def breakdown(fmu: Path, u: np.ndarray) -> dict[str, float]:
     return pieces
 
 
+#: Engines measured per kind of FMU (the white-box alone is measured in all that apply).
+ENGINES = {
+    "native": ("C master", "fmpy", "libcosim", "libcosim 1 core"),
+    "python": ("fmpy", "libcosim", "libcosim 1 core", "in-process"),
+}
+
+
 def main() -> None:
     """Run the benchmark and print the figures."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -329,7 +397,7 @@ def main() -> None:
     parser.add_argument(
         "--equivalence",
         action="store_true",
-        help="also compare fmpy, fmpy SSP and libcosim with the master",
+        help="also compare the C master, fmpy, fmpy SSP and libcosim with the master",
     )
     parser.add_argument("--json", action="store_true", help="print a final JSON line")
     args = parser.parse_args()
@@ -341,61 +409,73 @@ def main() -> None:
     figures = {}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        whitebox = reference_fmus()["HydraulicActuator"]
-        bare = {
-            "fmpy": best(fmpy_loop, whitebox, u, args.repeats),
-            "libcosim": best(libcosim_run, whitebox, u, args.repeats),
-            "libcosim 1 core": best(libcosim_one_core, whitebox, u, args.repeats),
+        program = c_master.build(tmp)
+        runs = {
+            "C master": lambda fmu, u_, r: c_master_run(program, fmu, u_, r),
+            "fmpy": lambda fmu, u_, r: best(fmpy_loop, fmu, u_, r),
+            "libcosim": lambda fmu, u_, r: best(libcosim_run, fmu, u_, r),
+            "libcosim 1 core": lambda fmu, u_, r: best(libcosim_one_core, fmu, u_, r),
+            "in-process": lambda fmu, u_, r: best(in_process, fmu, u_, r),
         }
+        whitebox = reference_fmus()["HydraulicActuator"]
+        bare = {e: runs[e](whitebox, u, args.repeats) for e in ENGINES["native"]}
         for m in sizes:
-            fmu = export(rec, m, tmp)
-            rows.append(
-                {
-                    "inducing": m,
-                    "fmpy": best(fmpy_loop, fmu, u, args.repeats),
-                    "libcosim": best(libcosim_run, fmu, u, args.repeats),
-                    "libcosim 1 core": best(libcosim_one_core, fmu, u, args.repeats),
-                    "in-process": best(in_process, fmu, u, args.repeats),
-                    "breakdown": breakdown(fmu, u),
-                }
-            )
+            fmus = export(rec, m, tmp)
+            row = {"inducing": m}
+            for runtime, engines in ENGINES.items():
+                row[runtime] = {e: runs[e](fmus[runtime], u, args.repeats) for e in engines}
+            row["breakdown"] = breakdown(fmus["python"], u)
+            row["chain step"] = chain_step(tmp / f"model{m}", rec, args.steps, args.repeats)
+            rows.append(row)
             if args.equivalence and not figures:
-                figures = equivalence(tmp / f"model{m}", fmu, tmp)
+                figures = equivalence(tmp / f"model{m}", fmus, program, tmp)
+    report(args, rows, bare, figures, sizes[0], len(u))
+
+
+def wall(figure: dict[str, float | None]) -> float:
+    """Wall time per step [us], NaN where not measured (the C master)."""
+    return math.nan if figure["wall_us"] is None else figure["wall_us"]
+
+
+def report(args, rows: list[dict], bare: dict, figures: dict, first: int, steps: int) -> None:
+    """Print the table (and the JSON line)."""
     print(
-        f"grey-box FMU of the three-stage actuator, {len(u)} steps of 1 ms, CPU time per step "
+        f"grey-box FMU of the three-stage actuator, {steps} steps of 1 ms, CPU time per step "
         f"(wall in brackets), best of {args.repeats} runs"
     )
     print(
-        f"white-box FMU alone: fmpy {bare['fmpy']['cpu_us']:.1f} us "
-        f"({bare['fmpy']['wall_us']:.1f}), libcosim {bare['libcosim']['cpu_us']:.1f} us "
-        f"({bare['libcosim']['wall_us']:.1f})"
+        "white-box FMU alone: "
+        + ", ".join(f"{e} {v['cpu_us']:.1f} us ({wall(v):.1f})" for e, v in bare.items())
     )
     print(
-        f"{'M/stage':>8} {'engine':>15} {'us/step':>9} {'(wall)':>9} {'x white-box':>12} "
-        f"{'< 100 us':>9}"
+        f"{'M/stage':>8} {'runtime':>8} {'engine':>15} {'us/step':>9} {'(wall)':>9} "
+        f"{'x white-box':>12}"
     )
     for row in rows:
-        for engine in ("fmpy", "libcosim", "libcosim 1 core", "in-process"):
-            cpu, wall = row[engine]["cpu_us"], row[engine]["wall_us"]
-            ratio = f"{cpu / bare[engine]['cpu_us']:12.1f}" if engine in bare else f"{'':12}"
-            print(
-                f"{row['inducing']:8d} {engine:>15} {cpu:9.1f} {wall:9.1f} {ratio} "
-                f"{'yes' if cpu < TARGET_US else 'no':>9}"
-            )
+        for runtime in ENGINES:
+            for engine, v in row[runtime].items():
+                ratio = f"{v['cpu_us'] / bare[engine]['cpu_us']:12.2f}" if engine in bare else ""
+                print(
+                    f"{row['inducing']:8d} {runtime:>8} {engine:>15} {v['cpu_us']:9.1f} "
+                    f"{wall(v):9.1f} {ratio:>12}"
+                )
         pieces = ", ".join(f"{name} {us:.1f}" for name, us in row["breakdown"].items())
-        print(f"{'':8} {'':>15} in-process breakdown [us]: {pieces}")
+        print(f"{'':8} {'python':>8} in-process breakdown [us]: {pieces}")
+        step = row["chain step"]
+        print(
+            f"{'':8} {'both':>8} compiled chain step alone: {step['cpu_us']:.1f} us "
+            f"({step['wall_us']:.1f})"
+        )
     for engine, difference in figures.items():
         print(
-            f"equivalence, M = {sizes[0]}: {engine:18} max |FMU - master| / range = "
-            f"{difference:.2e}"
+            f"equivalence, M = {first}: {engine:30} max |FMU - master| / range = {difference:.2e}"
         )
     if args.json:
         print(
             json.dumps(
                 {
-                    "steps": len(u),
+                    "steps": steps,
                     "repeats": args.repeats,
-                    "target_us": TARGET_US,
                     "whitebox_us_per_step": bare,
                     "greybox_us_per_step": rows,
                     "equivalence": figures,

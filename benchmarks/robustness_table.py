@@ -16,6 +16,7 @@ from __future__ import annotations
 import _ctypes
 import datetime
 import json
+import os
 import pickle
 import re
 import shutil
@@ -54,8 +55,10 @@ from fmu_greybox.model.store import (  # noqa: E402
     save_model,
 )
 from fmu_greybox.project.config import load_config, parse_config  # noqa: E402
+from fmu_greybox.project.data import load_project_recording  # noqa: E402
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise  # noqa: E402
 from fmu_greybox.workflow.train import train_model  # noqa: E402
+from fmu_greybox.workflow.validate import check_project, validate_model  # noqa: E402
 
 REFERENCE = ROOT / "bench_configs" / "hydraulic_actuator.toml"
 WIDTH = 190
@@ -432,17 +435,22 @@ def recording_cases(tmp: Path, whitebox: Path, recording: Recording) -> list[Cas
 
         return make
 
-    def unit_mismatch() -> object:
-        frame = recording.to_frame()
-        frame.columns = [
-            "time [s]",
-            *(
-                f"{n} [{'A' if n == 'valve_current' else recording.units[n]}]"
-                for n in recording.names
-            ),
-        ]
-        frame.to_csv(tmp / "amps.csv", index=False)
-        return simulate_recording(whitebox, load_recording(tmp / "amps.csv"))
+    def header_unit(unit: str, scale: float) -> Callable[[], object]:
+        def make() -> tuple[str, str] | object:
+            frame = recording.to_frame()
+            frame["valve_current"] *= scale
+            units = {**recording.units, "valve_current": unit}
+            frame.columns = ["time [s]", *(f"{n} [{units[n]}]" for n in recording.names)]
+            frame.to_csv(tmp / "amps.csv", index=False)
+            result = simulate_recording(whitebox, load_recording(tmp / "amps.csv"))
+            reference = simulate_recording(whitebox, recording)
+            worst = max(
+                float(np.max(np.abs(result[n] - reference[n])) / (np.ptp(reference[n]) or 1.0))
+                for n in result.names
+            )
+            return "converted", f"outputs within {worst:.1e} of their range of the run in mA"
+
+        return make
 
     def renamed() -> object:
         signals = {
@@ -529,8 +537,14 @@ def recording_cases(tmp: Path, whitebox: Path, recording: Recording) -> list[Cas
         Case(
             "recording",
             "header unit `[A]` where the FMU declares mA",
-            unit_mismatch,
-            "test_robustness_recording.py::test_header_unit_differing_from_the_fmu_names_the_column",
+            header_unit("A", 1e-3),
+            "test_simulate.py::test_compatible_unit_is_converted_with_a_note",
+        ),
+        Case(
+            "recording",
+            "header unit `[V]` where the FMU declares mA",
+            header_unit("V", 1.0),
+            "test_simulate.py::test_incompatible_unit_names_both_units",
         ),
         Case(
             "recording",
@@ -615,8 +629,8 @@ def model_cases(tmp: Path, saved: Path) -> list[Case]:
         ),
         Case(
             "model",
-            "model: format version 3",
-            tampered("version", manifest_edit(lambda m: m.update(format_version=3))),
+            "model: format version 4",
+            tampered("version", manifest_edit(lambda m: m.update(format_version=4))),
             here + "test_valid_json_edits_of_the_manifest_are_refused",
         ),
         Case(
@@ -738,6 +752,18 @@ def run_cases(
         process.wait()
         return f"killed ({signal.Signals(-process.returncode).name})", left_behind(folder, before)
 
+    def after_killed() -> tuple[str, str]:
+        folder = tmp / "killed"
+        for debris in folder.parent.glob(f".{folder.name}.*.tmp"):
+            stamp = time.time() - 60  # older than the writer's grace period
+            os.utime(debris, (stamp, stamp))
+        train = ["-q", "train", str(tmp / "project.toml"), "--recording", str(tmp / "rec.csv")]
+        command = [sys.executable, "-c", "from fmu_greybox.cli import main; main()", *train]
+        result = subprocess.run([*command, "--out", folder], check=False)
+        left = sorted(p.name for p in folder.parent.iterdir() if p.name.startswith(".killed."))
+        loads = "loads" if load_model(folder) else "fails"
+        return f"exit {result.returncode}", f"killed/ {loads}; left: {', '.join(left) or 'none'}"
+
     def failed_save() -> tuple[str, str]:
         (tmp / "wb.csv").write_text("time,x\n0,1\n1,2\n")
         before = snapshot(tmp / "wb.csv")
@@ -801,11 +827,184 @@ def run_cases(
         ),
         Case(
             "run",
+            "the next `train` into the folder of the killed one",
+            after_killed,
+            runs + "test_sigkill_leaves_the_earlier_model_intact",
+        ),
+        Case(
+            "run",
             "saving a recording to a path under a file",
             failed_save,
             "test_recording.py::test_save_errors",
         ),
     ]
+
+
+# ---------------------------------------------------------------------------- workflow
+
+
+def workflow_cases(tmp: Path, whitebox: Path, recording: Recording, saved: Path) -> list[Case]:
+    """Misuse of train, validate, diagnose and export (issue 15)."""
+    from click.testing import CliRunner
+    from scipy.io import savemat
+
+    from fmu_greybox.atomic import output_lock
+    from fmu_greybox.cli import main as cli
+    from fmu_greybox.diagnosis import Diagnosis
+
+    flow = "test_robustness_workflow.py::"
+    model = load_model(saved)
+    config = parse_config(small_project(whitebox), REFERENCE)
+    save_recording(recording, tmp / "train.csv")
+
+    def edited(**tables: dict) -> object:
+        raw = small_project(whitebox)
+        for name, values in tables.items():
+            raw[name] = {**raw[name], **values}
+        return parse_config(raw, tmp / "edited.toml")
+
+    def byte_copy() -> tuple[str, str]:
+        shutil.copyfile(tmp / "train.csv", tmp / "copy.csv")  # without train.csv.units.json
+        result = validate_model(model, load_project_recording(config, tmp / "copy.csv"))
+        return "scored", f"copy.csv: {result.held_out}"
+
+    def resampled(step: float, source: str) -> Recording:
+        grid = np.arange(0.0, recording.duration + step / 2, step)
+        signals = {n: np.interp(grid, recording.time, v) for n, v in recording.signals.items()}
+        return Recording(grid, signals, recording.units, source)
+
+    def milliseconds() -> object:
+        frame = recording.to_frame()
+        frame["time"] *= 1000.0
+        frame.to_csv(tmp / "ms.csv", index=False)
+        return validate_model(model, load_project_recording(config, tmp / "ms.csv"))
+
+    def other_column() -> object:
+        raw = small_project(whitebox)
+        raw["signals"]["load_force"]["column"] = "F_load"
+        return check_project(parse_config(raw, tmp / "other.toml"), model, "model")
+
+    def short(rows: int) -> Recording:
+        return Recording(
+            recording.time[:rows],
+            {n: v[:rows] for n, v in recording.signals.items()},
+            recording.units,
+            f"{rows}rows.csv",
+        )
+
+    def cli_outcome(args: list[str], written: Path) -> tuple[str, str]:
+        result = CliRunner().invoke(cli, args)
+        left = "written" if written.exists() else "not written"
+        return f"exit {result.exit_code}", f"{result.output.strip()} ({written.name}: {left})"
+
+    def export_under_a_file() -> tuple[str, str]:
+        (tmp / "blocker").write_text("a file")
+        out = tmp / "new" / "greybox.fmu"
+        args = ["export", str(saved), "--out", str(out), "--ssp", str(tmp / "blocker" / "b.ssp")]
+        return cli_outcome([*args, "--recording", str(tmp / "train.csv")], out)
+
+    def busy_folder() -> tuple[str, str]:
+        (tmp / "project.toml").write_text(REFERENCE.read_text(encoding="utf-8"))
+        args = ["train", str(tmp / "project.toml"), "--recording", str(tmp / "train.csv")]
+        with output_lock(tmp / "busy", "--out"):
+            return cli_outcome([*args, "--out", str(tmp / "busy")], tmp / "busy")
+
+    def two_structs() -> object:
+        struct = {"time": recording.time, "x": recording["valve_current"]}
+        savemat(tmp / "two.mat", {"run1": struct, "run2": struct})
+        return load_recording(tmp / "two.mat")
+
+    def shared_column() -> object:
+        raw = small_project(whitebox)
+        raw["signals"]["load_force"]["column"] = "supply_pressure"
+        return parse_config(raw, tmp / "shared.toml")
+
+    return [
+        Case(
+            "workflow",
+            "validate: a byte copy of the training CSV without its units file",
+            byte_copy,
+            flow + "test_byte_copy_without_units_scores_only_the_held_out_rows",
+        ),
+        Case(
+            "workflow",
+            "validate: a 2 kHz recording for a 1 kHz model",
+            lambda: validate_model(model, resampled(recording.dt / 2, "2kHz.csv")),
+            flow + "test_another_sample_time_is_refused",
+        ),
+        Case(
+            "workflow",
+            "validate: time in milliseconds without a unit",
+            milliseconds,
+            flow + "test_time_in_milliseconds_without_a_unit_is_pointed_out",
+        ),
+        Case(
+            "workflow",
+            "validate: a project with another `column` than the training one",
+            other_column,
+            flow + "test_a_project_other_than_the_training_one_is_refused",
+        ),
+        Case(
+            "workflow",
+            "train: a recorded input also in `[whitebox] fixed_inputs`",
+            lambda: train_model(
+                c := edited(whitebox={"fixed_inputs": {"supply_pressure": 2e7}}),
+                load_project_recording(c, tmp / "train.csv"),
+            ),
+            flow + "test_recorded_input_in_fixed_inputs_is_refused",
+        ),
+        Case(
+            "workflow",
+            "train: `train_fraction = 0.001`",
+            lambda: train_model(edited(split={"train_fraction": 0.001}), recording),
+            flow + "test_too_few_training_rows_are_refused",
+        ),
+        Case(
+            "workflow",
+            "train: more inducing points than training rows",
+            lambda: train_model(edited(gp={"inducing": 1000}), recording),
+            flow + "test_more_inducing_points_than_rows_are_refused",
+        ),
+        Case(
+            "workflow",
+            "diagnose: 10 rows",
+            lambda: Diagnosis(config, greybox=None).fit(short(10)),
+            flow + "test_diagnosis_on_too_few_rows_is_refused",
+        ),
+        Case(
+            "workflow",
+            "`export --ssp` into a folder under a file",
+            export_under_a_file,
+            flow + "test_export_ssp_under_a_file_is_refused_before_anything_is_written",
+        ),
+        Case(
+            "workflow",
+            "`train --out` into a folder another run is writing",
+            busy_folder,
+            flow + "test_second_train_into_a_busy_folder_is_refused",
+        ),
+        Case(
+            "workflow",
+            "two signals sharing one `column`",
+            shared_column,
+            flow + "test_two_signals_reading_one_column_are_refused",
+        ),
+        Case(
+            "workflow",
+            "a `.mat` file with two structs",
+            two_structs,
+            "test_recording_formats.py::test_mat_with_two_structs_says_why_and_how",
+        ),
+    ]
+
+
+def small_project(whitebox: Path) -> dict:
+    """The reference project's tables with this white-box, a small GP and 80 % training."""
+    raw = tomllib.loads(REFERENCE.read_text(encoding="utf-8"))
+    raw["whitebox"]["fmu"] = str(whitebox)
+    raw["gp"].update(inducing=8, max_iter=3)
+    raw["split"] = {"train_fraction": 0.8}
+    return raw
 
 
 # ---------------------------------------------------------------------------- main
@@ -826,16 +1025,13 @@ def left_behind(folder: Path, before: dict[str, bytes]) -> str:
 
 
 def train_small(tmp: Path, whitebox: Path, truth: Path) -> tuple[Recording, Path, object]:
-    """A 0.5 s recording and a small model trained on it, saved in ``tmp/model``."""
+    """A 0.5 s recording and a small model trained on its first 80 %, saved in ``tmp/model``."""
     request = SynthRequest(
         effects={"gain_error": 0.1}, seed=5, noise=0.0, profile=FlightTestProfile(duration=0.5)
     )
     with open_fmu(truth) as truth_archive, open_fmu(whitebox) as whitebox_archive:
         recording = synthesise(truth_archive, whitebox_archive, request)
-    raw = tomllib.loads(REFERENCE.read_text(encoding="utf-8"))
-    raw["whitebox"]["fmu"] = str(whitebox)
-    raw["gp"].update(inducing=8, max_iter=3)
-    model = train_model(parse_config(raw, REFERENCE), recording)
+    model = train_model(parse_config(small_project(whitebox), REFERENCE), recording)
     return recording, save_model(model, tmp / "model"), model
 
 
@@ -846,6 +1042,7 @@ def main() -> None:
         "recording": "Recordings",
         "model": "Model folders",
         "run": "Runs",
+        "workflow": "Train, validate, diagnose, export",
     }
     with tempfile.TemporaryDirectory() as folder:
         tmp = Path(folder)
@@ -858,6 +1055,7 @@ def main() -> None:
             *recording_cases(tmp, whitebox, recording),
             *model_cases(tmp, saved),
             *run_cases(tmp, whitebox, truth, recording, saved, model),
+            *workflow_cases(tmp, whitebox, recording, saved),
         ]
         for key, title in sections.items():
             print(f"\n### {title}\n")

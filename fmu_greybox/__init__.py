@@ -45,6 +45,9 @@ _API = {
     "run_master": "fmu_greybox.workflow.master",
     # diagnosis
     "Diagnosis": "fmu_greybox.diagnosis",
+    # campaigns on a Dask cluster
+    "run_campaign": "fmu_greybox.campaign.run",
+    "DaskSimulations": "fmu_greybox.campaign.cluster",
     # export and the bench
     "export_greybox": "fmu_greybox.export.fmu",
     "make_bench": "fmu_greybox.export.ssp",

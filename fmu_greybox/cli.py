@@ -305,12 +305,15 @@ def train(
 ) -> None:
     """Train the stage correctors of a project (teacher forcing).
 
+    The --out folder is locked while training: a second run into it is refused.
+
     \b
     Examples:
       fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv --out model/
       fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv \\
           --terms diag/diagnosis.json --out model/
     """
+    from fmu_greybox.atomic import output_lock
     from fmu_greybox.model.store import save_model
     from fmu_greybox.model.whitebox import read_terms
     from fmu_greybox.project.config import load_config
@@ -318,10 +321,11 @@ def train(
     from fmu_greybox.workflow.train import train_model, with_inducing
 
     config = with_inducing(load_config(config_path), inducing)
-    recording = load_project_recording(config, recording_path)
-    terms = read_terms(terms_path) if terms_path is not None else []
-    model = train_model(config, recording, progress=not ctx.obj["quiet"], terms=terms)
-    save_model(model, out_dir)
+    with output_lock(out_dir, "--out"):
+        recording = load_project_recording(config, recording_path)
+        terms = read_terms(terms_path) if terms_path is not None else []
+        model = train_model(config, recording, progress=not ctx.obj["quiet"], terms=terms)
+        save_model(model, out_dir)
     named = f", named terms: {', '.join(t.effect for t in terms)}" if terms else ""
     _info(
         ctx,
@@ -364,6 +368,10 @@ def validate(
 ) -> None:
     """Free-run the grey-box on held-out data; write metrics.json and plots.
 
+    CONFIG must be the project the model was trained with. Rows the model was trained on are
+    recognised by their values, in any recording, and are not scored; metrics.json lists the
+    rows scored (scored_rows).
+
     \b
     Example:
       fmu-greybox validate bench_configs/hydraulic_actuator.toml --model model/ \\
@@ -374,10 +382,11 @@ def validate(
     from fmu_greybox.project.data import load_project_recording
     from fmu_greybox.report.plots import save_png, trace_figure
     from fmu_greybox.workflow.metrics import format_table
-    from fmu_greybox.workflow.validate import validate_model, write_metrics
+    from fmu_greybox.workflow.validate import check_project, validate_model, write_metrics
 
     config = load_config(config_path)
     model = load_model(model_dir)
+    check_project(config, model, model_dir)
     recording = load_project_recording(config, recording_path)
     result = validate_model(model, recording, progress=not (ctx.obj["quiet"] or as_json))
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -516,6 +525,13 @@ def demo(
     required=True,
     help="The grey-box FMU to write (NAME.fmu).",
 )
+@click.option(
+    "--runtime",
+    type=click.Choice(["native", "python"]),
+    default="native",
+    show_default=True,
+    help="native: a C binary, no Python in the bench's process; python: a pythonfmu FMU.",
+)
 @click.option("--author", default=None, help="Author in the model description (default: you).")
 @click.option(
     "--fmu-version", default="1.0", show_default=True, help="Version in the model description."
@@ -550,6 +566,7 @@ def export(
     ctx: click.Context,
     model_dir: Path,
     out: Path,
+    runtime: str,
     author: str | None,
     fmu_version: str,
     ood_threshold: float,
@@ -563,11 +580,17 @@ def export(
     output NAME_std and NAME_wb, plus domain_score, out_of_domain and the parameters
     correction_enabled and ood_threshold. See docs/bench.md.
 
+    The FMU is native by default: a C binary compiled here with gcc, which runs in any FMI
+    2.0 master (no Python needed in the bench's process); --runtime python writes a pythonfmu
+    FMU instead.
+
     \b
     Examples:
       fmu-greybox export model/ --out greybox.fmu
       fmu-greybox export model/ --out greybox.fmu --ssp bench.ssp --recording rec.csv
+      fmu-greybox export model/ --out greybox.fmu --runtime python
     """
+    from fmu_greybox.atomic import prepare_output
     from fmu_greybox.export.fmu import export_greybox
     from fmu_greybox.export.ssp import make_bench
     from fmu_greybox.model.store import load_model
@@ -575,14 +598,22 @@ def export(
 
     if ssp is not None and recording_path is None:
         raise click.UsageError("--ssp needs --recording (the recording the bench plays back)")
+    prepare_output(out, "--out")
+    if ssp is not None:
+        prepare_output(ssp, "--ssp")
     result = export_greybox(
-        model_dir, out, author=author, version=fmu_version, ood_threshold=ood_threshold
+        model_dir,
+        out,
+        runtime=runtime,
+        author=author,
+        version=fmu_version,
+        ood_threshold=ood_threshold,
     )
     ports = result.interface.ports
     counts = {k: sum(p.causality == k for p in ports) for k in ("input", "output", "parameter")}
     _info(
         ctx,
-        f"wrote {out} ({counts['input']} inputs, {counts['output']} outputs, "
+        f"wrote {out} ({runtime} FMU, {counts['input']} inputs, {counts['output']} outputs, "
         f"{counts['parameter']} parameters; model {result.model_sha256[:12]}, GUID {result.guid})",
     )
     if ssp is not None:
@@ -665,6 +696,13 @@ def cosim(
     help="Simulation worker processes.",
 )
 @click.option(
+    "--scheduler",
+    metavar="ADDRESS",
+    default=None,
+    help="Run the hypothesis simulations on this Dask cluster (tcp://host:port) instead of "
+    "--workers local processes.",
+)
+@click.option(
     "--no-greybox", is_flag=True, help="Skip training the grey-box on top of the named terms."
 )
 @click.option("--json", "as_json", is_flag=True, help="Print diagnosis.json's verdict as JSON.")
@@ -675,6 +713,7 @@ def diagnose(
     recording_path: Path | None,
     out_dir: Path,
     workers: int,
+    scheduler: str | None,
     no_greybox: bool,
     as_json: bool,
 ) -> None:
@@ -682,10 +721,14 @@ def diagnose(
     model it and show the fit improve.
 
     \b
-    Example:
+    Examples:
       fmu-greybox synth --effect coulomb_friction=600 --duration 25 --out rec.csv
       fmu-greybox diagnose bench_configs/hydraulic_actuator.toml --recording rec.csv --out diag/
+      fmu-greybox diagnose bench_configs/hydraulic_actuator.toml --recording rec.csv \\
+          --scheduler tcp://127.0.0.1:8786 --out diag/
     """
+    from contextlib import nullcontext
+
     from fmu_greybox.diagnosis import Diagnosis, GreyBoxSettings, write_outputs
     from fmu_greybox.project.config import load_config
     from fmu_greybox.project.data import load_project_recording
@@ -693,12 +736,20 @@ def diagnose(
     quiet = ctx.obj["quiet"] or as_json
     config = load_config(config_path)
     recording = load_project_recording(config, recording_path)
-    diagnosis = Diagnosis(
-        config,
-        workers=workers,
-        greybox=None if no_greybox else GreyBoxSettings(),
-        progress=None if quiet else (lambda message: click.echo(f"... {message}", err=True)),
-    ).fit(recording)
+    if scheduler is not None:
+        from fmu_greybox.campaign.cluster import DaskSimulations, connect
+
+        connection = connect(scheduler)
+    else:
+        connection = nullcontext()
+    with connection as client:
+        diagnosis = Diagnosis(
+            config,
+            workers=workers,
+            greybox=None if no_greybox else GreyBoxSettings(),
+            progress=None if quiet else (lambda message: click.echo(f"... {message}", err=True)),
+            cluster=None if client is None else DaskSimulations(client),
+        ).fit(recording)
     payload = write_outputs(diagnosis, recording, out_dir)
     if as_json:
         keys = ("origin_stage", "findings", "fit", "verdict")
@@ -711,3 +762,109 @@ def diagnose(
         f"wrote {out_dir / 'diagnosis.json'} and {out_dir / 'report.html'} "
         f"({payload['timings']['total']} s)",
     )
+
+
+@main.command()
+@click.argument("config_path", metavar="CONFIG", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument(
+    "recordings", metavar="RECORDING...", nargs=-1, required=True, type=click.Path(path_type=Path)
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="Campaign folder: campaign.json, campaign.html and recordings/*/ (reused on a rerun).",
+)
+@click.option(
+    "--scheduler",
+    metavar="ADDRESS",
+    default=None,
+    help="Address of a running Dask scheduler (tcp://host:port).",
+)
+@click.option(
+    "--workers",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Worker processes of a local Dask cluster (default: one per core; not with --scheduler).",
+)
+@click.option("--no-greybox", is_flag=True, help="Skip training the grey-box in each diagnosis.")
+@click.pass_context
+def campaign(
+    ctx: click.Context,
+    config_path: Path,
+    recordings: tuple[Path, ...],
+    out_dir: Path,
+    scheduler: str | None,
+    workers: int | None,
+    no_greybox: bool,
+) -> None:
+    """Diagnose many recordings of one project on a Dask cluster; trend each named effect.
+
+    Each recording is diagnosed as a task (on the cluster at --scheduler, else on a local one
+    with --workers processes); a line is printed as each one finishes. A rerun skips the
+    recordings already diagnosed (same content, tool version and project). A recording that
+    fails is reported and the others go on; the exit code is then 1. See docs/campaign.md.
+
+    \b
+    Examples:
+      fmu-greybox campaign bench_configs/hydraulic_actuator.toml flights/*.csv --out camp/
+      fmu-greybox campaign bench_configs/hydraulic_actuator.toml flights/*.parquet \\
+          --scheduler tcp://10.0.0.5:8786 --out camp/
+    """
+    import os
+
+    from fmu_greybox.campaign.cluster import connect
+    from fmu_greybox.campaign.page import summary_lines
+    from fmu_greybox.campaign.run import run_campaign
+    from fmu_greybox.errors import FmuGreyboxError
+    from fmu_greybox.project.config import load_config
+
+    if scheduler is not None and workers is not None:
+        raise click.UsageError("give either --scheduler or --workers, not both")
+    config = load_config(config_path)
+    with connect(scheduler, workers or os.cpu_count() or 1) as client:
+        payload = run_campaign(
+            config,
+            recordings,
+            out_dir,
+            client,
+            greybox=not no_greybox,
+            progress=_campaign_progress(ctx.obj["quiet"]),
+        )
+    for line in summary_lines(payload):
+        click.echo(line)
+    _info(
+        ctx,
+        f"wrote {out_dir / 'campaign.json'} and {out_dir / 'campaign.html'} "
+        f"({payload['summary']['wall_seconds']} s)",
+    )
+    failed = payload["summary"]["failed"]
+    if failed:
+        raise FmuGreyboxError(
+            f"{failed} of {len(recordings)} recordings failed; their errors are in "
+            f"{out_dir / 'campaign.json'} (rerun to retry only those)"
+        )
+
+
+def _campaign_progress(quiet: bool):
+    """A line per finished recording (above a progress bar when on a terminal)."""
+    import sys
+
+    from tqdm import tqdm
+
+    bar = tqdm(total=0, unit="recording", disable=quiet or not sys.stderr.isatty(), leave=False)
+
+    def report(outcome, done: int, total: int) -> None:
+        line = f"[{done}/{total}] {outcome.line()}"
+        if bar.disable:
+            if not quiet or outcome.status == "failed":
+                click.echo(line, err=outcome.status == "failed")
+            return
+        bar.total = total
+        bar.update(1)
+        bar.write(line, file=sys.stderr)
+        if done == total:
+            bar.close()
+
+    return report

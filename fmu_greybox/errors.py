@@ -117,3 +117,12 @@ class ExportError(FmuGreyboxError):
 
 class BenchError(FmuGreyboxError):
     """A bench (SSP system structure) cannot be built or co-simulated as asked."""
+
+
+class ClusterError(FmuGreyboxError):
+    """A Dask cluster cannot be reached or started as asked (the message says which address)."""
+
+
+class OutputError(FmuGreyboxError):
+    """An output cannot be written where asked: its folder cannot be made, or another run is
+    writing it."""

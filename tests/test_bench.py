@@ -1,11 +1,13 @@
 """SSP benches: playback FMU, the generated SSD, and co-simulation in fmpy and libcosim.
 
-Uses the session's model and grey-box FMU from ``test_export`` (trained once). Bench runs stop
-after about 1 s of the 1.5 s validation recording to stay quick.
+Uses the session's model and grey-box FMUs (native and Python) from ``test_export`` (trained
+once); tests taking ``bench`` run for a bench of each. Bench runs stop after about 1 s of the
+1.5 s validation recording to stay quick.
 """
 
 from __future__ import annotations
 
+import tempfile
 import threading
 import zipfile
 from pathlib import Path
@@ -27,7 +29,8 @@ from test_export import (
 
 from fmu_greybox.cli import main
 from fmu_greybox.data.recording import Recording, load_recording, save_recording
-from fmu_greybox.errors import BenchError
+from fmu_greybox.errors import BenchError, RecordingError
+from fmu_greybox.export.fmu import RUNTIMES
 from fmu_greybox.export.slave import GreyBoxSlave
 from fmu_greybox.export.ssp import SSD_FILE, build_playback_fmu, make_bench, read_layout, run_bench
 
@@ -43,7 +46,8 @@ def model_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="session")
 def greybox_fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return trained(tmp_path_factory)["fmu"]
+    """The default (native) grey-box FMU."""
+    return trained(tmp_path_factory)["fmus"][RUNTIMES[0]]
 
 
 @pytest.fixture(scope="session")
@@ -51,9 +55,20 @@ def validation(tmp_path_factory: pytest.TempPathFactory) -> Recording:
     return trained(tmp_path_factory)["validation"]
 
 
+def bench_of(runtime: str, validation: Recording, tmp_path_factory) -> Path:
+    fmu = trained(tmp_path_factory)["fmus"][runtime]
+    return make_bench(fmu, validation, tmp_path_factory.mktemp(f"bench_{runtime}") / "bench.ssp")
+
+
+@pytest.fixture(scope="session", params=RUNTIMES)
+def bench(request: pytest.FixtureRequest, validation: Recording, tmp_path_factory) -> Path:
+    """A bench of each runtime's grey-box in turn."""
+    return bench_of(request.param, validation, tmp_path_factory)
+
+
 @pytest.fixture(scope="session")
-def bench(greybox_fmu: Path, validation: Recording, tmp_path_factory) -> Path:
-    return make_bench(greybox_fmu, validation, tmp_path_factory.mktemp("bench") / "bench.ssp")
+def python_bench(validation: Recording, tmp_path_factory) -> Path:
+    return bench_of("python", validation, tmp_path_factory)
 
 
 def first_rows(recording: Recording, stop: float, zero_inputs: bool = False) -> Recording:
@@ -112,7 +127,7 @@ def test_libcosim_gives_the_masters_outputs(
         assert_close(result[f"whitebox.{name}"], run.whitebox[:, q], f"whitebox.{name}")
 
 
-def test_libcosim_worker_threads_keep_their_python_state(bench: Path, monkeypatch) -> None:
+def test_libcosim_worker_threads_keep_their_python_state(python_bench: Path, monkeypatch) -> None:
     """pythonfmu wraps each FMI call in PyGILState_Ensure/Release; on libcosim's worker
     threads the FMU keeps the thread's Python state between calls (fmu_entry.keep_thread_state)
     instead of getting a new one per call (thread-local data would not survive a step)."""
@@ -126,7 +141,7 @@ def test_libcosim_worker_threads_keep_their_python_state(bench: Path, monkeypatc
         return stepping(self, current_time, step_size)
 
     monkeypatch.setattr(GreyBoxSlave, "do_step", counting)
-    result = run_bench(bench, "libcosim", stop_time=0.1)
+    result = run_bench(python_bench, "libcosim", stop_time=0.1)
     assert result.n_samples == 100
     assert 1 <= len(new_states) <= 4, new_states  # one per worker thread, not one per step
 
@@ -204,13 +219,31 @@ def test_bench_refuses_another_sample_time(
         signals={n: v[::2] for n, v in validation.signals.items()},
         units=validation.units,
     )
-    with pytest.raises(BenchError, match="resample"):
+    with pytest.raises(RecordingError, match=r"but the grey-box FMU .* runs at 0.001 s; resample"):
         make_bench(greybox_fmu, coarse, tmp_path / "b.ssp")
 
 
 def test_a_failing_fmu_stops_libcosim_cleanly(bench: Path) -> None:
     with pytest.raises(BenchError, match="failed in libcosim"):
         run_bench(bench, "libcosim", stop_time=0.01, step=0.002)  # not the trained step
+
+
+def test_a_failing_fmpy_bench_leaves_no_unpacked_fmus(
+    greybox_fmu: Path, validation: Recording, tmp_path: Path, monkeypatch
+) -> None:
+    """Before: fmpy removed the unpacked SSP and FMUs (about 5 MB) only after a run that
+    succeeded. Here the white-box fails at row 100 (an absurd valve current)."""
+    temp = tmp_path / "temp"
+    temp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))  # a temporary folder to look into
+    current = validation["valve_current"].copy()
+    current[100:] = 1e300
+    absurd = first_rows(validation, 0.3).with_signals({"valve_current": current[:301]})
+    ssp = make_bench(greybox_fmu, absurd, tmp_path / "absurd.ssp")
+    before = sorted(temp.iterdir())
+    with pytest.raises(BenchError, match="failed in fmpy"):
+        run_bench(ssp, "fmpy")
+    assert sorted(temp.iterdir()) == before
 
 
 def test_run_bench_errors_are_clear(bench: Path, tmp_path: Path) -> None:

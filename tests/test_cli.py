@@ -157,7 +157,7 @@ def test_simulate_with_map_fix_and_param(env: dict[str, str], tmp_path: Path) ->
     [
         (
             ("synth", "--effect", "coulomb_frictoin=800", "--out", "x.csv"),
-            ("unknown effect 'coulomb_frictoin'", "did you mean coulomb_friction"),
+            ("unknown effect 'coulomb_frictoin'", "did you mean 'coulomb_friction'"),
         ),
         (
             ("synth", "--effect", "compliance=2", "--out", "x.csv"),

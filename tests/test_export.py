@@ -1,8 +1,10 @@
-"""The exported grey-box FMU: validation, equivalence with the master, state, instances, errors.
+"""The exported grey-box FMU, both runtimes: validation, equivalence with the master, state,
+instances, errors, the input domain.
 
 One small model is trained once per session (5 s synthetic recording, 40 inducing points, 30
-optimiser iterations) and exported; the equivalence runs use a separate 1.5 s validation
-recording. "Equal to 1e-9" means ``max |a - b| <= 1e-9 * max(ptp(b), max |b|)`` per signal.
+optimiser iterations) and exported as a native and as a Python FMU; tests taking ``greybox_fmu``
+run for each. The equivalence runs use a separate 1.5 s validation recording. "Equal to 1e-9"
+means ``max |a - b| <= 1e-9 * max(ptp(b), max |b|)`` per signal.
 """
 
 from __future__ import annotations
@@ -27,10 +29,12 @@ from lxml import etree
 
 from fmu_greybox.cli import main
 from fmu_greybox.data.recording import Recording
-from fmu_greybox.export.fmu import export_greybox
+from fmu_greybox.errors import FmuError
+from fmu_greybox.export.fmu import RUNTIMES, export_greybox
 from fmu_greybox.export.runtime import LOGGER, runtime_message
 from fmu_greybox.export.slave import MODEL_FOLDER, check_python
 from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.instance import FmuInstance
 from fmu_greybox.model.simulate import simulate_recording
 from fmu_greybox.model.store import MANIFEST, GreyBoxModel, file_sha256, load_model, save_model
 from fmu_greybox.project.config import load_config
@@ -75,10 +79,15 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
         )
         training = synth_recording(5.0, seed=11)
         save_model(train_model(config, training), folder / "model")
-        export_greybox(folder / "model", folder / "greybox.fmu", author="tests")
+        fmus = {
+            runtime: export_greybox(
+                folder / "model", folder / f"greybox_{runtime}.fmu", runtime=runtime, author="tests"
+            ).path
+            for runtime in RUNTIMES
+        }
         _CACHE.update(
             model_dir=folder / "model",
-            fmu=folder / "greybox.fmu",
+            fmus=fmus,
             training=training,
             validation=synth_recording(1.5, seed=12),
         )
@@ -90,9 +99,32 @@ def model_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return trained(tmp_path_factory)["model_dir"]
 
 
+@pytest.fixture(scope="session", params=RUNTIMES)
+def greybox_fmu(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The grey-box FMU of each runtime in turn."""
+    return trained(tmp_path_factory)["fmus"][request.param]
+
+
 @pytest.fixture(scope="session")
-def greybox_fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return trained(tmp_path_factory)["fmu"]
+def python_fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return trained(tmp_path_factory)["fmus"]["python"]
+
+
+@pytest.fixture(scope="session")
+def native_fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return trained(tmp_path_factory)["fmus"]["native"]
+
+
+def runtime_of(fmu: Path) -> str:
+    """``native`` or ``python``: a Python FMU needs the execution tool (the Python process)."""
+    tool = read_model_description(str(fmu)).coSimulation.needsExecutionTool
+    return "python" if tool else "native"
+
+
+def refused_status(fmu: Path) -> str:
+    """How each runtime answers a refused step: fmi2Error, or fmi2Discard where pythonfmu 0.7
+    gives a Python slave no other way."""
+    return {"native": "error", "python": "discard"}[runtime_of(fmu)]
 
 
 @pytest.fixture(scope="session")
@@ -334,8 +366,10 @@ def test_out_of_domain_flags_an_untrained_load(greybox_fmu: Path, training: Reco
         slave.run(u[k : k + 1])
         flags.append(slave.slave.getBoolean([flag])[0])
     assert not any(flags)  # the inputs it was trained on
+    load = training["load_force"]
     far = u[500:].copy()
-    far[:, INPUTS.index("load_force")] = 2e5  # far beyond the recorded load
+    # beyond the recorded load by half its range: untrained, but within the input domain
+    far[:, INPUTS.index("load_force")] = load.max() + 0.5 * np.ptp(load)
     slave.run(far)
     assert slave.slave.getBoolean([flag])[0]
     assert 0.0 <= slave.slave.getReal([score])[0] <= 1.0
@@ -344,43 +378,122 @@ def test_out_of_domain_flags_an_untrained_load(greybox_fmu: Path, training: Reco
 
 # ---------------------------------------------------------------------------- errors
 def test_wrong_step_is_refused_with_a_logged_reason_and_no_crash(
-    greybox_fmu: Path, validation: Recording, caplog: pytest.LogCaptureFixture
+    greybox_fmu: Path, validation: Recording
 ) -> None:
     u = input_rows(validation)[:2]
     slave = Slave(greybox_fmu, "step", u)
-    with caplog.at_level(logging.ERROR, logger=LOGGER), pytest.raises(Exception, match="discard"):
+    with pytest.raises(Exception, match=refused_status(greybox_fmu)):
         slave.slave.doStep(0.0, 2 * float(slave.dt))
-    assert "trained at 0.001 s" in caplog.text
-    with pytest.raises(Exception, match="discard"):  # the instance stays refused
-        slave.slave.doStep(0.0, float(slave.dt))
-    slave.slave.getReal([slave.refs["ram_position"]])  # calls after the failure stay safe
+    slave.slave.getReal([slave.refs["ram_position"]])  # calls after the refusal stay safe
+    slave.run(u)  # the right step goes on: nothing was changed by the refused one
     slave.close()
 
 
-def test_tampered_model_file_refuses_instantiation(
-    greybox_fmu: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+def step_refusal(fmu: Path, u0: np.ndarray, u: np.ndarray, time: float, step: float) -> FmuError:
+    """The FmuError of a step with inputs ``u`` from ``time``, refused by the FMU initialised
+    with ``u0`` at 0 s and driven with debug logging off (FmuInstance): its message quotes what
+    the FMU sent to the FMI logger."""
+    with open_fmu(fmu) as archive:
+        start = dict(zip(INPUTS, u0, strict=True))
+        instance = FmuInstance(archive, inputs=INPUTS, outputs=["ram_position"], start_values=start)
+        try:
+            instance.time = time
+            with pytest.raises(FmuError) as caught:
+                instance.step(u, step)
+        finally:
+            instance.close()
+    return caught.value
+
+
+def test_refusals_reach_the_fmi_logger_with_logging_off(
+    greybox_fmu: Path, validation: Recording
 ) -> None:
-    tampered = tmp_path / "tampered.fmu"
-    member = f"resources/{MODEL_FOLDER}/stage_RAM.json"
-    with zipfile.ZipFile(greybox_fmu) as zin, zipfile.ZipFile(tampered, "w") as zout:
+    u, dt = input_rows(validation)[0], float(validation.dt)
+    wrong_step = step_refusal(greybox_fmu, u, u, 0.0, 2 * dt)
+    assert wrong_step.status == f"fmi2{refused_status(greybox_fmu).capitalize()}"
+    assert "trained at 0.001 s" in str(wrong_step)
+    jump = step_refusal(greybox_fmu, u, u, 0.5, dt)  # the FMU is at 0 s
+    assert "cannot jump in time" in str(jump) and "0.5" in str(jump)
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf, 1e30, -1e30])
+def test_absurd_inputs_are_refused_and_change_nothing(
+    greybox_fmu: Path, validation: Recording, value: float
+) -> None:
+    u = input_rows(validation)[:40]
+    slave = Slave(greybox_fmu, "absurd", u)
+    reference = Slave(greybox_fmu, "reference", u)
+    slave.run(u[:20])
+    reference.run(u[:20])
+    bad = u[20].copy()
+    bad[INPUTS.index("load_force")] = value
+    with pytest.raises(Exception, match=refused_status(greybox_fmu)):
+        slave.run(bad[None, :])  # refused: the FMU stays where it was
+    np.testing.assert_array_equal(slave.run(u[20:]), reference.run(u[20:]))
+    slave.close()
+    reference.close()
+
+
+def test_absurd_input_messages_name_the_input_and_its_domain(
+    greybox_fmu: Path, validation: Recording
+) -> None:
+    u0, dt = input_rows(validation)[0], float(validation.dt)
+    u = u0.copy()
+    u[INPUTS.index("load_force")] = 1e30
+    refusal = str(step_refusal(greybox_fmu, u0, u, 0.0, dt))
+    assert "load_force = 1e+30" in refusal and "input domain [" in refusal
+    u[INPUTS.index("load_force")] = np.nan
+    refusal = str(step_refusal(greybox_fmu, u0, u, 0.0, dt))
+    assert "load_force = nan" in refusal and "not a finite number" in refusal
+
+
+def test_absurd_inputs_at_initialisation_are_refused(
+    greybox_fmu: Path, validation: Recording
+) -> None:
+    """Native: fmi2ExitInitializationMode answers fmi2Error; Python: the slave records the
+    refusal there (pythonfmu answers fmi2OK) and refuses every step with it."""
+    u = input_rows(validation)[0].copy()
+    u[INPUTS.index("load_force")] = 1e30
+    start = dict(zip(INPUTS, u, strict=True))
+    with open_fmu(greybox_fmu) as archive, pytest.raises(FmuError) as caught:
+        instance = FmuInstance(archive, inputs=INPUTS, outputs=["ram_position"], start_values=start)
+        try:
+            instance.step(u, float(validation.dt))
+        finally:
+            instance.close()
+    call = {"native": "fmi2ExitInitializationMode", "python": "fmi2DoStep"}
+    assert caught.value.call == call[runtime_of(greybox_fmu)]
+    assert "load_force = 1e+30" in str(caught.value) and "input domain" in str(caught.value)
+
+
+def tampered(fmu: Path, member: str, change, folder: Path) -> Path:
+    """A copy of an FMU with one member's bytes passed through ``change``."""
+    copy = folder / "tampered.fmu"
+    with zipfile.ZipFile(fmu) as zin, zipfile.ZipFile(copy, "w") as zout:
         for item in zin.infolist():
             data = zin.read(item)
-            if item.filename == member:
-                data = data.replace(b'"seed"', b'"seed" ', 1)
-            zout.writestr(item, data)
+            zout.writestr(item, change(data) if item.filename == member else data)
+    return copy
+
+
+def test_tampered_model_file_refuses_instantiation(
+    python_fmu: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    member = f"resources/{MODEL_FOLDER}/stage_RAM.json"
+    spaced = tampered(python_fmu, member, lambda d: d.replace(b'"seed"', b'"seed" ', 1), tmp_path)
     with caplog.at_level(logging.ERROR, logger=LOGGER), pytest.raises(Exception, match="instan"):
-        Slave(tampered, "tampered", np.zeros((1, 4)), logging_on=True)
+        Slave(spaced, "tampered", np.zeros((1, 4)), logging_on=True)
     assert "stage_RAM.json" in caplog.text and "hash" in caplog.text
 
 
-def test_missing_package_is_reported_not_crashed(greybox_fmu: Path, tmp_path: Path) -> None:
+def test_missing_package_is_reported_not_crashed(python_fmu: Path, tmp_path: Path) -> None:
     script = tmp_path / "run.py"
     script.write_text(
         "import sys\n"
         "sys.modules['scipy'] = None  # as if scipy were not installed\n"
         "from fmpy import extract, read_model_description\n"
         "from fmpy.fmi2 import FMU2Slave\n"
-        f"fmu = {str(greybox_fmu)!r}\n"
+        f"fmu = {str(python_fmu)!r}\n"
         "md = read_model_description(fmu)\n"
         "slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(fmu), instanceName='x',\n"
         "                  modelIdentifier=md.coSimulation.modelIdentifier)\n"
@@ -415,13 +528,14 @@ def test_export_refuses_a_modified_model(model_dir: Path, tmp_path: Path) -> Non
     assert "stage_EHV.json" in result.output and not (tmp_path / "x.fmu").exists()
 
 
-def test_export_command_writes_the_fmu(model_dir: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize("runtime", RUNTIMES)
+def test_export_command_writes_the_fmu(model_dir: Path, tmp_path: Path, runtime: str) -> None:
     out = tmp_path / "cli.fmu"
-    result = CliRunner().invoke(
-        main, ["export", str(model_dir), "--out", str(out), "--ood-threshold", "0.2"]
-    )
+    arguments = ["export", str(model_dir), "--out", str(out), "--ood-threshold", "0.2"]
+    result = CliRunner().invoke(main, [*arguments, "--runtime", runtime])
     assert result.exit_code == 0, result.output
-    assert "wrote" in result.output and validate_fmu(str(out)) == []
+    assert f"wrote {out} ({runtime} FMU" in result.output and validate_fmu(str(out)) == []
+    assert runtime_of(out) == runtime
     with open_fmu(out) as archive:
         assert archive.variable("ood_threshold").start == 0.2
 

@@ -123,10 +123,11 @@ def test_readme_documents_every_parameter() -> None:
 
 
 def test_unit_parser() -> None:
-    assert fmu_build._parse_unit("m3/(s.Pa)") == ({"m": 4, "kg": -1, "s": 1}, 1.0)
-    assert fmu_build._parse_unit("Pa.s/m3") == ({"kg": 1, "m": -4, "s": -1}, 1.0)
-    assert fmu_build._parse_unit("m/mA") == ({"m": 1, "A": -1}, 1e3)
-    assert fmu_build._parse_unit("1") == ({}, 1.0)
+    assert fmu_build._parse_unit("m3/(s.Pa)") == ({"m": 4, "kg": -1, "s": 1}, 1.0, 0.0)
+    assert fmu_build._parse_unit("Pa.s/m3") == ({"kg": 1, "m": -4, "s": -1}, 1.0, 0.0)
+    assert fmu_build._parse_unit("m/mA") == ({"m": 1, "A": -1}, 1e3, 0.0)
+    assert fmu_build._parse_unit("1") == ({}, 1.0, 0.0)
+    assert fmu_build._parse_unit("degC") == ({"K": 1}, 1.0, 273.15)
     with pytest.raises(FmuBuildError, match="unknown unit symbol 'furlong'"):
         fmu_build._parse_unit("furlong/s")
 

@@ -169,7 +169,7 @@ def test_getitem_misspelled_suggests_closest():
         make()["valve_curent"]
     text = str(caught.value)
     assert caught.value.column == "valve_curent"
-    assert "column 'valve_curent' not found; did you mean 'valve_current'? available:" in text
+    assert "column 'valve_curent' not found; did you mean 'valve_current'? (available:" in text
     assert text.startswith("bench.csv, column 'valve_curent'")
 
 
@@ -183,7 +183,7 @@ def test_require_lists_every_missing_name_with_context():
     assert "3 columns not found (needed by stage 'RAM')" in text
     assert "'valve_curent' (did you mean 'valve_current'?)" in text
     assert "'RAM_POSITION' (did you mean 'ram_position'?)" in text
-    assert "'load_force'; available: 'valve_current', 'ram_position'" in text
+    assert "'load_force' (available: 'valve_current', 'ram_position')" in text
 
 
 # -- operations -------------------------------------------------------------------------------
@@ -277,7 +277,10 @@ def test_csv_time_unit_converts_to_seconds(tmp_path):
     path = write(tmp_path, "r.csv", "time [ms],x\n0,1\n1,2\n2,3\n")
     np.testing.assert_allclose(load_recording(path).time, [0.0, 0.001, 0.002])
     error = load_error(path, units={"time": "fortnights"})
-    assert "time unit 'fortnights' is not understood; use one of s, ms" in str(error)
+    assert "time unit 'fortnights' is not a unit of time" in str(error)
+    assert "use e.g. s, ms" in str(error)
+    error = load_error(path, units={"time": "m"})
+    assert "time unit 'm' is not a unit of time ('m' and 's' measure different" in str(error)
 
 
 def test_csv_tolerates_bom_semicolons_spaces_trailing_comma_and_blank_end(tmp_path):
@@ -297,7 +300,7 @@ def test_csv_missing_time_column_names_columns_and_option(tmp_path):
     error = load_error(write(tmp_path, "r.csv", "Time,x\n0,1\n1,2\n"))
     text = str(error)
     assert text.startswith(f"{tmp_path / 'r.csv'}, column 'time':")
-    assert "no time column 'time'; did you mean 'Time'? columns found: 'Time', 'x'" in text
+    assert "no time column 'time'; did you mean 'Time'? (columns found: 'Time', 'x')" in text
     assert "time_column='NAME'" in text
 
 
@@ -390,7 +393,8 @@ def test_directory_is_not_a_recording(tmp_path):
 
 def test_unsupported_extension_lists_supported(tmp_path):
     error = load_error(write(tmp_path, "r.xlsx", "x"))
-    assert "unsupported recording format '.xlsx'; supported: .csv, .mat, .parquet" in str(error)
+    supported = ".csv, .mat, .mdf, .mf4, .parquet"
+    assert f"unsupported recording format '.xlsx'; supported: {supported}" in str(error)
     assert "'(no extension)'" in str(load_error(write(tmp_path, "r", "x")))
 
 
@@ -516,7 +520,7 @@ def test_mat_errors(tmp_path):
     assert error.column == "x" and "has 5 values but the time axis has 6" in str(error)
     savemat(tmp_path / "tout.mat", {"tout": time, "x": time})
     error = load_error(tmp_path / "tout.mat")
-    assert "no time variable 'time'; did you mean 'tout'? variables found: 'tout', 'x'" in str(
+    assert "no time variable 'time'; did you mean 'tout'? (variables found: 'tout', 'x')" in str(
         error
     )
     assert load_recording(tmp_path / "tout.mat", time_column="tout").n_samples == 6
@@ -528,11 +532,11 @@ def test_mat_errors(tmp_path):
     assert "is not a readable MATLAB file" in str(load_error(tmp_path / "junk.mat"))
 
 
-def test_mat_v73_is_detected(tmp_path):
+def test_damaged_mat_v73_is_named(tmp_path):
     header = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, HDF5 schema 1.00 .".ljust(128, b" ")
     (tmp_path / "r.mat").write_bytes(header.ljust(512, b"\0") + b"\x89HDF\r\n\x1a\n" + bytes(64))
     text = str(load_error(tmp_path / "r.mat"))
-    assert "MATLAB v7.3 (HDF5)" in text and "'-v7'" in text
+    assert "r.mat: is not a readable MATLAB v7.3 (HDF5) file" in text
 
 
 # -- saving -----------------------------------------------------------------------------------

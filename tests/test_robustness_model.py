@@ -134,7 +134,10 @@ def test_each_missing_file_is_named(saved: Path, tmp_path: Path) -> None:
         (lambda m: m["stages"].pop(), "content does not match the hash it recorded"),
         (lambda m: m["files"].pop("stage_RAM.npz"), "content does not match the hash"),
         (lambda m: m.update(format_version="1"), "format version '1'"),
-        (lambda m: m.update(format_version=3), "format version 3; this tool reads versions 1, 2"),
+        (
+            lambda m: m.update(format_version=4),
+            "format version 4; this tool reads versions 1, 2, 3",
+        ),
     ],
     ids=["dt", "stage removed", "hash removed", "version as text", "version 3"],
 )
@@ -276,3 +279,73 @@ def test_manifest_that_is_not_an_object(saved: Path, tmp_path: Path) -> None:
     refused(folder, r"model\.json: holds a JSON list, not the object 'fmu-greybox train' writes")
     (folder / MANIFEST).write_bytes(b"\xff\xfe{}")
     refused(folder, r"model\.json: corrupt manifest")
+
+
+def _paths(value: Any, prefix: tuple = ()) -> list[tuple]:
+    """Every key path into nested JSON objects and arrays (the root excluded)."""
+    if not isinstance(value, dict | list):
+        return []
+    found = []
+    for key, inner in value.items() if isinstance(value, dict) else enumerate(value):
+        found.append((*prefix, key))
+        found += _paths(inner, (*prefix, key))
+    return found
+
+
+JSON_VALUES = st.recursive(
+    st.none()
+    | st.booleans()
+    | st.integers(-(2**70), 2**70)
+    | st.floats(allow_nan=True, allow_infinity=True)
+    | st.text(max_size=12),
+    lambda inner: (
+        st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=8), inner, max_size=3)
+    ),
+    max_leaves=6,
+)
+
+
+@FUZZ
+@given(data=st.data())
+def test_any_manifest_field_set_to_any_value_and_rehashed(
+    saved: Path, tmp_path_factory: pytest.TempPathFactory, data: st.DataObject
+) -> None:
+    """A forger sets any field of model.json, at any depth, to any JSON value and recomputes
+    every hash: the folder loads or is refused naming it, never with another exception."""
+    folder = copy_of(saved, tmp_path_factory.mktemp("field"))
+    manifest = read(folder)
+    path = data.draw(st.sampled_from([p for p in _paths(manifest) if p[0] != MANIFEST_HASH]))
+    parent = manifest
+    for key in path[:-1]:
+        parent = parent[key]
+    parent[path[-1]] = data.draw(JSON_VALUES)
+    write_rehashed(folder, manifest)
+    try:
+        load_model(folder)
+    except ModelFormatError as error:
+        assert str(folder) in str(error), str(error)
+
+
+@FUZZ
+@given(
+    digests=st.one_of(
+        st.lists(st.integers(0, 2**64 - 1), max_size=5).map(lambda v: np.array(v, np.uint64)),
+        st.lists(st.floats(), min_size=1, max_size=5).map(np.array),
+        st.lists(st.integers(-5, 5), min_size=1, max_size=4).map(
+            lambda v: np.array(v, np.int64).reshape(-1, 1)
+        ),
+    ),
+    key=st.sampled_from(["digests", "rows"]),
+)
+def test_training_row_digests_replaced_by_any_array(
+    saved: Path, tmp_path_factory: pytest.TempPathFactory, digests: np.ndarray, key: str
+) -> None:
+    """training_rows.npz holding any array under any name, hashes recomputed: a vector of
+    uint64 under 'digests' loads; anything else is refused naming the file."""
+    folder = copy_of(saved, tmp_path_factory.mktemp("digests"))
+    np.savez(folder / "training_rows.npz", **{key: digests})
+    write_rehashed(folder, read(folder))
+    if key == "digests" and digests.dtype == np.uint64 and digests.ndim == 1:
+        np.testing.assert_array_equal(load_model(folder).trained_rows, digests)
+    else:
+        refused(folder, r"training_rows\.npz: ")

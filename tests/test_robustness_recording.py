@@ -23,8 +23,9 @@ from fmu_greybox.errors import RecordingError, UnitMismatchError
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu
 from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.project.config import ROLE_UNITS, ProjectConfig, parse_config
-from fmu_greybox.project.data import prepare
+from fmu_greybox.project.data import load_project_recording, prepare
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
+from fmu_greybox.units import UnitSyntaxError, conversion
 
 REFERENCE = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"
 FUZZ = settings(
@@ -134,8 +135,14 @@ def recording(whitebox_fmu: Path, truth_fmu: Path) -> Recording:
 
 
 def with_header_unit(recording: Recording, column: str, unit: str, folder: Path) -> Path:
-    """The recording as a CSV with ``name [unit]`` headers, ``column`` relabelled in ``unit``."""
+    """The recording as a CSV with ``name [unit]`` headers, ``column`` in ``unit`` (its values
+    converted when the units convert, else only relabelled)."""
     frame = recording.to_frame()
+    try:
+        change = conversion(recording.units[column], unit)
+        frame[column] = frame[column] * change.scale + change.offset
+    except UnitSyntaxError:
+        pass
     units = {**recording.units, column: unit}
     frame.columns = ["time [s]", *(f"{n} [{units[n]}]" for n in recording.names)]
     path = folder / "bench.csv"
@@ -143,7 +150,7 @@ def with_header_unit(recording: Recording, column: str, unit: str, folder: Path)
     return path
 
 
-def wrong_units() -> list[tuple[str, str]]:
+def other_units() -> list[tuple[str, str]]:
     """(signal, unit) pairs: a unit of the signal's role that is not the FMU's unit."""
     raw = tomllib.loads(REFERENCE.read_text(encoding="utf-8"))
     pairs = []
@@ -155,21 +162,31 @@ def wrong_units() -> list[tuple[str, str]]:
 
 
 @FUZZ
-@given(pair=st.sampled_from(wrong_units()))
-def test_header_unit_differing_from_the_fmu_names_the_column(
+@given(pair=st.sampled_from(other_units()))
+def test_header_unit_differing_from_the_project_is_converted_or_named(
     project: ProjectConfig, archive: FmuArchive, recording: Recording, pair: tuple[str, str]
 ) -> None:
+    """A unit of the same quantity (mm for m, bar for Pa, A for mA) is converted on load to
+    the project's unit, the FMU's; another one (rad for m) is refused naming the column."""
     column, unit = pair
-    declared = archive.variable(column).unit
+    declared = project.signals[column].unit
     with tempfile.TemporaryDirectory() as folder:
         path = with_header_unit(recording, column, unit, Path(folder))
-        loaded = load_recording(path)
-        assert loaded.units[column] == unit
-        with pytest.raises(UnitMismatchError) as info:
-            prepare(project, GreyBoxChain(project), archive, loaded)
-    message = str(info.value)
-    assert message.startswith(f"{path}: recorded column {column!r} is in {unit!r}")
-    assert f"is in {declared!r}; convert the column or fix its unit" in message
+        assert load_recording(path).units[column] == unit
+        try:
+            conversion(unit, declared)
+        except UnitSyntaxError:
+            with pytest.raises(UnitMismatchError) as info:
+                load_project_recording(project, path)
+            message = str(info.value)
+            assert message.startswith(f"{path}: column {column!r} is recorded in {unit!r}")
+            assert f"cannot be converted to {declared!r}" in message
+            return
+        loaded = load_project_recording(project, path)
+    assert loaded.units[column] == declared
+    scale = float(np.max(np.abs(recording[column]))) or 1.0
+    np.testing.assert_allclose(loaded[column], recording[column], rtol=1e-12, atol=1e-12 * scale)
+    prepare(project, GreyBoxChain(project), archive, loaded)  # units agree with the FMU's
 
 
 def misspellings(name: str) -> st.SearchStrategy[str]:

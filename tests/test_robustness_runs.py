@@ -148,8 +148,11 @@ def test_sigkill_leaves_the_earlier_model_intact(
     leftovers = sorted(
         p
         for p in earlier.iterdir()
-        if p.name not in {"project.toml", "rec.csv", "rec.csv.units.json", "model", "stalled"}
+        if p.name
+        not in {"project.toml", "rec.csv", "rec.csv.units.json", "model", "stalled", ".model.lock"}
     )
+    # the killed run's lock file stays, naming it, but nobody holds it any more
+    assert "process" in (earlier / ".model.lock").read_text()
     for path in leftovers:  # at most a hidden temporary that cannot pass for a model
         assert path.name.startswith(".model.") and path.name.endswith(".tmp"), path
         assert not (path / MANIFEST).exists()
@@ -157,8 +160,22 @@ def test_sigkill_leaves_the_earlier_model_intact(
             load_model(path)
     if target[1] == "":  # killed while writing: the temporary holds the first stage only
         assert [sorted(q.name for q in p.iterdir()) for p in leftovers] == [
-            ["stage_EHV.json", "stage_EHV.npz", "stage_RAM.json", "stage_RAM.npz", "whitebox.fmu"]
+            [
+                "stage_EHV.json",
+                "stage_EHV.npz",
+                "stage_RAM.json",
+                "stage_RAM.npz",
+                "training_rows.npz",
+                "whitebox.fmu",
+            ]
         ]
+    # the next run takes over the stale lock and removes the killed run's temporary
+    for path in leftovers:
+        os.utime(path, (time.time() - 60, time.time() - 60))
+    result = train(earlier, earlier / "model")
+    assert result.exit_code == 0, result.output
+    load_model(earlier / "model")
+    assert sorted(p.name for p in earlier.iterdir() if p.name.startswith(".")) == []
 
 
 def test_failed_train_keeps_the_earlier_model(earlier: Path) -> None:

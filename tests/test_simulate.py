@@ -104,6 +104,8 @@ def test_missing_input_names_input_closest_column_and_options(
     for part in ("edited.csv", "'load_force'", "'load_force_N'", "--map", "--fix"):
         assert part in message
     assert "valve_current" not in message
+    # load_flow looks like load_force but is a flow (m3/s), not a force: never suggested
+    assert "load_flow" not in message
 
 
 def test_mapped_column_missing(whitebox_fmu: Path, recording: Recording) -> None:
@@ -120,12 +122,36 @@ def test_mapping_a_non_input_is_refused(
         simulate_recording(whitebox_fmu, recording, **{option: value})
 
 
-def test_unit_mismatch_names_both_units(whitebox_fmu: Path, recording: Recording) -> None:
-    edited = renamed(recording, {}, units={"supply_pressure": "bar"})
+def test_compatible_unit_is_converted_with_a_note(
+    whitebox_fmu: Path, recording: Recording, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Supply pressure recorded in bar and valve current in A: converted to Pa and mA."""
+    reference = simulate_recording(whitebox_fmu, recording)
+    edited = Recording(
+        time=recording.time,
+        signals={
+            **recording.signals,
+            "supply_pressure": recording["supply_pressure"] / 1e5,
+            "valve_current": recording["valve_current"] / 1e3,
+        },
+        units={**recording.units, "supply_pressure": "bar", "valve_current": "A"},
+        source="edited.csv",
+    )
+    with caplog.at_level("WARNING", logger="fmu_greybox"):
+        result = simulate_recording(whitebox_fmu, edited)
+    for name in result.names:
+        np.testing.assert_allclose(result[name], reference[name], rtol=1e-9, atol=1e-12)
+    notes = caplog.text
+    assert "'supply_pressure' converted from 'bar' to 'Pa'" in notes
+    assert "'valve_current' converted from 'A' to 'mA'" in notes
+
+
+def test_incompatible_unit_names_both_units(whitebox_fmu: Path, recording: Recording) -> None:
+    edited = renamed(recording, {}, units={"supply_pressure": "m"})
     with pytest.raises(UnitMismatchError) as info:
         simulate_recording(whitebox_fmu, edited)
     message = str(info.value)
-    for part in ("'supply_pressure'", "'bar'", "'Pa'", "edited.csv"):
+    for part in ("'supply_pressure'", "'m'", "'Pa'", "edited.csv", "different quantities"):
         assert part in message
 
 

@@ -159,7 +159,7 @@ def test_gain_error_shows_in_the_spool_residual(archives) -> None:
 
 
 def test_unknown_effect_is_refused_with_a_suggestion(archives) -> None:
-    with pytest.raises(ConfigError, match="did you mean coulomb_friction") as info:
+    with pytest.raises(ConfigError, match="did you mean 'coulomb_friction'") as info:
         record(archives, effects={"coulomb_frictoin": 800.0})
     assert "--list-effects" in str(info.value)
 

@@ -23,6 +23,7 @@ BOXES = {
     "export": (8.8, 0.2, "export/", "grey-box FMU, SSP\nbench, FMU runtime"),
     "report": (8.8, 1.8, "report/", "HTML report, plots,\nfrequency responses"),
     "synth": (0.0, 3.6, "synth/", "truth model in closed\nloop: recordings"),
+    "campaign": (8.8, 3.4, "campaign/", "many recordings on\nDask: trends, drift"),
 }
 ARROWS = [
     ("synth", "recordings"),
@@ -36,6 +37,8 @@ ARROWS = [
     ("workflow", "export"),
     ("workflow", "report"),
     ("diagnosis", "report"),
+    ("diagnosis", "campaign"),
+    ("campaign", "report"),
 ]
 W, H = 1.8, 0.9
 

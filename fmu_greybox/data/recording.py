@@ -6,7 +6,9 @@ and every problem is reported as a :class:`~fmu_greybox.errors.RecordingError` n
 the column and the row, with a way to mend it.
 
 Formats: CSV (header row; units from ``name [unit]`` headers or a ``FILE.units.json`` sidecar),
-Parquet (units in the schema metadata) and MATLAB ``.mat`` up to v7 (variables as signals). See
+Parquet (units in the schema metadata), MATLAB ``.mat`` v4 to v7.3 (variables as signals;
+:mod:`fmu_greybox.data.mat`) and ASAM MDF (channels with their units; :mod:`fmu_greybox.data.mdf`).
+Units other than the ones wanted are converted by :meth:`Recording.converted`. See
 ``docs/recordings.md``.
 """
 
@@ -14,17 +16,16 @@ from __future__ import annotations
 
 import csv
 import decimal
-import difflib
 import hashlib
+import io
 import json
+import logging
 import math
 import numbers
 import os
 import re
-import struct
 import unicodedata
 import warnings
-import zlib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,7 +35,11 @@ import numpy as np
 import pandas as pd
 
 from fmu_greybox.atomic import atomic_write
-from fmu_greybox.errors import RecordingError
+from fmu_greybox.data.mat import read_mat
+from fmu_greybox.data.mdf import read_mdf
+from fmu_greybox.errors import RecordingError, UnitMismatchError
+from fmu_greybox.suggest import did_you_mean
+from fmu_greybox.units import UnitSyntaxError, conversion, normalise_unit, units_compatible
 
 __all__ = [
     "SAVE_FORMATS",
@@ -54,30 +59,23 @@ TIME = "time"
 UNIFORM_RTOL = 1e-6
 """Largest relative deviation of one time step from the median step on a uniform grid."""
 
-SUPPORTED_FORMATS = (".csv", ".mat", ".parquet")
+SUPPORTED_FORMATS = (".csv", ".mat", ".mdf", ".mf4", ".parquet")
 SAVE_FORMATS = (".csv", ".parquet")
 SIDECAR_SUFFIX = ".units.json"
 UNITS_KEY = b"fmu_greybox.units"
 METADATA_KEY = b"fmu_greybox.metadata"
 
 _MAX_UPSAMPLING = 100
-_MI_INT32, _MI_UINT32, _MI_MATRIX, _MI_COMPRESSED = 5, 6, 14, 15
-_MX_OPAQUE = 17
-_MAT5_ELEMENT_TYPES = frozenset({1, 2, 3, 4, 5, 6, 7, 9, 12, 13, 14, 16, 17, 18})
-# data parts after flags, dims and name (plus one if complex), by array class:
-# char 4, sparse 5 (row indices, column pointers, values), double 6 ... uint64 15
-_MAT5_DATA_PARTS = {4: 1, 5: 3, **dict.fromkeys(range(6, 16), 1)}
-_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 _HEADER_UNIT = re.compile(r"^(?P<name>.*?\S)\s*\[(?P<unit>[^\[\]]*)\]$")
 _PANDAS_INDEX = re.compile(r"^__index_level_\d+__$")
 _DECIMAL_COMMA = re.compile(r"^\s*[-+]?\d+,\d+\s*$")
-_TIME_SCALES = {"": 1.0, "s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9, "min": 60.0, "h": 3600.0}
 _RESAMPLE_HINT = (
     "load with resample=DT (CLI: --resample DT; project file: resample under [recording]) to "
     "interpolate onto a uniform grid"
 )
 _TIME_NAMES = {"t", "tout", "time_s", "timestamp", "times", "zeit", "temps"}
 _TIME_COLUMN_HINT = "time_column='NAME' (project file: time_column under [recording])"
+_log = logging.getLogger(__name__)
 
 
 # --------------------------------------------------------------------------------------------
@@ -106,27 +104,6 @@ def _at(rows: _Rows | None, row: int) -> str:
 # --------------------------------------------------------------------------------------------
 
 
-def _closest(name: Any, candidates: Iterable[str]) -> list[str]:
-    """Up to three candidates that look like ``name`` (case-insensitive), best first."""
-    name = str(name)
-    by_lower: dict[str, str] = {}
-    for candidate in candidates:
-        by_lower.setdefault(candidate.lower(), candidate)
-    if name.lower() in by_lower:
-        return [by_lower[name.lower()]]
-    hits = difflib.get_close_matches(name.lower(), list(by_lower), n=3, cutoff=0.6)
-    return [by_lower[hit] for hit in hits]
-
-
-def _did_you_mean(name: str, candidates: Iterable[str], likely: Iterable[str] = ()) -> str:
-    """``"; did you mean 'x'? "`` or ``"; "``, to be followed by the rest of a sentence.
-
-    ``likely`` are fallback suggestions when no candidate looks like ``name``.
-    """
-    hits = _closest(name, candidates) or list(likely)
-    return "; did you mean " + " or ".join(repr(h) for h in hits) + "? " if hits else "; "
-
-
 def _listing(names: Iterable[str], limit: int = 20) -> str:
     """``'a', 'b', ... (and 7 more)`` for an error message."""
     names = list(names)
@@ -140,15 +117,14 @@ def _not_found(missing: list[str], available: list[str], what: str, context: str
     needed = f" (needed by {context})" if context else ""
     if len(missing) == 1:
         name = missing[0]
-        head = f"{what} {name!r} not found{needed}{_did_you_mean(name, available)}"
-        return f"{head}available: {_listing(available)}"
+        head = f"{what} {name!r} not found{needed}{did_you_mean(name, available)}"
+        return f"{head} (available: {_listing(available)})"
     parts = []
     for name in missing:
-        hits = _closest(name, available)
-        hint = " (did you mean " + " or ".join(repr(h) for h in hits) + "?)" if hits else ""
-        parts.append(f"{name!r}{hint}")
+        hint = did_you_mean(name, available)
+        parts.append(f"{name!r} ({hint[2:]})" if hint else repr(name))
     head = f"{len(missing)} {what}s not found{needed}: " + ", ".join(parts)
-    return f"{head}; available: {_listing(available)}"
+    return f"{head} (available: {_listing(available)})"
 
 
 def _check_names(names: Iterable[Any], path: str | None) -> None:
@@ -303,17 +279,18 @@ def _float_column(values: Any, name: str, path: str | None, rows: _Rows | None) 
 
 
 def _time_scale(unit: str, name: str, path: str | None) -> float:
-    """Factor converting the time column's unit to seconds."""
-    key = normalise_unit(unit)
-    if key not in _TIME_SCALES:
-        known = ", ".join(k for k in _TIME_SCALES if k)
+    """Factor converting the time column's unit to seconds (no unit: seconds)."""
+    if not normalise_unit(unit):
+        return 1.0
+    try:
+        return conversion(unit, "s").scale
+    except UnitSyntaxError as error:
         raise RecordingError(
-            f"time unit {unit!r} is not understood; use one of {known} "
-            "(time is converted to seconds)",
+            f"time unit {unit!r} is not a unit of time ({error}); use e.g. s, ms, us, ns, min "
+            "or h (time is converted to seconds)",
             path,
             name,
-        )
-    return _TIME_SCALES[key]
+        ) from error
 
 
 def _time_seconds(
@@ -440,7 +417,7 @@ def _check_unit_names(
         if name not in known:
             raise RecordingError(
                 f"{where} gives a unit for {name!r}, which is not a signal"
-                f"{_did_you_mean(name, known)}available: {_listing(known)}",
+                f"{did_you_mean(name, known)} (available: {_listing(known)})",
                 path,
                 name,
             )
@@ -659,6 +636,60 @@ class Recording:
         signals = {n: self.signals[n] for n in wanted}
         return self._replace(self.time, signals, {n: self.units[n] for n in wanted})
 
+    def converted(self, units: Mapping[str, str]) -> Recording:
+        """A copy with columns converted to the given units (a note for each in the log).
+
+        Parameters
+        ----------
+        units : mapping of str to str
+            Column -> the unit it is wanted in. Columns absent from the recording, without a
+            recorded unit, or wanted without a unit are left as they are.
+
+        Returns
+        -------
+        Recording
+            Converted columns carry their new unit; ``metadata["unit_conversions"]`` lists
+            what was converted (``self`` when nothing was).
+
+        Raises
+        ------
+        UnitMismatchError
+            If a recorded unit cannot be converted to the wanted one (another quantity, or a
+            unit symbol this tool does not know); the message names the file and the column.
+        """
+        signals: dict[str, np.ndarray] = {}
+        new_units: dict[str, str] = {}
+        notes = []
+        for name, wanted in units.items():
+            recorded = self.units.get(name, "")
+            if not (recorded and wanted) or units_compatible(recorded, wanted):
+                continue
+            try:
+                change = conversion(recorded, wanted)
+            except UnitSyntaxError as error:
+                raise UnitMismatchError(
+                    f"column {name!r} is recorded in {recorded!r}, which cannot be converted to "
+                    f"{wanted!r} ({error}); record it in {wanted!r} or correct its unit",
+                    path=self.source or None,
+                ) from error
+            signals[name] = self.signals[name] * change.scale + change.offset
+            new_units[name] = wanted
+            notes.append(f"{name}: {recorded} -> {wanted}")
+            _log.warning(
+                "%s: column %r converted from %r to %r (x %.9g%s)",
+                self.source or "recording",
+                name,
+                recorded,
+                wanted,
+                change.scale,
+                f" + {change.offset:.9g}" if change.offset else "",
+            )
+        if not signals:
+            return self
+        converted = self.with_signals(signals, new_units)
+        metadata = {**self.metadata, "unit_conversions": "; ".join(notes)}
+        return Recording(converted.time, converted.signals, converted.units, self.source, metadata)
+
     def with_signals(
         self, signals: Mapping[str, Any], units: Mapping[str, str] | None = None
     ) -> Recording:
@@ -792,8 +823,8 @@ def _missing_time(table: _Table, time_column: str) -> str:
     found = list(table.columns)
     likely = [name for name in found if name.lower() in _TIME_NAMES]
     return (
-        f"no time {kind} {time_column!r}{_did_you_mean(time_column, found, likely)}{kind}s found: "
-        f"{_listing(found)}. Name the time {kind} with {_TIME_COLUMN_HINT}"
+        f"no time {kind} {time_column!r}{did_you_mean(time_column, found, likely)} ({kind}s found: "
+        f"{_listing(found)}). Name the time {kind} with {_TIME_COLUMN_HINT}"
     )
 
 
@@ -825,11 +856,12 @@ def _assemble(table: _Table, *, time_column: str, source: str, resample: float |
     return Recording(time, signals, units, source, {**table.metadata, **notes})
 
 
-def _read_head(path: Path) -> bytes:
-    """First bytes of the file, turning any OS problem into a clear error."""
+def _read_bytes(path: Path) -> bytes:
+    """The whole file, read once (a named pipe or a stream can be read only once), turning any
+    OS problem into a clear error."""
     try:
         with path.open("rb") as handle:
-            return handle.read(1024)
+            return handle.read()
     except OSError as error:
         reason = error.strerror or str(error)
         where = "" if path.is_absolute() else f" (relative to {os.getcwd()})"
@@ -872,13 +904,9 @@ def _sniff_delimiter(line: str) -> str:
     return next((d for d in (",", ";", "\t") if d in bare), ",")
 
 
-def _csv_header(path: Path) -> tuple[str, list[str]]:
-    """Delimiter and header cells of a CSV file."""
-    try:
-        with path.open(encoding="utf-8-sig", newline="") as handle:
-            line = handle.readline()
-    except UnicodeDecodeError as error:
-        raise _not_utf8(path, error) from error
+def _csv_header(path: Path, text: str) -> tuple[str, list[str]]:
+    """Delimiter and header cells of a CSV file's text."""
+    line = io.StringIO(text, newline="").readline()
     if not line.strip():
         what = "the file is empty" if not line else "the first line is empty"
         raise RecordingError(
@@ -904,39 +932,35 @@ def _not_utf8(path: Path, error: UnicodeDecodeError) -> RecordingError:
     )
 
 
-def _first_ragged_line(path: Path, delimiter: str, width: int) -> str | None:
+def _first_ragged_line(text: str, delimiter: str, width: int) -> str | None:
     """Describe the first line whose field count differs from the header's, if any."""
-    with path.open(encoding="utf-8-sig", newline="") as handle:
-        reader = csv.reader(handle, delimiter=delimiter)
-        next(reader, None)
-        for fields in reader:
-            if fields and len(fields) > width:
-                return (
-                    f"line {reader.line_num} has {len(fields)} fields but the header has "
-                    f"{width}; remove the extra fields or name the column in the header"
-                )
+    reader = csv.reader(io.StringIO(text, newline=""), delimiter=delimiter)
+    next(reader, None)
+    for fields in reader:
+        if fields and len(fields) > width:
+            return (
+                f"line {reader.line_num} has {len(fields)} fields but the header has "
+                f"{width}; remove the extra fields or name the column in the header"
+            )
     return None
 
 
-def _csv_body(path: Path, delimiter: str, width: int) -> pd.DataFrame:
+def _csv_body(path: Path, text: str, delimiter: str, width: int) -> pd.DataFrame:
     """All data rows as a DataFrame; blank lines kept so that row r is file line r + 2."""
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error", pd.errors.ParserWarning)
             frame = pd.read_csv(
-                path,
+                io.StringIO(text, newline=""),
                 sep=delimiter,
                 header=0,
                 index_col=False,
                 skip_blank_lines=False,
                 skipinitialspace=True,
-                encoding="utf-8-sig",
                 low_memory=False,
             )
-    except UnicodeDecodeError as error:
-        raise _not_utf8(path, error) from error
     except (pd.errors.ParserError, pd.errors.ParserWarning, ValueError, csv.Error) as error:
-        raise RecordingError(_parse_failure(path, delimiter, width, error), str(path)) from error
+        raise RecordingError(_parse_failure(text, delimiter, width, error), str(path)) from error
     blank = frame.isna().all(axis=1).to_numpy()
     end = len(blank)
     while end and blank[end - 1]:
@@ -944,20 +968,24 @@ def _csv_body(path: Path, delimiter: str, width: int) -> pd.DataFrame:
     return frame.iloc[:end]
 
 
-def _parse_failure(path: Path, delimiter: str, width: int, error: Exception) -> str:
+def _parse_failure(text: str, delimiter: str, width: int, error: Exception) -> str:
     """Why pandas could not parse the file: the first over-long line if there is one."""
     try:
-        ragged = _first_ragged_line(path, delimiter, width)
-    except (csv.Error, UnicodeDecodeError, OSError):
+        ragged = _first_ragged_line(text, delimiter, width)
+    except csv.Error:
         ragged = None
     return ragged or f"cannot be parsed as CSV ({error}); check quotes and delimiters"
 
 
-def _read_csv(path: Path, head: bytes) -> _Table:
-    delimiter, cells = _csv_header(path)
+def _read_csv(path: Path, data: bytes) -> _Table:
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as error:
+        raise _not_utf8(path, error) from error
+    delimiter, cells = _csv_header(path, text)
     trailing = len(cells) > 1 and not cells[-1].strip()  # "a,b," lines from some loggers
     names, units = _header_columns(cells[:-1] if trailing else cells, str(path), "column")
-    frame = _csv_body(path, delimiter, len(cells))
+    frame = _csv_body(path, text, delimiter, len(cells))
     if trailing and not frame.iloc[:, -1].isna().all():
         raise RecordingError(
             f"column {len(cells)} holds values but has no name in the header; name it",
@@ -1003,12 +1031,12 @@ def _arrow_column(column: Any, name: str, path: Path) -> np.ndarray:
         ) from error
 
 
-def _read_parquet(path: Path, head: bytes) -> _Table:
+def _read_parquet(path: Path, data: bytes) -> _Table:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     try:
-        table = pq.read_table(path)
+        table = pq.read_table(pa.BufferReader(data))
     except (pa.ArrowException, OSError, ValueError, TypeError) as error:
         raise RecordingError(
             f"is not a readable Parquet file ({error}); re-export it, e.g. with "
@@ -1040,158 +1068,24 @@ def _field_units(schema: Any, keep: list[int], names: list[str]) -> dict[str, st
     return units
 
 
-# -- MATLAB ------------------------------------------------------------------------------------
+# -- MATLAB and MDF4: own modules, which return plain columns ---------------------------------
 
 
-def _is_hdf5(head: bytes) -> bool:
-    return head[:8] == _HDF5_SIGNATURE or head[512:520] == _HDF5_SIGNATURE
-
-
-def _mat_v73_error(path: Path) -> RecordingError:
-    return RecordingError(
-        "is a MATLAB v7.3 (HDF5) file, which cannot be read here; in MATLAB save it with "
-        "save(FILE, ..., '-v7') or export it to CSV or Parquet",
-        str(path),
-    )
-
-
-def _mat_tag(data: bytes, pos: int, end: int, order: str) -> tuple[int, int, int, int]:
-    """Decode a v5 data-element tag at ``pos``: (type, size, body start, next element start)."""
-    if pos + 8 > end:
-        raise ValueError(f"truncated element tag at byte {pos}")
-    first, second = struct.unpack_from(order + "II", data, pos)
-    if first >> 16:  # small data element: type and size share one word, data in the next
-        return first & 0xFFFF, first >> 16, pos + 4, pos + 8
-    body = pos + 8
-    if body + second > end:
-        raise ValueError(f"element at byte {pos} runs past the end of its container")
-    return first, second, body, body + second + (-second % 8)
-
-
-def _mat5_elements(data: bytes, pos: int, end: int, order: str) -> list[tuple[int, int, int]]:
-    """The (type, size, body start) of the elements that exactly fill ``data[pos:end]``."""
-    elements = []
-    while pos < end:
-        kind, size, body, pos = _mat_tag(data, pos, end, order)
-        if kind not in _MAT5_ELEMENT_TYPES:
-            raise ValueError(f"unknown data type {kind} at byte {body - 8}")
-        elements.append((kind, size, body))
-    if pos != end:
-        raise ValueError(f"element sizes do not add up to their container ending at byte {end}")
-    return elements
-
-
-def _scan_mat5_matrix(data: bytes, pos: int, end: int, order: str) -> None:
-    """Check one miMATRIX body, recursing into cells, structs and objects.
-
-    scipy reads the parts of an array one after the other without checking the array's own
-    size, so a numeric, char or sparse array must hold exactly its header (flags, dims, name)
-    and its data parts, none of them a nested array.
-    """
-    elements = _mat5_elements(data, pos, end, order)
-    if not elements:
-        return  # an empty array
-    kind, size, body = elements[0]
-    if kind != _MI_UINT32 or size < 8:
-        raise ValueError(f"array flags missing at byte {body - 8}")
-    flags = struct.unpack_from(order + "I", data, body)[0]
-    array_class, is_complex = flags & 0xFF, bool(flags & 0x800)
-    if array_class != _MX_OPAQUE:
-        kind, size, body = elements[1] if len(elements) > 1 else (0, 0, end + 8)
-        if kind not in (_MI_INT32, _MI_UINT32) or size < 8 or size % 4:
-            raise ValueError(f"array dimensions missing at byte {body - 8}")
-    parts = _MAT5_DATA_PARTS.get(array_class)
-    if parts is not None:
-        expected = 3 + parts + (1 if is_complex else 0)
-        if len(elements) != expected or any(k == _MI_MATRIX for k, _, _ in elements):
-            raise ValueError(f"array at byte {pos - 8} does not have {expected} parts")
-        return
-    for kind, size, body in elements[1:]:
-        if kind == _MI_MATRIX:
-            _scan_mat5_matrix(data, body, body + size, order)
-
-
-def _scan_mat5(data: bytes) -> None:
-    """Walk every data element of a v5/v7 MAT file before scipy reads it.
-
-    scipy's compiled reader trusts the element type codes and can crash the interpreter on a
-    damaged file (it indexes a table with them); this pure-Python walk raises ``ValueError``
-    instead.
-    """
-    order = "<" if data[126:128] == b"IM" else ">"
-    pos = 128
-    while pos < len(data):
-        kind, size, body, _ = _mat_tag(data, pos, len(data), order)
-        pos = body + size
-        if kind == _MI_COMPRESSED:
-            try:
-                inner = zlib.decompress(data[body:pos])
-            except zlib.error as error:
-                raise ValueError(f"damaged compressed element at byte {body - 8}") from error
-            kind, size, body, _ = _mat_tag(inner, 0, len(inner), order)
-            if kind != _MI_MATRIX:
-                raise ValueError(f"compressed element at byte {body - 8} holds no array")
-            _scan_mat5_matrix(inner, body, body + size, order)
-        elif kind == _MI_MATRIX:
-            _scan_mat5_matrix(data, body, pos, order)
-        else:
-            raise ValueError(f"unexpected data type {kind} at byte {body - 8}")
-
-
-def _mat_vector(value: Any) -> np.ndarray | None:
-    """A numeric vector (n,), (n, 1) or (1, n) with n >= 2 as shape (n,); else ``None``."""
-    if not isinstance(value, np.ndarray) or value.dtype.kind not in "fiubc":
-        return None
-    if value.size < 2 or value.ndim > 2 or (value.ndim == 2 and min(value.shape) != 1):
-        return None
-    return value.reshape(-1)
-
-
-def _mat_variables(content: dict[str, Any]) -> tuple[dict[str, Any], dict[str, str]]:
-    """Top-level variables, or the fields of a lone top-level struct."""
-    variables = {k: v for k, v in content.items() if not k.startswith("__")}
-    if len(variables) == 1:
-        [(name, value)] = variables.items()
-        if isinstance(value, np.ndarray) and value.dtype.names and value.size == 1:
-            record = value.reshape(-1)[0]
-            return {f: record[f] for f in value.dtype.names}, {"struct": name}
-    return variables, {}
-
-
-def _read_mat(path: Path, head: bytes) -> _Table:
-    if _is_hdf5(head):
-        raise _mat_v73_error(path)
-    from scipy.io import loadmat
-
-    try:
-        if head[126:128] in (b"IM", b"MI"):
-            _scan_mat5(path.read_bytes())
-        content = loadmat(path, squeeze_me=False, struct_as_record=True)
-    except NotImplementedError as error:
-        raise _mat_v73_error(path) from error
-    except Exception as error:  # scipy raises many types on damaged files
-        raise RecordingError(
-            f"is not a readable MATLAB file ({type(error).__name__}: {error}); save it from "
-            "MATLAB with save(FILE, ..., '-v7')",
-            str(path),
-        ) from error
-    variables, notes = _mat_variables(content)
-    columns: dict[str, Any] = {}
-    ignored = []
-    for name, value in variables.items():
-        vector = _mat_vector(value)
-        if vector is None:
-            ignored.append(name)
-        else:
-            columns[name] = vector
-    if ignored:
-        notes["ignored_variables"] = ", ".join(ignored)
+def _read_mat(path: Path, data: bytes) -> _Table:
+    columns, notes = read_mat(path, data)
     return _Table(columns, {}, notes, _Rows("MATLAB index", 1), "variable")
+
+
+def _read_mdf(path: Path, data: bytes) -> _Table:
+    columns, units, notes = read_mdf(path, data)
+    return _Table(columns, units, notes, None, "channel")
 
 
 _READERS: dict[str, Callable[[Path, bytes], _Table]] = {
     ".csv": _read_csv,
     ".mat": _read_mat,
+    ".mf4": _read_mdf,
+    ".mdf": _read_mdf,
     ".parquet": _read_parquet,
 }
 
@@ -1203,7 +1097,9 @@ def load_recording(
     resample: float | None = None,
     units: Mapping[str, str] | None = None,
 ) -> Recording:
-    """Load a recording from CSV, Parquet or MATLAB ``.mat`` (v4 to v7).
+    """Load a recording from CSV, Parquet, MATLAB ``.mat`` (v4 to v7.3) or MDF (``.mf4``).
+
+    The file is read once, so a named pipe or a stream works as a path.
 
     Parameters
     ----------
@@ -1235,7 +1131,7 @@ def load_recording(
             f"{', '.join(SUPPORTED_FORMATS)}. Export the data to one of these",
             str(file),
         )
-    table = reader(file, _read_head(file))
+    table = reader(file, _read_bytes(file))
     sidecar = _read_sidecar(file)
     _check_unit_names(sidecar, table.columns, "the units file", str(_sidecar_path(file)))
     given = _units_mapping(units or {}, "the units argument", str(file))
@@ -1334,150 +1230,3 @@ def save_recording(recording: Recording, path: str | os.PathLike[str]) -> Path:
             str(file),
         ) from error
     return file
-
-
-# --------------------------------------------------------------------------------------------
-# Units
-# --------------------------------------------------------------------------------------------
-
-_DIMENSIONLESS = {"", "1", "-", "none", "dimensionless"}
-_SYMBOL_ALIASES = {
-    "sec": "s",
-    "secs": "s",
-    "°": "deg",
-    "degree": "deg",
-    "degrees": "deg",
-    "°C": "degC",
-    "l": "L",
-    "ohm": "Ω",
-}
-_UNICODE = str.maketrans(
-    {
-        **dict(zip("⁰¹²³⁴⁵⁶⁷⁸⁹⁻⁺", "0123456789-+", strict=True)),
-        "·": ".",
-        "⋅": ".",
-        "*": ".",
-        "×": ".",
-        "µ": "u",
-        "μ": "u",
-    }
-)
-_UNIT_TOKEN = re.compile(r"(?P<num>\d+)|(?P<op>[./^()+\-])|(?P<sym>[^\d./^()+\-]+)")
-
-
-class _UnitParser:
-    """Recursive-descent parser of unit strings into ``{symbol: power}`` (UCUM-like syntax).
-
-    ``expr := ['/'] factor (('.' | '/') factor)*``; ``factor := (symbol | '1' | '(' expr ')')
-    [['^'] [sign] digits]``. A ``/`` divides by the next factor only, as in UCUM.
-    """
-
-    def __init__(self, text: str) -> None:
-        self.tokens: list[tuple[str, str]] = []
-        for match in _UNIT_TOKEN.finditer(text):
-            kind = match.lastgroup or ""
-            self.tokens.append((kind, match[kind]))
-        self.pos = 0
-
-    def parse(self) -> dict[str, int]:
-        powers = self._expr()
-        if self.pos != len(self.tokens):
-            raise ValueError("trailing tokens")
-        return powers
-
-    def _peek(self, *ops: str) -> bool:
-        return self.pos < len(self.tokens) and self.tokens[self.pos] in [("op", o) for o in ops]
-
-    def _next(self) -> tuple[str, str]:
-        if self.pos >= len(self.tokens):
-            raise ValueError("unexpected end")
-        self.pos += 1
-        return self.tokens[self.pos - 1]
-
-    def _expr(self) -> dict[str, int]:
-        powers: dict[str, int] = {}
-        sign = -1 if self._peek("/") else 1
-        if sign < 0:
-            self._next()
-        while True:
-            for symbol, power in self._factor().items():
-                powers[symbol] = powers.get(symbol, 0) + sign * power
-            if not self._peek(".", "/"):
-                return powers
-            sign = -1 if self._next()[1] == "/" else 1
-
-    def _factor(self) -> dict[str, int]:
-        kind, value = self._next()
-        if (kind, value) == ("op", "("):
-            inner = self._expr()
-            if self._next() != ("op", ")"):
-                raise ValueError("unbalanced parenthesis")
-        elif kind == "sym":
-            inner = {_SYMBOL_ALIASES.get(value, value): 1}
-        elif (kind, value) == ("num", "1"):
-            inner = {}
-        else:
-            raise ValueError(f"unexpected {value!r}")
-        exponent = self._exponent()
-        return {symbol: power * exponent for symbol, power in inner.items()}
-
-    def _exponent(self) -> int:
-        caret = self._peek("^")
-        if caret:
-            self._next()
-        sign = -1 if self._peek("-") else 1
-        signed = self._peek("-", "+")
-        if signed:
-            self._next()
-        if self.pos < len(self.tokens) and self.tokens[self.pos][0] == "num":
-            return sign * int(self._next()[1])
-        if caret or signed:
-            raise ValueError("exponent without digits")
-        return 1
-
-
-def _format_powers(powers: dict[str, int]) -> str:
-    """Canonical text: sorted numerator joined by '.', then '/'-separated denominator."""
-    numerator = [f"{s}{p if p != 1 else ''}" for s, p in sorted(powers.items()) if p > 0]
-    denominator = [f"{s}{-p if p != -1 else ''}" for s, p in sorted(powers.items()) if p < 0]
-    if not numerator and not denominator:
-        return ""
-    return ".".join(numerator or ["1"]) + "".join("/" + d for d in denominator)
-
-
-def normalise_unit(unit: str) -> str:
-    """Canonical spelling of a unit, for comparisons only (units are stored as given).
-
-    Equivalent spellings map to one string: ``"m^3/s"``, ``"m3/s"``, ``"m³·s⁻¹"`` → ``"m3/s"``;
-    ``"N·s/m"``, ``"N*s/m"``, ``"N s/m"`` → ``"N.s/m"``; ``""``, ``"1"``, ``"-"``, ``"none"`` →
-    ``""`` (dimensionless or unknown); ``"µm"`` → ``"um"``; ``"sec"`` → ``"s"``. Symbols are
-    case-sensitive and prefixes are not converted (``"mm"`` is not ``"m"``). A string that does
-    not parse is returned stripped.
-
-    Parameters
-    ----------
-    unit : str
-
-    Returns
-    -------
-    str
-    """
-    text = unit.strip().translate(_UNICODE)
-    if text.lower() in _DIMENSIONLESS:
-        return ""
-    text = re.sub(r"\s*([./^()])\s*", r"\1", text)
-    text = re.sub(r"\s+", ".", text)
-    try:
-        return _format_powers(_UnitParser(text).parse())
-    except ValueError:
-        return text
-
-
-def units_compatible(a: str, b: str) -> bool:
-    """Whether two unit strings denote the same unit up to spelling (see :func:`normalise_unit`).
-
-    No conversion is attempted: ``units_compatible("mm", "m")`` is false. ``""`` (unknown or
-    dimensionless) matches only ``""``, ``"1"``, ``"-"``; a caller that treats an empty recorded
-    unit as *unknown* should skip the comparison.
-    """
-    return normalise_unit(a) == normalise_unit(b)

@@ -9,7 +9,7 @@ attributes end in ``_``):
    roles allow (:func:`~.hypotheses.generate_hypotheses`) and keep the few the data support
    (:class:`~.select.ForwardSelection`);
 3. fold the kept terms into the white-box
-   (:func:`~fmu_greybox.model.whitebox.simulate_with_terms`) and train the grey-box correctors
+   (:func:`~fmu_greybox.model.simulate.simulate_with_terms`) and train the grey-box correctors
    (:class:`~fmu_greybox.model.chain.GreyBoxChain`) on what remains;
 4. compare white-box, white-box + named terms and grey-box on held-out rows.
 
@@ -35,10 +35,10 @@ from fmu_greybox.diagnosis.findings import (
 )
 from fmu_greybox.diagnosis.hypotheses import DataScales, generate_hypotheses
 from fmu_greybox.diagnosis.locate import Locator, regime_signals
-from fmu_greybox.diagnosis.runner import Experiment, Simulator
+from fmu_greybox.diagnosis.runner import Experiment, SimulationCluster, Simulator
 from fmu_greybox.diagnosis.select import ForwardSelection
 from fmu_greybox.diagnosis.signals import SignalMap
-from fmu_greybox.errors import ConfigError
+from fmu_greybox.errors import ConfigError, RecordingError
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu, real_outputs
 from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.model.simulate import simulate_with_terms
@@ -49,6 +49,9 @@ from fmu_greybox.workflow.metrics import improvement, rmse
 
 #: Largest share of a recording used for training in a diagnosis.
 MAX_TRAIN_FRACTION = 0.8
+#: Fewest rows a diagnosis runs on: its held-out part (at least the last 20 %) then has 200
+#: rows, enough for the spectra and for a finding to be tested rather than fitted to noise.
+MIN_ROWS = 1000
 
 Progress = Callable[[str], None]
 
@@ -83,6 +86,9 @@ class Diagnosis:
         Settings of the grey-box trained on top of the named terms; ``None`` skips it.
     progress : callable, optional
         Called with a short message at each step.
+    cluster : SimulationCluster, optional
+        Run the hypothesis simulations on this cluster's workers instead of ``workers`` local
+        processes (``diagnose --scheduler``).
 
     Attributes
     ----------
@@ -116,6 +122,7 @@ class Diagnosis:
         max_findings: int = 5,
         greybox: GreyBoxSettings | None = GreyBoxSettings(),
         progress: Progress | None = None,
+        cluster: SimulationCluster | None = None,
     ) -> None:
         self.config = config
         self.workers = workers
@@ -123,6 +130,7 @@ class Diagnosis:
         self.max_findings = max_findings
         self.greybox = greybox
         self.progress = progress or (lambda message: None)
+        self.cluster = cluster
 
     # ------------------------------------------------------------------ fit
     def fit(self, recording: Recording) -> Diagnosis:
@@ -137,11 +145,19 @@ class Diagnosis:
         ------
         ConfigError
             If no recorded signal corresponds to an FMU output (nothing to compare).
+        RecordingError
+            If the recording has fewer than :data:`MIN_ROWS` rows.
         """
         started = time.perf_counter()
         self.timings_: dict[str, float] = {}
         config = self.config
         check_step(config, recording)
+        if recording.n_samples < MIN_ROWS:
+            raise RecordingError(
+                f"holds {recording.n_samples} rows; a diagnosis needs at least {MIN_ROWS} (it "
+                "holds out the last 20 % to test what it finds). Diagnose a longer recording",
+                path=recording.source,
+            )
         self.fmu_path_ = whitebox_path(config)
         with open_fmu(self.fmu_path_) as archive:
             config.check_against_fmu(archive)
@@ -202,7 +218,7 @@ class Diagnosis:
         scales = data_scales(archive, signals, experiment, self.screen_rows)
         self.hypotheses_ = generate_hypotheses(signals, archive, scales, experiment.parameters)
         self.progress(f"testing {len(self.hypotheses_)} hypotheses")
-        with Simulator(experiment, self.workers) as simulator:
+        with Simulator(experiment, self.workers, self.cluster) as simulator:
             selection = ForwardSelection(
                 screen_rows=self.screen_rows, max_findings=self.max_findings
             ).fit(simulator, self.hypotheses_)

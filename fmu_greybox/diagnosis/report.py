@@ -127,13 +127,19 @@ def write_outputs(diagnosis, recording, out_dir: str | Path) -> dict:
 
     Each file is written atomically. Returns the JSON payload.
     """
+    payload = diagnosis_payload(diagnosis, recording)
+    write_report_files(payload, report_html(diagnosis, payload), out_dir)
+    return payload
+
+
+def write_report_files(payload: dict, html: str, out_dir: str | Path) -> None:
+    """Write a diagnosis' ``diagnosis.json`` and ``report.html`` (made elsewhere, e.g. on a
+    cluster worker) into ``out_dir`` (created if needed), each atomically."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    payload = diagnosis_payload(diagnosis, recording)
     write_json(payload, out / "diagnosis.json")
     with atomic_write(out / "report.html") as f:
-        f.write(report_html(diagnosis, payload))
-    return payload
+        f.write(html)
 
 
 def write_json(payload: dict, path: str | Path) -> None:

@@ -6,8 +6,10 @@
 :class:`Simulator` runs the white-box with sets of correction terms over a prefix of the
 recording, in worker processes (each worker receives the extracted FMU and the arrays once).
 Workers are forked where the platform allows it (no re-import of the caller's main module);
-elsewhere they are spawned. A simulation whose FMU fails returns ``None``: the hypothesis
-that drove it there is rejected, not the diagnosis.
+elsewhere they are spawned. Given a :class:`SimulationCluster` (a Dask cluster:
+:class:`fmu_greybox.campaign.cluster.DaskSimulations`), the batches run on its workers instead.
+A simulation whose FMU fails returns ``None``: the hypothesis that drove it there is rejected,
+not the diagnosis.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import multiprocessing
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -32,10 +35,10 @@ from fmu_greybox.diagnosis.noise import (
 from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.errors import FmuError
 from fmu_greybox.fmi.archive import FmuArchive
-from fmu_greybox.fmi.binding import bind_inputs
 from fmu_greybox.model.simulate import simulate_with_terms
 from fmu_greybox.model.terms import Term
 from fmu_greybox.project.config import ProjectConfig
+from fmu_greybox.project.data import bind_project_inputs
 
 
 @dataclass
@@ -102,7 +105,7 @@ class Experiment:
         signal with the noise level of its recording (floored at 1e-6 of its RMS, for
         noise-free recordings) until :meth:`estimate_noise` refines it.
         """
-        binding = bind_inputs(archive, recording, config.input_mapping(), config.fixed_inputs)
+        binding = bind_project_inputs(config, archive, recording)
         recorded = np.column_stack([recording[s.column] for s in signals.observed])
         sigma = _floored([noise_level(x) for x in recorded.T], recorded)
         return cls(
@@ -238,6 +241,30 @@ def _simulate_task(task: tuple[list[Term], int]) -> np.ndarray | None:
     return _WORKER["experiment"].simulate(terms, rows)
 
 
+#: One simulation of a batch: the terms, and the rows to simulate.
+SimulationTask = tuple[list[Term], int]
+
+
+class PlacedExperiment(Protocol):
+    """An experiment already sent to the workers of a cluster."""
+
+    def run(self, tasks: list[SimulationTask]) -> list[np.ndarray | None]:
+        """Simulate every task on the cluster; results in the order of ``tasks``."""
+        ...
+
+    def close(self) -> None:
+        """Release the experiment on the workers."""
+        ...
+
+
+class SimulationCluster(Protocol):
+    """Workers elsewhere that run the simulations instead of local processes."""
+
+    def place(self, experiment: Experiment) -> PlacedExperiment:
+        """Send ``experiment`` (FMU and arrays) to every worker once."""
+        ...
+
+
 class Simulator:
     """Runs batches of simulations of one experiment, in parallel when ``workers > 1``.
 
@@ -247,6 +274,9 @@ class Simulator:
     workers : int
         Worker processes (1 runs in this process). Use as a context manager, or call
         :meth:`close`.
+    cluster : SimulationCluster, optional
+        Run the batches on this cluster's workers instead of local processes (``workers`` is
+        then not used); a batch of one simulation still runs in this process.
 
     Attributes
     ----------
@@ -258,7 +288,9 @@ class Simulator:
         Total rows simulated so far.
     """
 
-    def __init__(self, experiment: Experiment, workers: int = 2) -> None:
+    def __init__(
+        self, experiment: Experiment, workers: int = 2, cluster: SimulationCluster | None = None
+    ) -> None:
         self.experiment = experiment
         self.workers = max(1, min(int(workers), os.cpu_count() or 1))
         self.runs = 0
@@ -266,7 +298,8 @@ class Simulator:
         self._memo: dict[tuple[str, int], np.ndarray | None] = {}
         self._memo_bytes = 0
         self._pool = None
-        if self.workers > 1:
+        self._placed = None if cluster is None else cluster.place(experiment)
+        if self.workers > 1 and cluster is None:
             methods = multiprocessing.get_all_start_methods()
             context = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
             self._pool = context.Pool(
@@ -288,7 +321,9 @@ class Simulator:
         tasks = [(list(terms), rows) for terms in missing.values()]
         self.runs += len(tasks)
         self.rows_simulated += rows * len(tasks)
-        if self._pool is None or len(tasks) == 1:
+        if self._placed is not None and len(tasks) > 1:
+            results = self._placed.run(tasks)
+        elif self._pool is None or len(tasks) == 1:
             results = [self.experiment.simulate(terms, rows) for terms, rows in tasks]
         else:
             results = self._pool.map(_simulate_task, tasks, chunksize=1)
@@ -309,7 +344,10 @@ class Simulator:
             self._memo_bytes -= 0 if old is None else old.nbytes
 
     def close(self) -> None:
-        """Stop the worker processes (idempotent)."""
+        """Stop the worker processes, release the experiment on a cluster (idempotent)."""
+        if self._placed is not None:
+            self._placed.close()
+            self._placed = None
         if self._pool is not None:
             self._pool.close()
             self._pool.join()

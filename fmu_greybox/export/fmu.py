@@ -1,13 +1,21 @@
 """Export a trained grey-box as an FMI 2.0 co-simulation FMU (the ``export`` command).
 
-The FMU is a pythonfmu FMU: pythonfmu's binary, the entry module
-(:mod:`fmu_greybox.export.runtime`, bound to :class:`~fmu_greybox.export.slave.GreyBoxSlave`), a
-copy
-of the model folder and the export settings in its resources. pythonfmu writes a bare model
-description; :func:`fix_model_description` completes it (units and their definitions,
-descriptions, ``initial``, ModelStructure, capability flags, the model's hashes in the vendor
-annotations) so that ``fmpy.validation.validate_fmu`` finds no problem, and the export fails if
-it does.
+Two runtimes, the same variables and the same numbers:
+
+``native`` (the default)
+    A C binary compiled at export (:mod:`fmu_greybox.export.native`): the chain step shared with
+    the Python package, the white-box FMU loaded from the resources with dlopen, the trained
+    numbers in a data file. No Python in the bench's process.
+``python``
+    A pythonfmu FMU: pythonfmu's binary, the entry module (:mod:`fmu_greybox.export.runtime`,
+    bound to :class:`~fmu_greybox.export.slave.GreyBoxSlave`), a copy of the model folder and
+    the export settings in its resources. It runs in the Python of a Python-hosted master.
+
+Both carry a copy of the model folder (``resources/greybox_model/``, for provenance and for
+the SSP benches). :func:`fix_model_description` completes either model description (units and
+their definitions, descriptions, ``initial``, ModelStructure, capability flags, the model's
+hashes in the vendor annotations) so that ``fmpy.validation.validate_fmu`` finds no problem, and
+the export fails if it does.
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ from lxml import etree
 from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.errors import ExportError
+from fmu_greybox.export.domain import InputDomain
 from fmu_greybox.export.slave import (
     DEFAULT_OOD_THRESHOLD,
     MODEL_FOLDER,
@@ -37,13 +46,21 @@ from fmu_greybox.export.slave import (
     GreyBoxSlave,
     greybox_interface,
 )
-from fmu_greybox.fmi.archive import open_fmu
-from fmu_greybox.model.store import MANIFEST, file_sha256, load_model, read_manifest
+from fmu_greybox.fmi.archive import FmuArchive, open_fmu
+from fmu_greybox.model.store import (
+    MANIFEST,
+    GreyBoxModel,
+    file_sha256,
+    load_model,
+    read_manifest,
+)
 
 #: Python the exported FMUs need in the simulation process (that of fmu-greybox itself).
 REQUIRES_PYTHON = (3, 11)
 #: Module name of the grey-box entry in the FMU's resources.
 GREYBOX_ENTRY = "greybox_fmu"
+#: The runtimes an FMU can be exported for; the first is the default.
+RUNTIMES = ("native", "python")
 
 
 @dataclass(frozen=True)
@@ -68,10 +85,77 @@ class ExportResult:
     guid: str
 
 
+@dataclass(frozen=True)
+class ExportPlan:
+    """What both runtimes' FMUs are made from, derived once from the model folder.
+
+    Attributes
+    ----------
+    model : GreyBoxModel
+    model_dir : Path
+        The model folder (copied into the FMU's resources).
+    manifest : dict
+        Its ``model.json``.
+    model_sha256 : str
+        SHA-256 of ``model.json``.
+    interface : GreyBoxInterface
+        The FMU's variables.
+    domain : InputDomain
+        The inputs it accepts (:mod:`fmu_greybox.export.domain`).
+    guid : str
+    settings : dict
+        Identity and text of the FMU (``model_identifier``, ``description``, ``author``,
+        ``version``, ``ood_threshold``, ...).
+    annotation : lxml element
+        The model's provenance for the vendor annotations.
+    units : lxml element or None
+        The white-box's ``UnitDefinitions``.
+    stateful : bool
+        The white-box can get, set and serialise its state (so can the grey-box).
+    instantiate_once : bool
+        The white-box can be instantiated only once per process (so can the grey-box).
+    """
+
+    model: GreyBoxModel
+    model_dir: Path
+    manifest: dict[str, Any]
+    model_sha256: str
+    interface: GreyBoxInterface
+    domain: InputDomain
+    guid: str
+    settings: dict[str, Any]
+    annotation: etree._Element
+    units: etree._Element | None
+    stateful: bool
+    instantiate_once: bool
+
+    def fix(self, root: etree._Element, tool: str, needs_execution_tool: bool) -> None:
+        """Complete a model description of this grey-box in place (see
+        :func:`fix_model_description`)."""
+        fix_model_description(
+            root,
+            self.interface.ports,
+            self.guid,
+            self.units,
+            self.stateful,
+            self.annotation,
+            instantiate_once=self.instantiate_once,
+            tool=tool,
+            needs_execution_tool=needs_execution_tool,
+        )
+
+    def copy_model(self, folder: Path) -> None:
+        """Copy the model folder's files (those ``model.json`` lists) into ``folder``."""
+        folder.mkdir(parents=True)
+        for name in [MANIFEST, *self.manifest["files"]]:
+            shutil.copyfile(self.model_dir / name, folder / name)
+
+
 def export_greybox(
     model_dir: str | Path,
     out: str | Path,
     *,
+    runtime: str = RUNTIMES[0],
     author: str | None = None,
     version: str = "1.0",
     ood_threshold: float = DEFAULT_OOD_THRESHOLD,
@@ -84,6 +168,8 @@ def export_greybox(
         Model folder written by ``fmu-greybox train``.
     out : str or Path
         The ``.fmu`` file to write (atomically).
+    runtime : {"native", "python"}
+        A C binary with no Python in the bench's process, or a pythonfmu FMU.
     author : str, optional
         Author in the model description (default: the login name).
     version : str
@@ -100,7 +186,8 @@ def export_greybox(
     ModelFormatError
         The model folder is incomplete or was modified after training.
     ExportError
-        The white-box interface cannot be exported, or the FMU fails validation.
+        The white-box interface cannot be exported, the native binary cannot be compiled, or
+        the FMU fails validation.
     """
     model_dir = Path(model_dir)
     out = Path(out)
@@ -108,29 +195,48 @@ def export_greybox(
         raise ExportError(f"{out}: an FMU file name must end in .fmu")
     if not 0.0 < ood_threshold < 1.0:
         raise ExportError(f"ood_threshold = {ood_threshold} must lie strictly between 0 and 1")
+    if runtime not in RUNTIMES:
+        raise ExportError(f"runtime {runtime!r} is not one of {', '.join(RUNTIMES)}")
     model = load_model(model_dir)
+    with open_fmu(model.whitebox_fmu) as archive:
+        plan = _plan(model, model_dir, archive, runtime, author, version, ood_threshold)
+        if runtime == "native":
+            from fmu_greybox.export.native import package_native
+
+            package_native(plan, archive, out)
+        else:
+            _package_python(plan, out)
+    return ExportResult(
+        path=out, interface=plan.interface, model_sha256=plan.model_sha256, guid=plan.guid
+    )
+
+
+def _plan(
+    model: GreyBoxModel,
+    model_dir: Path,
+    archive: FmuArchive,
+    runtime: str,
+    author: str | None,
+    version: str,
+    ood_threshold: float,
+) -> ExportPlan:
+    """Everything both runtimes need (see :class:`ExportPlan`)."""
     manifest = read_manifest(model_dir)
     model_sha = file_sha256(model_dir / MANIFEST)
-    with open_fmu(model.whitebox_fmu) as archive:
-        interface = greybox_interface(model, archive, ood_threshold)
-        cosim = archive.model_description.coSimulation
-        units = etree.parse(str(archive.unzip_dir / "modelDescription.xml")).find("UnitDefinitions")
-        whitebox_name = archive.model_name
-    stateful = bool(cosim.canGetAndSetFMUstate and cosim.canSerializeFMUstate)
-    identity = f"fmu-greybox:{__version__}:{model_sha}:{ood_threshold!r}"
-    guid = str(uuid.uuid5(uuid.NAMESPACE_URL, identity))
+    interface = greybox_interface(model, archive, ood_threshold)
+    cosim = archive.model_description.coSimulation
+    units = etree.parse(str(archive.unzip_dir / "modelDescription.xml")).find("UnitDefinitions")
+    identity = f"fmu-greybox:{__version__}:{runtime}:{model_sha}:{ood_threshold!r}"
     stages = ", ".join(model.chain.stage_names)
     settings = {
         "kind": "greybox",
+        "runtime": runtime,
         "exported_with": __version__,
-        "install": f"fmu-greybox=={__version__}",
-        "requires_python": list(REQUIRES_PYTHON),
-        "python_at_export": ".".join(map(str, sys.version_info[:3])),
         "model_sha256": model_sha,
         "model_identifier": _identifier(f"{model.config.name}_greybox"),
         "description": (
-            f"Grey-box of {whitebox_name} ({model.config.name}): the white-box FMU stepped with "
-            f"sparse-GP stage correctors {stages} (fmu-greybox); drop-in replacement with "
+            f"Grey-box of {archive.model_name} ({model.config.name}): the white-box FMU stepped "
+            f"with sparse-GP stage correctors {stages} (fmu-greybox); drop-in replacement with "
             "corrected outputs, their standard deviations, raw white-box outputs and an "
             "out-of-domain flag"
         ),
@@ -138,30 +244,47 @@ def export_greybox(
         "version": version,
         "ood_threshold": ood_threshold,
     }
-    annotation = _annotation(model, manifest, model_sha, ood_threshold)
+    return ExportPlan(
+        model=model,
+        model_dir=model_dir,
+        manifest=manifest,
+        model_sha256=model_sha,
+        interface=interface,
+        domain=InputDomain.of(
+            archive, interface.input_names, model.training.get("input_ranges", {})
+        ),
+        guid=str(uuid.uuid5(uuid.NAMESPACE_URL, identity)),
+        settings=settings,
+        annotation=_annotation(model, manifest, model_sha, ood_threshold),
+        units=units,
+        stateful=bool(cosim.canGetAndSetFMUstate and cosim.canSerializeFMUstate),
+        instantiate_once=bool(cosim.canBeInstantiatedOnlyOncePerProcess),
+    )
+
+
+def _package_python(plan: ExportPlan, out: Path) -> None:
+    """The pythonfmu FMU (see the module docstring)."""
+    import pythonfmu
+
+    settings = {
+        **plan.settings,
+        "install": f"fmu-greybox=={__version__}",
+        "requires_python": list(REQUIRES_PYTHON),
+        "python_at_export": ".".join(map(str, sys.version_info[:3])),
+    }
+    tool = f"fmu-greybox {__version__} (pythonfmu {pythonfmu.__version__})"
     with tempfile.TemporaryDirectory(prefix="fmu_greybox_export_") as tmp:
         src = Path(tmp) / "src"
-        (src / MODEL_FOLDER).mkdir(parents=True)
-        for name in [MANIFEST, *manifest["files"]]:
-            shutil.copyfile(model_dir / name, src / MODEL_FOLDER / name)
+        plan.copy_model(src / MODEL_FOLDER)
         package_python_fmu(
             src,
             [src / MODEL_FOLDER],
             GREYBOX_ENTRY,
             GreyBoxSlave,
             settings,
-            lambda root: fix_model_description(
-                root,
-                interface.ports,
-                guid,
-                units,
-                stateful,
-                annotation,
-                instantiate_once=bool(cosim.canBeInstantiatedOnlyOncePerProcess),
-            ),
+            lambda root: plan.fix(root, tool, needs_execution_tool=True),
             out,
         )
-    return ExportResult(path=out, interface=interface, model_sha256=model_sha, guid=guid)
 
 
 # ---------------------------------------------------------------------------- building blocks
@@ -285,8 +408,10 @@ def fix_model_description(
     stateful: bool,
     annotation: etree._Element | None,
     instantiate_once: bool = False,
+    tool: str | None = None,
+    needs_execution_tool: bool = True,
 ) -> None:
-    """Complete pythonfmu's model description in place.
+    """Complete a model description (pythonfmu's, or the native exporter's) in place.
 
     Parameters
     ----------
@@ -303,14 +428,16 @@ def fix_model_description(
         Child of ``VendorAnnotations/Tool[@name="fmu-greybox"]``.
     instantiate_once : bool
         The embedded white-box can be instantiated only once per process.
+    tool : str, optional
+        ``generationTool`` (default: fmu-greybox and its version).
+    needs_execution_tool : bool
+        The FMU needs the Python interpreter of the simulation process (the Python runtime).
     """
-    import pythonfmu
-
     root.set("guid", "{" + guid + "}")
     root.set("variableNamingConvention", "flat")
-    root.set("generationTool", f"fmu-greybox {__version__} (pythonfmu {pythonfmu.__version__})")
+    root.set("generationTool", tool or f"fmu-greybox {__version__}")
     flags = {
-        "needsExecutionTool": "true",  # the Python interpreter of the simulation process
+        "needsExecutionTool": str(needs_execution_tool).lower(),
         "canHandleVariableCommunicationStepSize": "false",  # the correctors' step is fixed
         "canInterpolateInputs": "false",
         "canBeInstantiatedOnlyOncePerProcess": str(instantiate_once).lower(),

@@ -26,7 +26,7 @@ from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, 
 from pythonfmu import Real as RealVariable
 
 from fmu_greybox.errors import ModelFormatError
-from fmu_greybox.export.runtime import guarded, refuse_step, report
+from fmu_greybox.export.runtime import attach_logger, guarded, refuse_step, report
 from fmu_greybox.export.slave import check_python, read_settings
 from fmu_greybox.model.store import file_sha256
 
@@ -50,10 +50,11 @@ class PlaybackSlave(Fmi2Slave):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
+        attach_logger(self, kwargs)
         try:
             self._instantiate(Path(kwargs["resources"]))
         except Exception as exc:
-            report(self.instance_name, "fmi2Instantiate", f"{type(exc).__name__}: {exc}")
+            report(self, "fmi2Instantiate", f"{type(exc).__name__}: {exc}")
             raise
 
     def _instantiate(self, resources: Path) -> None:

@@ -42,14 +42,65 @@ LOGGER = "fmu_greybox.fmu"
 _KEPT = threading.local()
 
 
-def report(instance: str, call: str, message: str) -> None:
-    """Report why an FMI call of a Python FMU fails.
+class FmiLogger:
+    """The master's FMI logger of one pythonfmu instance, reached at any logging level.
 
-    pythonfmu passes a Python exception to the simulator's FMI logger only when the simulator
-    switched debug logging on, so the message also goes to the Python logger
-    ``fmu_greybox.fmu``, which prints it on stderr unless the host configured logging.
+    pythonfmu (0.7) hands a slave the address of its C++ logger object (the ``logger`` keyword)
+    but passes the slave's messages to the master only while the master has switched debug
+    logging on. That object holds the instance name (a ``std::string`` at byte
+    :attr:`NAME_AT`) and, at byte :attr:`CALLBACKS_AT`, the ``fmi2CallbackFunctions`` the master
+    gave ``fmi2Instantiate``, whose first member is the master's logger: an error is sent
+    through it directly, so that it reaches the master whatever the logging level, as the
+    native runtime's errors do. The layout is trusted only if the name found there is the
+    instance's; otherwise (another pythonfmu, a slave made in-process) :meth:`error` does
+    nothing and the Python logger alone has the message.
     """
-    logging.getLogger(LOGGER).error("FMU instance %r: %s failed: %s", instance, call, message)
+
+    NAME_AT = 16
+    CALLBACKS_AT = 72
+    ENVIRONMENT_AT = 32  # componentEnvironment within fmi2CallbackFunctions
+    _PROTOTYPE = ctypes.CFUNCTYPE(
+        None, ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_char_p
+    )
+
+    def __init__(self, address: object, instance_name: str) -> None:
+        self._send = None
+        self._name = instance_name.encode("utf-8")
+        if not isinstance(address, int) or address <= 0:
+            return
+        pointer, size = (ctypes.c_size_t * 2).from_address(address + self.NAME_AT)
+        if size != len(self._name) or ctypes.string_at(pointer, size) != self._name:
+            return
+        callbacks = ctypes.c_void_p.from_address(address + self.CALLBACKS_AT).value
+        logger = ctypes.c_void_p.from_address(callbacks).value if callbacks else None
+        if logger:
+            self._send = self._PROTOTYPE(logger)
+            self._environment = ctypes.c_void_p.from_address(callbacks + self.ENVIRONMENT_AT)
+
+    def error(self, message: str) -> None:
+        """Send an error message (status fmi2Error, category logStatusError)."""
+        if self._send is not None:
+            text = message.replace("%", "%%").encode("utf-8")  # the logger reads a format
+            self._send(self._environment.value, self._name, 3, b"logStatusError", text)
+
+
+def attach_logger(slave, kwargs: dict) -> None:
+    """Give a slave its :class:`FmiLogger` (``slave.fmi_logger``) from pythonfmu's keywords."""
+    slave.fmi_logger = FmiLogger(kwargs.get("logger"), slave.instance_name)
+
+
+def report(slave, call: str, message: str) -> None:
+    """Report why an FMI call of a Python FMU fails, to the master and in Python.
+
+    The master's FMI logger gets it at any logging level (:class:`FmiLogger`); it also goes to
+    the Python logger ``fmu_greybox.fmu``, which prints it on stderr unless the host configured
+    logging.
+    """
+    text = f"{call} failed: {message}"
+    logging.getLogger(LOGGER).error("FMU instance %r: %s", slave.instance_name, text)
+    logger = getattr(slave, "fmi_logger", None)
+    if logger is not None:
+        logger.error(text)
 
 
 def guarded(call: str, fallback=None):
@@ -60,7 +111,8 @@ def guarded(call: str, fallback=None):
     ``fmi2Terminate`` some masters send before ``fmi2FreeInstance``) then crashes the process. So
     the exception is reported (:func:`report`), recorded in the slave's ``failure``, and the
     method returns ``fallback`` (called with the method's arguments if callable). The slave's
-    ``fmi2DoStep`` refuses to step while ``failure`` is set, returning fmi2Discard.
+    ``fmi2DoStep`` refuses to step while ``failure`` is set, returning fmi2Discard (pythonfmu
+    0.7 has no way for a Python slave to answer fmi2Error).
     """
 
     def decorate(method):
@@ -71,7 +123,7 @@ def guarded(call: str, fallback=None):
                 return method(self, *args)
             except Exception as exc:
                 message = f"{type(exc).__name__}: {exc}"
-                report(self.instance_name, call, message)
+                report(self, call, message)
                 self.failure = self.failure or f"{call} failed: {message}"
                 return fallback(*args) if callable(fallback) else fallback
 
@@ -96,9 +148,10 @@ def keep_thread_state() -> None:
         _KEPT.held = True
 
 
-def refuse_step(slave, current_time: float) -> bool:
-    """``fmi2DoStep`` of a failed slave: report the first failure again; fmi2Discard."""
-    report(slave.instance_name, "fmi2DoStep", f"at t = {current_time:g} s: {slave.failure}")
+def refuse_step(slave, current_time: float, reason: str | None = None) -> bool:
+    """``fmi2DoStep`` refused: report why (``reason``, or the slave's first failure again)
+    and return ``False``, which pythonfmu answers with fmi2Discard."""
+    report(slave, "fmi2DoStep", reason or f"at t = {current_time:g} s: {slave.failure}")
     return False
 
 
@@ -127,8 +180,9 @@ def refusing_slave(name: str, reason: str) -> type:
     class Refusing(Fmi2Slave):
         def __init__(self, **kwargs) -> None:
             super().__init__(**kwargs)
+            attach_logger(self, kwargs)
             message = runtime_message(kwargs.get("resources"), reason)
-            report(self.instance_name, "fmi2Instantiate", message)
+            report(self, "fmi2Instantiate", message)
             raise RuntimeError(message)
 
         def do_step(self, current_time: float, step_size: float) -> bool:

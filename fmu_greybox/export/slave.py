@@ -54,7 +54,8 @@ from pythonfmu.enums import Fmi2Status
 
 from fmu_greybox import __version__
 from fmu_greybox.errors import ExportError, ModelFormatError
-from fmu_greybox.export.runtime import RUNTIME_FILE, guarded, refuse_step, report
+from fmu_greybox.export.domain import InputDomain
+from fmu_greybox.export.runtime import RUNTIME_FILE, attach_logger, guarded, refuse_step, report
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu
 from fmu_greybox.model.chain_step import ChainState
 from fmu_greybox.model.store import MANIFEST, GreyBoxModel, file_sha256, load_model
@@ -326,10 +327,11 @@ class GreyBoxSlave(Fmi2Slave):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         weakref.finalize(self, _release, self.__dict__)
+        attach_logger(self, kwargs)
         try:
             self._instantiate(Path(kwargs["resources"]))
         except Exception as exc:
-            report(self.instance_name, "fmi2Instantiate", f"{type(exc).__name__}: {exc}")
+            report(self, "fmi2Instantiate", f"{type(exc).__name__}: {exc}")
             raise
 
     def _instantiate(self, resources: Path) -> None:
@@ -345,6 +347,9 @@ class GreyBoxSlave(Fmi2Slave):
         self.model = load_model(model_dir)
         self.archive = open_fmu(self.model.whitebox_fmu)
         self.interface = greybox_interface(self.model, self.archive, settings["ood_threshold"])
+        self.domain = InputDomain.of(
+            self.archive, self.interface.input_names, self.model.training.get("input_ranges", {})
+        )
         self.modelName = settings["model_identifier"]
         self.description = settings["description"]
         self.author = settings["author"]
@@ -430,13 +435,9 @@ class GreyBoxSlave(Fmi2Slave):
         run = self._run
         if run is None:
             raise RuntimeError("fmi2DoStep before initialisation; call fmi2ExitInitializationMode")
-        dt = self.model.dt
-        if abs(step_size - dt) > STEP_RTOL * dt:
-            raise ValueError(
-                f"communication step {step_size:g} s at t = {current_time:g} s; the correctors "
-                f"were trained at {dt:g} s and need exactly that step. Set the bench's step to "
-                f"{dt:g} s"
-            )
+        refusal = self._refusal(current_time, step_size)
+        if refusal:
+            return refuse_step(self, current_time, refusal)
         reals = self._reals
         u = reals[: self._n_in]
         wb = run.whitebox.step(u)  # by exactly the trained step, see the module docstring
@@ -450,6 +451,26 @@ class GreyBoxSlave(Fmi2Slave):
         self._publish(wb, y_wb, state, score, outside)
         self._time = current_time + step_size
         return True
+
+    def _refusal(self, current_time: float, step_size: float) -> str | None:
+        """Why a step is refused (the same checks, in the same order, as the native runtime's
+        fmi2DoStep): a jump in time, another step than the trained one, inputs outside the
+        input domain (:mod:`fmu_greybox.export.domain`)."""
+        dt, time = self.model.dt, self._time
+        if not abs(current_time - time) <= STEP_RTOL * dt:
+            return (
+                f"currentCommunicationPoint = {current_time:.17g} s, but the grey-box is at "
+                f"{time:.17g} s; it cannot jump in time (its correctors remember the last "
+                f"steps): step on from {time:.17g} s, or restore an FMU state saved at "
+                f"{current_time:.17g} s"
+            )
+        if not abs(step_size - dt) <= STEP_RTOL * dt:
+            return (
+                f"communication step {step_size:g} s at t = {current_time:g} s; the correctors "
+                f"were trained at {dt:g} s and need exactly that step. Set the bench's step to "
+                f"{dt:g} s"
+            )
+        return self.domain.refusal(self._reals[: self._n_in], time)
 
     @guarded("fmi2Terminate")
     def terminate(self) -> None:
@@ -502,6 +523,9 @@ class GreyBoxSlave(Fmi2Slave):
         run = self._run
         if run is not None and run.started_with == inputs:
             return run
+        refusal = self.domain.refusal(inputs, self._time)
+        if refusal:
+            raise ValueError(refusal)
         start = dict(zip(self.interface.input_names, inputs, strict=True))
         if run is None:
             whitebox = self.model.whitebox(
@@ -518,7 +542,7 @@ class GreyBoxSlave(Fmi2Slave):
         wb = whitebox.outputs()
         y_wb = wb[self._stage_output]
         exo = np.array([inputs[i] for i in self._exo_index])
-        state = self.model.chain.start(y_wb[None, :], y_wb[None, :], exo[None, :])
+        state = self._plan.start(np.ascontiguousarray(y_wb), exo)
         self._run = _Run(whitebox=whitebox, state=state, started_with=inputs)
         self._publish(wb, y_wb, state, 1.0, False)
         return self._run

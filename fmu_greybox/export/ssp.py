@@ -24,7 +24,8 @@ import json
 import tempfile
 import uuid
 import zipfile
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,6 +45,7 @@ from fmu_greybox.export.fmu import (
 from fmu_greybox.export.slave import MODEL_FOLDER, Port
 from fmu_greybox.model.store import MANIFEST, WHITEBOX, file_sha256
 from fmu_greybox.project.config import parse_config
+from fmu_greybox.project.data import check_fixed_inputs, check_sample_time
 from fmu_greybox.resources import data_path
 
 SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"
@@ -167,6 +169,10 @@ def make_bench(
     ------
     BenchError
         A grey-box input has no recorded column, or the template is missing or invalid.
+    RecordingError
+        The recording is not sampled at the grey-box's step.
+    ConfigError
+        The recording records an input the project holds constant.
     """
     from fmpy import read_model_description
 
@@ -180,11 +186,9 @@ def make_bench(
     config = _project(greybox_fmu)
     description = read_model_description(str(greybox_fmu))
     step = description.defaultExperiment.stepSize if description.defaultExperiment else None
-    if step is not None and abs(recording.dt - float(step)) > 1e-6 * float(step):
-        raise BenchError(
-            f"{recording.source or 'the recording'} is sampled every {recording.dt:g} s but the "
-            f"grey-box runs at {float(step):g} s; resample the recording to {float(step):g} s"
-        )
+    if step is not None:
+        check_sample_time(recording, float(step), "the grey-box FMU (its default step)")
+    check_fixed_inputs(config, recording)
     fixed = dict(config.fixed_inputs)
     mapping = config.input_mapping()
     fed = {}
@@ -461,6 +465,23 @@ def _units(ssp: Path, layout: BenchLayout) -> dict[str, str]:
     return units
 
 
+@contextmanager
+def _unpacked_within() -> Iterator[None]:
+    """Let fmpy unpack the SSP and its FMUs into a private folder, removed at the end even when
+    the run fails (fmpy's ``simulate_ssp`` removes them only after a successful run).
+
+    fmpy extracts with :func:`tempfile.mkdtemp`, so :data:`tempfile.tempdir` points at the
+    private folder for the block and is restored after it.
+    """
+    with tempfile.TemporaryDirectory(prefix="fmu_greybox_cosim_") as private:
+        kept = tempfile.tempdir
+        tempfile.tempdir = private
+        try:
+            yield
+        finally:
+            tempfile.tempdir = kept
+
+
 def _run_fmpy(ssp: Path, layout: BenchLayout, step: float, n_steps: int) -> dict[str, np.ndarray]:
     from fmpy.ssp.simulation import simulate_ssp
     from fmpy.ssp.ssd import Parameter, ParameterSet, read_ssd
@@ -480,13 +501,14 @@ def _run_fmpy(ssp: Path, layout: BenchLayout, step: float, n_steps: int) -> dict
                 Parameter(name=f"{component.name}.{name}", type="Real", value=0.0)
             )
     try:
-        result = simulate_ssp(
-            str(ssp),
-            start_time=layout.start,
-            stop_time=layout.start + (n_steps - 0.5) * step,
-            step_size=step,
-            parameter_set=parameters,
-        )
+        with _unpacked_within():
+            result = simulate_ssp(
+                str(ssp),
+                start_time=layout.start,
+                stop_time=layout.start + (n_steps - 0.5) * step,
+                step_size=step,
+                parameter_set=parameters,
+            )
     except Exception as exc:
         raise BenchError(f"{ssp.name} failed in fmpy: {type(exc).__name__}: {exc}") from exc
     wanted = [f"{c}.{o}" for c, outs in layout.outputs.items() for o in outs]

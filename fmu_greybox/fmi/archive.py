@@ -22,6 +22,7 @@ from fmpy import platform as fmpy_platform
 from fmpy import read_model_description, sharedLibraryExtension
 
 from fmu_greybox.errors import FmuArchiveError
+from fmu_greybox.suggest import did_you_mean
 
 #: Largest total uncompressed size accepted [bytes].
 MAX_UNCOMPRESSED_BYTES = 2 * 1024**3
@@ -140,11 +141,10 @@ class FmuArchive:
         try:
             return self.variables[name]
         except KeyError:
-            import difflib
-
-            close = difflib.get_close_matches(name, list(self.variables), n=3)
-            hint = f"; did you mean {', '.join(map(repr, close))}?" if close else ""
-            raise FmuArchiveError(f"{self.path.name} declares no variable {name!r}{hint}") from None
+            raise FmuArchiveError(
+                f"{self.path.name} declares no variable {name!r}"
+                + did_you_mean(name, self.variables)
+            ) from None
 
     def close(self) -> None:
         """Remove the extraction folder (idempotent)."""

@@ -7,15 +7,22 @@ recorded. Units declared by the recording are checked against the units the FMU 
 
 from __future__ import annotations
 
-import difflib
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
-from fmu_greybox.data.recording import Recording, units_compatible
+from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError, RecordingError, UnitMismatchError
 from fmu_greybox.fmi.archive import FmuArchive
+from fmu_greybox.suggest import did_you_mean
+from fmu_greybox.units import UnitSyntaxError, conversion, units_compatible
+
+#: How to mend an unfed input or a conflict on the ``simulate`` command line.
+COMMAND_LINE_REMEDY = (
+    "map the input to a recorded column (--map INPUT=COLUMN) or hold it constant "
+    "(--fix INPUT=VALUE)"
+)
 
 
 @dataclass(frozen=True)
@@ -58,6 +65,7 @@ def bind_inputs(
     recording: Recording,
     mapping: Mapping[str, str] | None = None,
     fixed: Mapping[str, float] | None = None,
+    remedy: str = COMMAND_LINE_REMEDY,
 ) -> InputBinding:
     """Decide, for every Real input of the FMU, which recorded column or constant feeds it.
 
@@ -70,7 +78,12 @@ def bind_inputs(
     mapping : mapping of str to str, optional
         FMU input name -> recorded column name, where they differ.
     fixed : mapping of str to float, optional
-        FMU input name -> constant value, for inputs not recorded.
+        FMU input name -> constant value, for inputs not recorded (a recorded column of an
+        input held constant is not used: the ``simulate`` command's explicit override; a
+        project refuses the conflict, see :func:`fmu_greybox.project.data.prepare`).
+    remedy : str
+        How the caller's user maps an input or holds it constant (command-line options by
+        default; a project names its fields), ending the message of an unfed input.
 
     Returns
     -------
@@ -80,7 +93,7 @@ def bind_inputs(
     ------
     RecordingError
         If an FMU input has no column and no constant (the message names the closest columns
-        and the options that mend it), or a mapped column is missing.
+        of a compatible unit and how to mend it), or a mapped column is missing.
     UnitMismatchError
         If a recorded column declares a unit different from the FMU input's unit.
     ConfigError
@@ -106,10 +119,26 @@ def bind_inputs(
         else:
             missing.append(name)
     if missing:
-        raise RecordingError(_missing_message(missing, mapping, recording), path=recording.source)
+        message = _missing_message(archive, missing, mapping, recording, remedy)
+        raise RecordingError(message, path=recording.source)
     for name, column in columns.items():
         check_unit(archive, name, recording, column)
     return InputBinding(inputs=inputs, columns=columns, fixed=fixed)
+
+
+def input_units(archive: FmuArchive, mapping: Mapping[str, str] | None = None) -> dict[str, str]:
+    """Column -> unit of the FMU input it feeds by name or through ``mapping``.
+
+    What :meth:`Recording.converted <fmu_greybox.data.recording.Recording.converted>` needs to
+    bring a recording into the FMU's units before :func:`bind_inputs`; inputs without a
+    declared unit are left out.
+    """
+    mapping = mapping or {}
+    return {
+        mapping.get(v.name, v.name): v.unit
+        for v in archive.variables.values()
+        if v.causality == "input" and v.unit
+    }
 
 
 def check_unit(archive: FmuArchive, variable: str, recording: Recording, column: str) -> None:
@@ -127,16 +156,30 @@ def check_unit(archive: FmuArchive, variable: str, recording: Recording, column:
         )
 
 
-def _missing_message(missing: list[str], mapping: Mapping[str, str], recording: Recording) -> str:
+def _missing_message(
+    archive: FmuArchive,
+    missing: list[str],
+    mapping: Mapping[str, str],
+    recording: Recording,
+    remedy: str,
+) -> str:
+    """Which inputs lack a column, each with the closest recorded columns of a fitting unit."""
     parts = []
     for name in missing:
         column = mapping.get(name, name)
-        close = difflib.get_close_matches(column, recording.names, n=3, cutoff=0.5)
-        hint = f" (closest: {', '.join(map(repr, close))})" if close else ""
-        parts.append(f"{name!r} needs column {column!r}{hint}")
-    return (
-        "the FMU's inputs are not all recorded: "
-        + "; ".join(parts)
-        + ". Map them to recorded columns (--map INPUT=COLUMN) or hold them constant "
-        "(--fix INPUT=VALUE)"
-    )
+        unit = archive.variable(name).unit
+        fitting = [c for c in recording.names if _convertible(recording.units[c], unit)]
+        parts.append(f"{name!r} needs column {column!r}{did_you_mean(column, fitting)}")
+    return f"the FMU's inputs are not all recorded: {'; '.join(parts)}. To mend it, {remedy}"
+
+
+def _convertible(recorded: str, declared: str) -> bool:
+    """Whether a column in unit ``recorded`` may feed a variable in unit ``declared`` (an
+    undeclared unit on either side may)."""
+    if not recorded or not declared:
+        return True
+    try:
+        conversion(recorded, declared)
+    except UnitSyntaxError:
+        return False
+    return True

@@ -40,6 +40,7 @@ from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.errors import FmuBuildError
 from fmu_greybox.resources import data_path
+from fmu_greybox.units import BASE_UNITS, PREFIXES, SYMBOLS, UnitSyntaxError, si_unit
 
 SOURCES_DIR = data_path("fmu_sources")
 """Root of the C sources: ``framework/`` and one folder per model."""
@@ -403,108 +404,30 @@ def load_variable_table(path: Path) -> VariableTable:
 # Units: Modelica/FMI unit strings such as "m3/(s.Pa)" to SI base-unit exponents
 # ------------------------------------------------------------------------------------------------
 
-_BASE = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
-_SYMBOLS: dict[str, tuple[dict[str, int], float]] = {
-    "kg": ({"kg": 1}, 1.0),
-    "m": ({"m": 1}, 1.0),
-    "s": ({"s": 1}, 1.0),
-    "A": ({"A": 1}, 1.0),
-    "K": ({"K": 1}, 1.0),
-    "mol": ({"mol": 1}, 1.0),
-    "cd": ({"cd": 1}, 1.0),
-    "rad": ({"rad": 1}, 1.0),
-    "g": ({"kg": 1}, 1e-3),
-    "N": ({"kg": 1, "m": 1, "s": -2}, 1.0),
-    "Pa": ({"kg": 1, "m": -1, "s": -2}, 1.0),
-    "J": ({"kg": 1, "m": 2, "s": -2}, 1.0),
-    "W": ({"kg": 1, "m": 2, "s": -3}, 1.0),
-    "V": ({"kg": 1, "m": 2, "s": -3, "A": -1}, 1.0),
-    "Hz": ({"s": -1}, 1.0),
-    "bar": ({"kg": 1, "m": -1, "s": -2}, 1e5),
-    "l": ({"m": 3}, 1e-3),
-    "min": ({"s": 1}, 60.0),
-    "Ohm": ({"kg": 1, "m": 2, "s": -3, "A": -2}, 1.0),
-    "H": ({"kg": 1, "m": 2, "s": -2, "A": -2}, 1.0),
-}
-_PREFIXES = {"G": 1e9, "M": 1e6, "k": 1e3, "c": 1e-2, "m": 1e-3, "u": 1e-6}
-_TOKEN = re.compile(r"\s*(?:(?P<sym>[A-Za-z]+)(?P<exp>[+-]?\d+)?|(?P<op>[./()])|(?P<one>1))")
-
 
 def _parse_unit(
     unit: str, path: Path | None = None, where: str = ""
-) -> tuple[dict[str, int], float]:
-    """SI base-unit exponents and factor of a unit string (grammar of Modelica units).
+) -> tuple[dict[str, int], float, float]:
+    """SI base-unit exponents, factor and offset of a unit string (see :mod:`fmu_greybox.units`).
 
-    ``"1"`` is dimensionless, ``.`` multiplies, ``/`` divides by one factor or a parenthesised
-    group, a trailing integer is an exponent (``m3``), and the prefixes G M k c m u apply to
-    the symbols of ``_SYMBOLS``.
+    Raises
+    ------
+    FmuBuildError
+        If the string does not parse or names an unknown symbol.
     """
-    tokens: list[tuple[str, str, int]] = []
-    pos = 0
-    while pos < len(unit):
-        match = _TOKEN.match(unit, pos)
-        if not match or match.end() == pos:
-            raise _unit_error(unit, path, where)
-        pos = match.end()
-        if match.group("sym"):
-            tokens.append(("sym", match.group("sym"), int(match.group("exp") or 1)))
-        elif match.group("op"):
-            tokens.append(("op", match.group("op"), 0))
-        else:
-            tokens.append(("one", "1", 0))
-
-    def symbol(text: str) -> tuple[dict[str, int], float]:
-        if text in _SYMBOLS:
-            return _SYMBOLS[text]
-        if len(text) > 1 and text[0] in _PREFIXES and text[1:] in _SYMBOLS:
-            exps, factor = _SYMBOLS[text[1:]]
-            return exps, factor * _PREFIXES[text[0]]
-        raise _unit_error(unit, path, where, f"unknown unit symbol {text!r}")
-
-    def combine(
-        acc: tuple[dict[str, int], float], part: tuple[dict[str, int], float], sign: int
-    ) -> tuple[dict[str, int], float]:
-        exps = dict(acc[0])
-        for key, value in part[0].items():
-            exps[key] = exps.get(key, 0) + sign * value
-        return exps, acc[1] * part[1] ** sign
-
-    def factor(i: int) -> tuple[tuple[dict[str, int], float], int]:
-        if i < len(tokens) and tokens[i] == ("op", "(", 0):
-            inner, i = expression(i + 1)
-            if i >= len(tokens) or tokens[i] != ("op", ")", 0):
-                raise _unit_error(unit, path, where)
-            return inner, i + 1
-        if i < len(tokens) and tokens[i][0] == "sym":
-            exps, fac = symbol(tokens[i][1])
-            power = tokens[i][2]
-            return ({k: v * power for k, v in exps.items()}, fac**power), i + 1
-        if i < len(tokens) and tokens[i][0] == "one":
-            return ({}, 1.0), i + 1
-        raise _unit_error(unit, path, where)
-
-    def expression(i: int) -> tuple[tuple[dict[str, int], float], int]:
-        acc, i = factor(i)
-        while i < len(tokens) and tokens[i][0] == "op" and tokens[i][1] in "./":
-            sign = 1 if tokens[i][1] == "." else -1
-            part, i = factor(i + 1)
-            acc = combine(acc, part, sign)
-        return acc, i
-
-    result, end = expression(0)
-    if end != len(tokens):
-        raise _unit_error(unit, path, where)
-    exps = {k: v for k, v in result[0].items() if v != 0}
-    return exps, result[1]
+    try:
+        resolved = si_unit(unit)
+    except UnitSyntaxError as error:
+        raise _unit_error(unit, path, where, str(error)) from error
+    return resolved.exponents, resolved.factor, resolved.offset
 
 
-def _unit_error(unit: str, path: Path | None, where: str, detail: str = "") -> FmuBuildError:
-    detail = detail or "cannot parse it"
+def _unit_error(unit: str, path: Path | None, where: str, detail: str) -> FmuBuildError:
     prefix = f"{path}: {where}: " if path else ""
     return FmuBuildError(
         f"{prefix}unit {unit!r}: {detail}. Use SI symbols joined by '.' and "
         f"'/', exponents as digits (m3, s-2), e.g. 'm3/(s.Pa)'; known symbols: "
-        f"{', '.join(_SYMBOLS)}; prefixes: {', '.join(_PREFIXES)}."
+        f"{', '.join(SYMBOLS)}; prefixes: {', '.join(PREFIXES)}."
     )
 
 
@@ -580,11 +503,13 @@ def model_description(table: VariableTable, identifier: str, guid: str) -> bytes
     declared = sorted({v.unit for v in variables if v.unit})
     units = ET.SubElement(root, "UnitDefinitions") if declared else None
     for unit in declared:
-        exps, factor = _parse_unit(unit)
+        exps, factor, offset = _parse_unit(unit)
         element = ET.SubElement(units, "Unit", {"name": unit})
-        attributes = {k: str(exps[k]) for k in _BASE if k in exps}
+        attributes = {k: str(exps[k]) for k in BASE_UNITS if k in exps}
         if factor != 1.0:
             attributes["factor"] = _number(factor)
+        if offset != 0.0:
+            attributes["offset"] = _number(offset)
         ET.SubElement(element, "BaseUnit", attributes)
     categories = ET.SubElement(root, "LogCategories")
     ET.SubElement(
@@ -822,7 +747,14 @@ def fmi2_headers() -> Path:
     return folder
 
 
-def _compiler() -> str:
+def c_compiler() -> str:
+    """The C compiler: ``$CC`` or gcc.
+
+    Raises
+    ------
+    FmuBuildError
+        If it is not found.
+    """
     compiler = os.environ.get("CC", "gcc")
     found = shutil.which(compiler)
     if not found:
@@ -836,7 +768,7 @@ def _compile(model_dir: Path, entry: ModelEntry, generated: Path, library: Path)
         *sorted(model_dir.glob("*.c")),
         generated / "fmu_variables.c",
     ]
-    command = [_compiler(), *CFLAGS, "-shared"]
+    command = [c_compiler(), *CFLAGS, "-shared"]
     if not sys.platform.startswith("win"):
         command.append("-fPIC")
     for folder in (generated, model_dir, FRAMEWORK_DIR, fmi2_headers()):

@@ -33,7 +33,7 @@ M×M matrix or its explicit triangular factor — lose digits to cancellation as
 condition number grows (equally spaced inducing points on a slow trajectory are close
 together: 6× the mean error above for ``kᵀα``). ``α`` serves only the mean's gradient.
 
-The single-point path is compiled (``fmu_greybox/native/chainstep.c``, shared with the
+The single-point path is compiled (``fmu_greybox/native/chain_core.c``, shared with the
 chain's step): one pass over the inducing points for the kernel row (and the gradient's
 moments), one column-oriented forward substitution with H, two dots. Everything that does
 not depend on x is laid out once in :attr:`Posterior.packed`: input standardisation and
@@ -230,7 +230,7 @@ class Posterior:
 
 
 def packed_factor(factor: FloatArray) -> FloatArray:
-    """H by columns as ``chainstep.c`` reads it: column j from row 8⌊j/8⌋ to LD − 1.
+    """H by columns as ``chain_core.c`` reads it: column j from row 8⌊j/8⌋ to LD − 1.
 
     Parameters
     ----------
@@ -251,7 +251,7 @@ def packed_factor(factor: FloatArray) -> FloatArray:
 
 
 def pack_posterior(factor: FloatArray, vectors: list[FloatArray]) -> FloatArray:
-    """The layout ``fmu_greybox/native/chainstep.c`` reads (its header comment).
+    """The layout ``fmu_greybox/native/chain_core.c`` reads (its header comment).
 
     Parameters
     ----------

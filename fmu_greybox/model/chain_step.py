@@ -1,6 +1,6 @@
 """The corrector chain's state and its compiled step: one call per communication step.
 
-A :class:`ChainPlan` lays out once what ``fmu_greybox/native/chainstep.c`` needs to advance the
+A :class:`ChainPlan` lays out once what ``fmu_greybox/native/chain_core.c`` needs to advance the
 chain by one row — per stage its feature map
 (:meth:`~fmu_greybox.model.stage.StageLayout.feature_map`),
 the widened training range its features are clipped to, its packed posterior
@@ -48,7 +48,7 @@ class FittedChain(Protocol):
     feature_bounds_: list[np.ndarray | None]
 
 
-#: Target mode codes of the compiled step (``MODE_*`` in chainstep.c).
+#: Target mode codes of the compiled step (``MODE_*`` in chain_core.c).
 MODE_CODES = {"residual": 0, "increment": 1, "output": 2}
 
 
@@ -200,6 +200,37 @@ class ChainPlan:
             layout.depth,
         ]
         self._plan = np.array(header + [v for r in records for v in r], dtype=np.int64)
+        self.layout = layout
+        self.memory_lengths = [stage.memory_length for stage in chain.stages]
+
+    @property
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """The plan (int64) and the parameters (float64) the compiled step reads, as they are
+        (read-only views: the native grey-box FMU stores them verbatim, see
+        :mod:`fmu_greybox.export.native`)."""
+        plan, params = self._plan.view(), self._params.view()
+        plan.flags.writeable = params.flags.writeable = False
+        return plan, params
+
+    def start(self, y_wb: np.ndarray, exo: np.ndarray) -> ChainState:
+        """The chain's state when one row is all that is known (what a grey-box FMU has at
+        initialisation): its white-box stage outputs stand in for the stage outputs (a zero
+        residual) and its inputs for the earlier inputs; equal to
+        ``GreyBoxChain.start(y_wb[None], y_wb[None], exo[None])``, computed by the compiled
+        code the native FMU runs.
+
+        Parameters
+        ----------
+        y_wb : ndarray, shape (Q,), float64, C-contiguous
+        exo : ndarray, shape (n_exo,), float64, C-contiguous
+
+        Returns
+        -------
+        ChainState
+        """
+        state = ChainState(self.layout, self.memory_lengths)
+        _chainstep.start(self._plan, state.values, y_wb, exo)
+        return state
 
     def step(
         self, state: ChainState, exo_prev: np.ndarray, y_wb: np.ndarray, enabled: bool = True

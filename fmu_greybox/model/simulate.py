@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu, real_outputs
-from fmu_greybox.fmi.binding import InputBinding, bind_inputs
+from fmu_greybox.fmi.binding import InputBinding, bind_inputs, input_units
 from fmu_greybox.model.terms import Term
 from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS, NamedModel
 
@@ -159,7 +159,8 @@ def simulate_recording(
         The co-simulation FMU (opened and closed here when given as a path).
     recording : Recording
         Supplies the inputs (by name, or through ``mapping``) and the time grid; its time step
-        is the communication step.
+        is the communication step. A column in another unit than the FMU input it feeds
+        (``mm`` for ``m``) is converted first, with a note in the log.
     mapping, fixed : mapping, optional
         See :func:`fmu_greybox.fmi.binding.bind_inputs`.
     parameters : mapping of str to float, optional
@@ -176,6 +177,7 @@ def simulate_recording(
     """
     archive = fmu if isinstance(fmu, FmuArchive) else open_fmu(fmu)
     try:
+        recording = recording.converted(input_units(archive, mapping))
         binding = bind_inputs(archive, recording, mapping, fixed)
         names = list(outputs) if outputs is not None else real_outputs(archive)
         y = simulate_binding(archive, binding, recording, names, parameters, progress)

@@ -7,6 +7,7 @@ Layout::
       whitebox.fmu         the white-box FMU the correctors were trained against
       stage_<NAME>.npz     corrector arrays (one pair per stage, see fmu_greybox.gp)
       stage_<NAME>.json    corrector metadata
+      training_rows.npz    one digest per training row (fmu_greybox.project.fingerprint)
 
 The named correction terms the model carries (physics found by the diagnosis, folded into the
 white-box before the correctors) are plain data in ``model.json`` (``named_terms``).
@@ -43,11 +44,13 @@ from fmu_greybox.model.terms import Term, term_from_dict
 from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS, NamedModel
 from fmu_greybox.project.config import ProjectConfig, parse_config
 
-#: Version written; versions read (1: no named terms).
-FORMAT_VERSION = 2
-READABLE_VERSIONS = (1, 2)
+#: Version written; versions read (1: no named terms; 1 and 2: no training-row digests).
+FORMAT_VERSION = 3
+READABLE_VERSIONS = (1, 2, 3)
 MANIFEST = "model.json"
 WHITEBOX = "whitebox.fmu"
+#: Digests of the training rows, by which ``validate`` recognises training data.
+TRAINING_ROWS = "training_rows.npz"
 #: Key of ``model.json`` holding the SHA-256 of the rest of its content.
 MANIFEST_HASH = "manifest_sha256"
 _RETRAIN = "Retrain the model or restore the folder from a copy"
@@ -74,6 +77,10 @@ class GreyBoxModel:
         diagnosis); empty for a plain white-box.
     substeps : int
         FMU steps per communication step while a feedback term is active.
+    trained_rows : ndarray of uint64, shape (m,), or None
+        Sorted digests of the rows the correctors were trained on
+        (:func:`~fmu_greybox.project.fingerprint.row_digests`); ``None`` for a folder written
+        before they were kept (format versions 1 and 2).
     """
 
     config: ProjectConfig
@@ -83,11 +90,19 @@ class GreyBoxModel:
     training: dict[str, Any] = field(default_factory=dict)
     terms: list[Term] = field(default_factory=list)
     substeps: int = DEFAULT_SUBSTEPS
+    trained_rows: np.ndarray | None = None
 
     @property
     def target_std(self) -> dict[str, float]:
         """Standard deviation of each stage's training target (for normalised RMSE)."""
         return self.training["target_std"]
+
+    def output_stages(self, outputs: Sequence[str]) -> list[int]:
+        """The stage each white-box output is read at: a stage's output at its stage, any
+        other output at the last stage (after every named term)."""
+        stage_of = {s.config.whitebox_output: s.stage_index for s in self.chain.stages}
+        last = len(self.chain.stages) - 1
+        return [stage_of.get(name, last) for name in outputs]
 
     def whitebox(
         self,
@@ -116,15 +131,13 @@ class GreyBoxModel:
         -------
         NamedModel
         """
-        stage_of = {s.config.whitebox_output: s.stage_index for s in self.chain.stages}
-        last = len(self.chain.stages) - 1
         return NamedModel(
             archive,
             inputs,
             outputs,
             self.dt,
             self.terms,
-            [stage_of.get(name, last) for name in outputs],
+            self.output_stages(outputs),
             self.config.parameters,
             start_values,
             start_time,
@@ -172,6 +185,9 @@ def save_model(model: GreyBoxModel, out_dir: str | Path) -> Path:
     with atomic_dir(out_dir) as tmp:
         tmp = Path(tmp)
         shutil.copyfile(model.whitebox_fmu, tmp / WHITEBOX)
+        if model.trained_rows is not None:
+            with atomic_write(tmp / TRAINING_ROWS, "wb") as f:
+                np.savez(f, digests=np.unique(model.trained_rows))
         stages = []
         for stage, corrector in zip(model.chain.stages, model.chain.correctors_, strict=True):
             stem = f"stage_{stage.name}"
@@ -286,7 +302,7 @@ def _check_manifest(path: Path, manifest: dict[str, Any]) -> None:
     stages = manifest.get("stages")
     if not isinstance(stages, list) or not stages:
         raise bad("stages", "is missing or not a list of stages")
-    needed = [WHITEBOX]
+    needed = [WHITEBOX, *([TRAINING_ROWS] if manifest["format_version"] >= 3 else [])]
     for i, stage in enumerate(stages):
         where = f"stages[{i}]"
         if not isinstance(stage, dict) or not all(
@@ -354,7 +370,26 @@ def load_model(model_dir: str | Path) -> GreyBoxModel:
         training=manifest["training"],
         terms=terms,
         substeps=substeps,
+        trained_rows=_trained_rows(model_dir) if TRAINING_ROWS in manifest["files"] else None,
     )
+
+
+def _trained_rows(model_dir: Path) -> np.ndarray:
+    """The training-row digests, checked to be a vector of uint64."""
+    path = model_dir / TRAINING_ROWS
+    try:
+        with np.load(path, allow_pickle=False) as arrays:
+            digests = arrays["digests"]
+    except (OSError, ValueError, KeyError) as exc:
+        raise ModelFormatError(
+            f"{path}: not a readable .npz of row digests ({exc}); {_RETRAIN}"
+        ) from exc
+    if digests.ndim != 1 or digests.dtype != np.uint64:
+        raise ModelFormatError(
+            f"{path}: holds {digests.dtype} of shape {digests.shape}, not a vector of uint64 row "
+            f"digests; {_RETRAIN}"
+        )
+    return digests
 
 
 def _named_terms(path: Path, manifest: Mapping[str, Any], n_stages: int) -> tuple[list[Term], int]:

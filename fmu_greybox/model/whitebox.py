@@ -18,6 +18,7 @@ import copy
 import json
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +35,100 @@ DEFAULT_SUBSTEPS = 4
 VERDICTS = ("none", "unexplained")
 
 
+@dataclass
+class PartLayout:
+    """One FMU instance of a :class:`NamedModel`: what it observes and which terms it runs.
+
+    Both runtimes of an exported grey-box lay out the white-box this way (the native FMU
+    stores it, :mod:`fmu_greybox.export.native`).
+
+    Attributes
+    ----------
+    level : int
+        Entry stage of the instance: the terms with ``entry <= level`` act on it.
+    columns : list of int
+        Positions of the outputs it observes among the model's outputs.
+    outputs : list of str
+        Those outputs.
+    bound : list of str
+        The outputs it reads after every (sub-)step: ``outputs``, then those the terms need.
+    terms : list of Term
+        Its terms, in model order (copies: each instance binds and remembers its own).
+    parameters : dict of str to float
+        FMU parameter values set before initialisation (the terms' override the project's).
+    substeps : int
+        FMU steps per communication step: the model's while a feedback term acts, else 1.
+    """
+
+    level: int
+    columns: list[int]
+    outputs: list[str]
+    bound: list[str]
+    terms: list[Term]
+    parameters: dict[str, float]
+    substeps: int
+
+    def every(self, term: Term, dt: float) -> float:
+        """Time between two calls of ``term`` [s]: the sub-step for feedback terms, else
+        the communication step ``dt``."""
+        return dt / self.substeps if term.feedback else dt
+
+
+def part_layouts(
+    outputs: Sequence[str],
+    terms: Sequence[Term],
+    stages: Sequence[int],
+    parameters: Mapping[str, float] | None,
+    substeps: int,
+) -> list[PartLayout]:
+    """The FMU instances of a named model: one per distinct entry stage that observes an output.
+
+    Parameters
+    ----------
+    outputs : sequence of str
+        The model's outputs.
+    terms : sequence of Term
+    stages : sequence of int
+        Stage of every output.
+    parameters : mapping, optional
+        Project parameter values.
+    substeps : int
+        FMU steps per communication step while a feedback term acts.
+
+    Returns
+    -------
+    list of PartLayout
+    """
+    levels = sorted({0, *(t.entry for t in terms)})
+    layouts = []
+    for i, level in enumerate(levels):
+        upper = levels[i + 1] if i + 1 < len(levels) else math.inf
+        columns = [j for j, s in enumerate(stages) if level <= s < upper]
+        if not columns:
+            continue
+        active = [copy.deepcopy(t) for t in terms if t.entry <= level]
+        observed = [outputs[j] for j in columns]
+        bound = list(observed)
+        for term in active:
+            bound += [name for name in term.needs() if name not in bound]
+        values = dict(parameters or {})
+        for term in active:
+            values.update(term.parameters())
+        fed = any(t.acts_on_inputs and t.feedback for t in active)
+        layouts.append(
+            PartLayout(
+                level=level,
+                columns=columns,
+                outputs=observed,
+                bound=bound,
+                terms=active,
+                parameters=values,
+                substeps=max(1, int(substeps)) if fed else 1,
+            )
+        )
+    return layouts
+
+
 class _Part:
     """One FMU instance with the terms active at its entry stage, and the outputs it serves."""
 
@@ -41,35 +136,28 @@ class _Part:
         self,
         archive: FmuArchive,
         inputs: Sequence[str],
-        outputs: list[str],
-        columns: list[int],
-        terms: list[Term],
-        parameters: Mapping[str, float] | None,
+        layout: PartLayout,
         start_values: Mapping[str, float] | None,
         start_time: float,
         dt: float,
-        substeps: int,
         instance_name: str,
     ) -> None:
-        bound = list(outputs)
-        for term in terms:
-            bound += [name for name in term.needs() if name not in bound]
-        self.parameters = dict(parameters or {})
-        for term in terms:
-            self.parameters.update(term.parameters())
-        self.columns = columns
+        terms = layout.terms
+        self.layout = layout
+        self.parameters = layout.parameters
+        self.columns = layout.columns
         self.terms = terms
         self.once = [t for t in terms if t.acts_on_inputs and not t.feedback]
         self.fed = [t for t in terms if t.acts_on_inputs and t.feedback]
         self.after = [t for t in terms if t.acts_on_outputs]
         self.plain = not (self.once or self.fed or self.after)
-        self.substeps = max(1, int(substeps)) if self.fed else 1
+        self.substeps = layout.substeps
         self.dt = dt
-        self.n_out = len(outputs)
+        self.n_out = len(layout.outputs)
         self.instance = FmuInstance(
             archive,
             inputs=inputs,
-            outputs=bound,
+            outputs=layout.bound,
             parameters=self.parameters,
             start_values=start_values,
             instance_name=instance_name,
@@ -77,12 +165,12 @@ class _Part:
         )
         self._held = np.empty(len(inputs))
         self._row = np.empty(len(inputs))
-        self._sensed = np.empty(len(bound))
+        self._sensed = np.empty(len(layout.bound))
         self._start()
 
     def _start(self) -> None:
         for term in self.terms:
-            every = self.dt / self.substeps if term.feedback else self.dt
+            every = self.layout.every(term, self.dt)
             term.bind(self.instance.input_names, self.instance.output_names, every)
         self.current = self.instance.read_outputs().copy()
         self._sensed[:] = self.current
@@ -189,29 +277,13 @@ class NamedModel:
         instance_name: str = "whitebox",
     ) -> None:
         stages = list(stages) if stages is not None else [0] * len(outputs)
-        levels = sorted({0, *(t.entry for t in terms)})
         self.output_names = list(outputs)
         self.parts: list[_Part] = []
         try:
-            for i, level in enumerate(levels):
-                upper = levels[i + 1] if i + 1 < len(levels) else math.inf
-                columns = [j for j, s in enumerate(stages) if level <= s < upper]
-                if not columns:
-                    continue
+            for layout in part_layouts(outputs, terms, stages, parameters, substeps):
+                name = instance_name if not self.parts else f"{instance_name}@{layout.level}"
                 self.parts.append(
-                    _Part(
-                        archive,
-                        inputs,
-                        [outputs[j] for j in columns],
-                        columns,
-                        [copy.deepcopy(t) for t in terms if t.entry <= level],
-                        parameters,
-                        start_values,
-                        start_time,
-                        dt,
-                        substeps,
-                        instance_name if not self.parts else f"{instance_name}@{level}",
-                    )
+                    _Part(archive, inputs, layout, start_values, start_time, dt, name)
                 )
         except BaseException:
             self.close()

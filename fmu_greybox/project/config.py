@@ -8,7 +8,6 @@ example.
 
 from __future__ import annotations
 
-import difflib
 import math
 import sys
 import tomllib
@@ -17,8 +16,9 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from fmu_greybox.data.recording import normalise_unit
 from fmu_greybox.errors import ConfigError, UnitMismatchError
+from fmu_greybox.suggest import did_you_mean
+from fmu_greybox.units import normalise_unit
 
 FORMAT_VERSION = 1
 
@@ -254,7 +254,7 @@ class ProjectConfig:
             if var is None:
                 raise ConfigError(
                     f"FMU {archive.path.name} has no variable {sig.variable!r}"
-                    + _did_you_mean(sig.variable, known),
+                    + did_you_mean(sig.variable, known),
                     field=f"signals.{sig.name}.variable",
                     path=where,
                 )
@@ -271,7 +271,7 @@ class ProjectConfig:
             if var is None or var.causality != "output":
                 raise ConfigError(
                     f"{stage.whitebox_output!r} is not an output of {archive.path.name}"
-                    + _did_you_mean(stage.whitebox_output, archive.outputs),
+                    + did_you_mean(stage.whitebox_output, archive.outputs),
                     field=f"stages.{stage.name}.whitebox_output",
                     path=where,
                 )
@@ -283,7 +283,7 @@ class ProjectConfig:
                 if name not in known:
                     raise ConfigError(
                         f"FMU {archive.path.name} has no variable {name!r}"
-                        + _did_you_mean(name, known),
+                        + did_you_mean(name, known),
                         field=f"{table}.{name}",
                         path=where,
                     )
@@ -401,7 +401,7 @@ def _signals(reader: _Reader, table: Mapping[str, Any]) -> dict[str, Signal]:
             reader.fail(
                 where + ".role",
                 f"unknown role {role!r}"
-                + _did_you_mean(role, ROLE_UNITS)
+                + did_you_mean(role, ROLE_UNITS)
                 + f"; roles: {', '.join(ROLE_UNITS)}",
             )
         unit = reader.get(entry, "unit", str, None, where + ".", required=True)
@@ -419,6 +419,14 @@ def _signals(reader: _Reader, table: Mapping[str, Any]) -> dict[str, Signal]:
             role=role,
             unit=unit,
         )
+        for other in list(signals)[:-1]:
+            if signals[other].column == signals[name].column:
+                reader.fail(
+                    where + ".column",
+                    f"signals {other!r} and {name!r} both read column {signals[name].column!r}; "
+                    'a column is one signal: give one of them its own column = "..." (or '
+                    "remove one)",
+                )
     return signals
 
 
@@ -454,14 +462,14 @@ def _stages(reader: _Reader, items: Any, signals: Mapping[str, Signal]) -> tuple
         if target not in signals:
             reader.fail(
                 where + ".target",
-                f"{target!r} is not a declared signal" + _did_you_mean(target, signals),
+                f"{target!r} is not a declared signal" + did_you_mean(target, signals),
             )
         inputs = tuple(reader.strings(entry, "inputs", where + "."))
         for inp in inputs:
             if inp not in signals:
                 reader.fail(
                     where + ".inputs",
-                    f"{inp!r} is not a declared signal" + _did_you_mean(inp, signals),
+                    f"{inp!r} is not a declared signal" + did_you_mean(inp, signals),
                 )
         lags = reader.get(entry, "lags", int, 1, where + ".")
         if not 1 <= lags <= 10:
@@ -504,7 +512,7 @@ def _check_order(reader: _Reader, stages: list[StageConfig]) -> None:
         for feed in stage.feeds_from:
             if feed not in index:
                 reader.fail(
-                    f"stages[{i}].feeds_from", f"no stage {feed!r}" + _did_you_mean(feed, index)
+                    f"stages[{i}].feeds_from", f"no stage {feed!r}" + did_you_mean(feed, index)
                 )
             if feed == stage.name:
                 reader.fail(
@@ -620,11 +628,6 @@ def _fields(item: Any, skip: tuple[str, ...] = ()) -> dict[str, Any]:
     return _without_none({k: list(v) if isinstance(v, tuple) else v for k, v in table.items()})
 
 
-def _did_you_mean(name: str, choices: Any) -> str:
-    close = difflib.get_close_matches(str(name), [str(c) for c in choices], n=2)
-    return f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
-
-
 def _p(path: Path | None) -> str | None:
     return str(path) if path is not None else None
 
@@ -645,7 +648,7 @@ class _Reader:
                 self.fail(
                     name,
                     "unknown field"
-                    + _did_you_mean(key, allowed)
+                    + did_you_mean(key, allowed)
                     + f" (allowed here: {', '.join(sorted(allowed))})",
                 )
 

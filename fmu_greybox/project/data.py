@@ -56,12 +56,18 @@ class ProjectData:
 
 
 def load_project_recording(config: ProjectConfig, override: str | Path | None = None) -> Recording:
-    """The recording named on the command line, or else the project's default one.
+    """The recording named on the command line, or else the project's default one, in the
+    project's units.
+
+    A column recorded in another unit than its signal's (``mm`` for ``m``, ``bar`` for ``Pa``)
+    is converted, with a note in the log.
 
     Raises
     ------
     ConfigError
         If neither is given.
+    UnitMismatchError
+        If a column's unit cannot be converted to its signal's.
     """
     path = Path(override) if override is not None else config.recording
     if path is None:
@@ -70,18 +76,93 @@ def load_project_recording(config: ProjectConfig, override: str | Path | None = 
             field="recording.path",
             path=str(config.path) if config.path else None,
         )
-    return load_recording(path, time_column=config.time_column, resample=config.resample)
+    recording = load_recording(path, time_column=config.time_column, resample=config.resample)
+    return recording.converted({s.column: s.unit for s in config.signals.values()})
+
+
+def check_sample_time(recording: Recording, step: float, owner: str) -> None:
+    """A recording must be sampled at the step of what it drives.
+
+    Parameters
+    ----------
+    recording : Recording
+    step : float
+        The communication step [s] it must match (to a relative 1e-6).
+    owner : str
+        Whose step it is, for the message (e.g. ``"the model (the step it was trained at)"``).
+
+    Raises
+    ------
+    RecordingError
+        With both steps and how to resample; a time column in milliseconds without a unit
+        (a step of exactly 1000 times the expected one) is pointed out.
+    """
+    if math.isclose(recording.dt, step, rel_tol=1e-6):
+        return
+    hint = ""
+    if math.isclose(recording.dt, 1000.0 * step, rel_tol=1e-3):
+        hint = (
+            " (is its time column in milliseconds? Give its unit, e.g. a header 'time [ms]', and"
+            " it is converted to seconds)"
+        )
+    raise RecordingError(
+        f"sampled every {recording.dt:g} s but {owner} runs at {step:g} s{hint}; resample the "
+        f"recording onto {step:g} s (project file: resample = {step:g} under [recording])",
+        path=recording.source,
+    )
 
 
 def check_step(config: ProjectConfig, recording: Recording) -> None:
     """The communication step must equal the recording's sample time when both are given."""
-    if config.step is not None and not math.isclose(config.step, recording.dt, rel_tol=1e-6):
-        raise RecordingError(
-            f"sample time {recording.dt:g} s differs from the project's communication step "
-            f"{config.step:g} s; resample the recording ([recording] resample = {config.step:g})"
-            " or change whitebox.step",
-            path=recording.source,
-        )
+    if config.step is not None:
+        check_sample_time(recording, config.step, "the project (whitebox.step)")
+
+
+def check_fixed_inputs(config: ProjectConfig, recording: Recording) -> None:
+    """An FMU input the project holds constant must not be recorded as well.
+
+    Raises
+    ------
+    ConfigError
+        Naming the ``[whitebox] fixed_inputs`` entry and the column: held constant, the
+        recorded values would be silently ignored.
+    """
+    mapping = config.input_mapping()
+    for name, value in config.fixed_inputs.items():
+        column = mapping.get(name, name)
+        if column in recording.signals:
+            raise ConfigError(
+                f"FMU input {name!r} is held constant at {value:g} but {recording.source} records "
+                f"it (column {column!r}), and the recording would be ignored; remove {name!r} "
+                "from [whitebox] fixed_inputs to use the recording, or drop the column from the "
+                "recording to hold the input constant on purpose",
+                field=f"whitebox.fixed_inputs.{name}",
+                path=str(config.path) if config.path else None,
+            )
+
+
+def bind_project_inputs(
+    config: ProjectConfig, archive: FmuArchive, recording: Recording
+) -> InputBinding:
+    """The FMU's inputs fed as the project says (its signals' columns, its constants).
+
+    Raises
+    ------
+    ConfigError
+        An input held constant is recorded as well (:func:`check_fixed_inputs`).
+    RecordingError
+        An input is neither recorded nor held constant; the message says which project fields
+        mend it (not the ``simulate`` command's options).
+    """
+    check_fixed_inputs(config, recording)
+    where = f"in {config.path}, " if config.path else ""
+    remedy = (
+        f"{where}give each a [signals.NAME] table whose variable is the input and whose column "
+        "is the recorded one, or hold it constant in [whitebox] fixed_inputs"
+    )
+    return bind_inputs(
+        archive, recording, config.input_mapping(), config.fixed_inputs, remedy=remedy
+    )
 
 
 def prepare(
@@ -122,7 +203,7 @@ def prepare(
     for sig in signals.values():
         if sig.column in recording.signals and sig.variable in archive.variables:
             check_unit(archive, sig.variable, recording, sig.column)
-    binding = bind_inputs(archive, recording, config.input_mapping(), config.fixed_inputs)
+    binding = bind_project_inputs(config, archive, recording)
     y_wb = simulate_with_terms(
         archive,
         binding.inputs,

@@ -28,6 +28,7 @@ from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.fmi.archive import FmuArchive, FmuVariable, real_outputs
 from fmu_greybox.fmi.instance import FmuInstance
+from fmu_greybox.suggest import did_you_mean
 from fmu_greybox.synth.loop import Loop, is_loop_effect, parse_loop_effects
 
 #: Standard deviation of each sensor's white noise at ``noise = 1`` [SI units of the signal].
@@ -198,12 +199,9 @@ def check_effects(effects: Mapping[str, float], truth: FmuArchive, whitebox: Fmu
     parse_loop_effects(effects, truth.inputs, real_outputs(truth))
     for name in effects:
         if name not in offered and not is_loop_effect(name):
-            import difflib
-
-            close = difflib.get_close_matches(name, offered, n=2)
-            hint = f"did you mean {', '.join(close)}? " if close else ""
             raise ConfigError(
-                f"unknown effect {name!r}; {hint}effects offered: {', '.join(offered)} "
+                f"unknown effect {name!r}{did_you_mean(name, offered)}; effects offered: "
+                f"{', '.join(offered)} "
                 "(see 'fmu-greybox synth --list-effects')",
                 field="--effect",
             )

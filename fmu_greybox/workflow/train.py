@@ -10,6 +10,8 @@ import numpy as np
 from tqdm import tqdm
 
 from fmu_greybox.data.recording import Recording
+from fmu_greybox.errors import ConfigError
+from fmu_greybox.export.domain import training_ranges
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.model.store import GreyBoxModel, file_sha256
@@ -17,6 +19,11 @@ from fmu_greybox.model.terms import Term
 from fmu_greybox.model.whitebox import check_terms
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import prepare, split_row, whitebox_path
+from fmu_greybox.project.fingerprint import data_rows, row_digests
+
+#: Fewest rows a model is trained on: fewer cannot pin down a corrector's hyperparameters, and
+#: the free-run checks of training need a tail of them.
+MIN_TRAIN_ROWS = 100
 
 
 def with_inducing(config: ProjectConfig, inducing: int | None) -> ProjectConfig:
@@ -53,10 +60,17 @@ def train_model(
     Returns
     -------
     GreyBoxModel
+
+    Raises
+    ------
+    ConfigError
+        Fewer than :data:`MIN_TRAIN_ROWS` training rows, or more inducing points than
+        training rows per stage (the message names the field to change).
     """
     started = time.perf_counter()
     fmu_path = whitebox_path(config)
     chain = GreyBoxChain(config, target_mode)
+    check_training_size(config, chain, recording)
     with open_fmu(fmu_path) as archive:
         config.check_against_fmu(archive)
         check_terms(terms, archive, len(chain.stages))
@@ -87,6 +101,8 @@ def train_model(
         "n_samples": data.n_samples,
         "train_rows": split + 1,
         "dt": recording.dt,
+        # the exported FMU's input domain is built from these (fmu_greybox/export/domain.py)
+        "input_ranges": training_ranges(data.binding.inputs, data.binding.matrix(recording)[rows]),
         "target_std": {
             name: float(np.std(data.outputs[rows, q])) for q, name in enumerate(chain.stage_names)
         },
@@ -107,4 +123,36 @@ def train_model(
         dt=recording.dt,
         training=training,
         terms=list(terms),
+        trained_rows=row_digests(data_rows(data)[rows]),
     )
+
+
+def check_training_size(config: ProjectConfig, chain: GreyBoxChain, recording: Recording) -> None:
+    """Enough training rows for a model, and no more inducing points than rows.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``split.train_fraction`` or ``gp.inducing`` and the numbers.
+    """
+    where = str(config.path) if config.path else None
+    n = recording.n_samples
+    rows = split_row(config, n) + 1
+    if rows < MIN_TRAIN_ROWS:
+        raise ConfigError(
+            f"{config.train_fraction:g} of the {n} rows of {recording.source} leaves {rows} "
+            f"training rows; a model needs at least {MIN_TRAIN_ROWS}. Raise train_fraction or "
+            "train on a longer recording",
+            field="split.train_fraction",
+            path=where,
+        )
+    per_stage = min(rows - chain.history, config.gp.max_train_samples)
+    if config.gp.inducing > per_stage:
+        raise ConfigError(
+            f"{config.gp.inducing} inducing points per stage, but a stage is trained on "
+            f"{per_stage} rows ({rows} training rows less {chain.history} of history, at most "
+            f"gp.max_train_samples = {config.gp.max_train_samples}); set gp.inducing (or "
+            f"--inducing) to at most {per_stage}, or train on more rows",
+            field="gp.inducing",
+            path=where,
+        )

@@ -3,18 +3,31 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.data.recording import Recording
+from fmu_greybox.errors import ConfigError, RecordingError
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.store import GreyBoxModel
-from fmu_greybox.project.data import ProjectData, prepare, split_row
+from fmu_greybox.project.config import ProjectConfig
+from fmu_greybox.project.data import ProjectData, check_sample_time, prepare, split_row
+from fmu_greybox.project.fingerprint import data_rows, trained_mask
 from fmu_greybox.workflow.master import MasterRun, run_master
 from fmu_greybox.workflow.metrics import stage_table
+
+#: Fewest rows ``validate`` scores: an error measure over fewer says little.
+MIN_SCORED_ROWS = 50
+#: Project tables that decide what is validated (how the recording is read and fed, the
+#: stages); [gp] and [split] only steer training (``train --inducing`` overrides [gp]).
+_COMPARED_TABLES = ("whitebox", "recording", "signals", "stages")
+#: Fields of those tables that may differ: the recording's file, the white-box's location.
+_FREE_FIELDS = (("recording", "path"), ("whitebox", "fmu"))
 
 
 @dataclass
@@ -24,21 +37,25 @@ class Validation:
     Attributes
     ----------
     run : MasterRun
-        The master's output over the held-out rows.
+        The master's output over the rows after its start.
     data : ProjectData
         The recording arranged for the chain.
     table : dict
         Stage -> ``wb_rmse``, ``gb_rmse``, ``wb_nrmse``, ``gb_nrmse``, ``improvement`` (the
         grey-box against the plain white-box), and for a model with named terms
-        ``named_rmse``, ``named_nrmse`` (white-box + terms, without the correctors).
+        ``named_rmse``, ``named_nrmse`` (white-box + terms, without the correctors), over the
+        scored rows.
     held_out : str
-        Which rows were held out, in words.
+        Which rows were scored, in words.
+    scored : ndarray of int, shape (m,)
+        The rows scored: those of the run that the model was not trained on.
     """
 
     run: MasterRun
     data: ProjectData
     table: dict[str, dict[str, float]]
     held_out: str
+    scored: np.ndarray
 
     @property
     def whitebox(self) -> np.ndarray:
@@ -46,46 +63,149 @@ class Validation:
         return self.data.y_wb[self.run.rows]
 
 
+def check_project(config: ProjectConfig, model: GreyBoxModel, model_dir: str | Path) -> None:
+    """The project given to ``validate`` must read and feed recordings as the project the model
+    was trained with did.
+
+    Compared: the [whitebox], [recording], [signals] and [stages] tables, but for the
+    recording's path and the white-box's location (the model carries its white-box FMU).
+
+    Raises
+    ------
+    ConfigError
+        Naming the first field that differs, with both values.
+    """
+    given, trained = _comparable(config), _comparable(model.config)
+    difference = _first_difference(given, trained, "")
+    if difference is not None:
+        field, here, there = difference
+        raise ConfigError(
+            f"{_shown(here)} here but {_shown(there)} in the project {model_dir} was trained "
+            f"with; validate with the project the model was trained with (it is stored in "
+            f"{Path(model_dir) / 'model.json'}, under 'project') or retrain",
+            field=field,
+            path=str(config.path) if config.path else None,
+        )
+
+
 def validate_model(model: GreyBoxModel, recording: Recording, progress: bool = False) -> Validation:
-    """Free-run the grey-box over held-out rows and compare with the white-box.
+    """Free-run the grey-box over a recording and score the rows it was not trained on.
 
-    ``data.y_wb`` is the plain white-box; ``run.whitebox`` what the correctors start from (the
-    same, or white-box + the model's named terms).
+    Training rows are recognised by their values (:mod:`fmu_greybox.project.fingerprint`), in
+    any file. The chain's memory starts from the recorded outputs at the end of a leading run
+    of training rows (the training recording's split), else at the first row; training rows
+    later in the recording are run through but not scored. ``data.y_wb`` is the plain
+    white-box; ``run.whitebox`` what the correctors start from (the same, or white-box + the
+    model's named terms).
 
-    On the training recording the held-out rows are those after the training split; on any
-    other recording, every row after the first.
+    Raises
+    ------
+    RecordingError
+        A sample time other than the model's step, or fewer than :data:`MIN_SCORED_ROWS`
+        rows that were not used in training.
 
     Returns
     -------
     Validation
     """
+    check_sample_time(recording, model.dt, "the model (the step it was trained at)")
     with open_fmu(model.whitebox_fmu) as archive:
         data = prepare(model.config, model.chain, archive, recording, progress)
-    if recording.sha256() == model.training.get("recording_sha256"):
-        start = split_row(model.config, data.n_samples)
-        held_out = f"rows {start + 1}..{data.n_samples - 1} of the training recording"
-    else:
-        start = 0
-        held_out = f"all {data.n_samples - 1} rows of a recording not used in training"
+    trained = _trained(model, data)
+    leading = int(np.argmin(trained)) if not trained.all() else trained.size
+    start = max(0, leading - 1)
+    unseen = int((~trained[start + 1 :]).sum())
+    if unseen < MIN_SCORED_ROWS:
+        raise RecordingError(
+            f"only {unseen} of its {data.n_samples} rows were not used in training (training "
+            f"rows are recognised by their values); validation needs at least {MIN_SCORED_ROWS}."
+            " Validate on held-out data: the tail of the training recording after its "
+            "train_fraction, or another recording",
+            path=recording.source,
+        )
     run = run_master(model, data, start, progress)
+    keep = ~trained[run.rows]
     table = stage_table(
         model.chain.stage_names,
-        data.outputs[run.rows],
-        data.y_wb[run.rows],  # the plain white-box (prepare folds no terms)
-        run.mean,
+        data.outputs[run.rows][keep],
+        data.y_wb[run.rows][keep],  # the plain white-box (prepare folds no terms)
+        run.mean[keep],
         model.target_std,
-        named=run.whitebox if model.terms else None,
+        named=run.whitebox[keep] if model.terms else None,
     )
-    return Validation(run=run, data=data, table=table, held_out=held_out)
+    scored = run.rows[keep]
+    skipped = int(trained[run.rows].sum())
+    held_out = f"{scored.size} rows not used in training ({_ranges_text(scored)})"
+    if skipped:
+        held_out += f"; {skipped} training rows in the run not scored"
+    return Validation(run=run, data=data, table=table, held_out=held_out, scored=scored)
 
 
 def write_metrics(validation: Validation, model: GreyBoxModel, path: Path) -> None:
-    """Write ``metrics.json`` atomically."""
+    """Write ``metrics.json`` atomically (``scored_rows``: the scored rows as ``[first, last]``
+    ranges, both included)."""
     payload = {
         "held_out": validation.held_out,
-        "n_rows": int(validation.run.rows.size),
+        "n_rows": int(validation.scored.size),
+        "scored_rows": _ranges(validation.scored),
         "units": model.training.get("target_unit", {}),
         "stages": validation.table,
     }
     with atomic_write(path, "w") as f:
         json.dump(payload, f, indent=2)
+
+
+def _trained(model: GreyBoxModel, data: ProjectData) -> np.ndarray:
+    """Which rows the model was trained on, shape (n,); a model folder without row digests
+    recognises only its training recording, as a whole (its units included)."""
+    if model.trained_rows is not None:
+        return trained_mask(data_rows(data), model.trained_rows)
+    trained = np.zeros(data.n_samples, dtype=bool)
+    if data.recording.sha256() == model.training.get("recording_sha256"):
+        trained[: split_row(model.config, data.n_samples) + 1] = True
+    return trained
+
+
+def _ranges(rows: np.ndarray) -> list[list[int]]:
+    """Sorted row indices as ``[first, last]`` runs of consecutive rows."""
+    if rows.size == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(rows) != 1)
+    firsts = np.concatenate([[rows[0]], rows[breaks + 1]])
+    lasts = np.concatenate([rows[breaks], [rows[-1]]])
+    return [[int(a), int(b)] for a, b in zip(firsts, lasts, strict=True)]
+
+
+def _ranges_text(rows: np.ndarray, limit: int = 4) -> str:
+    runs = [f"{a}..{b}" if a != b else f"{a}" for a, b in _ranges(rows)]
+    more = f" and {len(runs) - limit} more runs" if len(runs) > limit else ""
+    return "rows " + ", ".join(runs[:limit]) + more
+
+
+def _comparable(config: ProjectConfig) -> dict[str, Any]:
+    """The project's tables that must match, without the fields that may differ."""
+    tables = {k: v for k, v in config.to_dict().items() if k in _COMPARED_TABLES}
+    for table, key in _FREE_FIELDS:
+        tables.get(table, {}).pop(key, None)
+    return tables
+
+
+def _first_difference(a: Any, b: Any, where: str) -> tuple[str, Any, Any] | None:
+    """The dotted field where two TOML-like values first differ, with both values."""
+    if isinstance(a, Mapping) and isinstance(b, Mapping):
+        for key in [*a, *(k for k in b if k not in a)]:
+            found = _first_difference(a.get(key), b.get(key), f"{where}.{key}" if where else key)
+            if found is not None:
+                return found
+        return None
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            found = _first_difference(x, y, f"{where}[{i}]")
+            if found is not None:
+                return found
+        return None
+    return None if a == b else (where, a, b)
+
+
+def _shown(value: Any) -> str:
+    return "(not set)" if value is None else repr(value)

@@ -1,0 +1,162 @@
+"""The chain step at M inducing points per stage: its cost, what bounds it, and the routes to a
+cheaper one measured against the 1e-6 accuracy the standard deviations must keep.
+
+The three-stage actuator is trained as in ``bench_export.py`` (6 s recording, M inducing points
+per stage, 5 optimiser iterations) and its compiled chain step (``native/chain_core.c``, the
+code both runtimes run) is run over the recording's white-box outputs (a free run). Printed:
+
+- ``exact``: CPU time per step of the compiled step, called from a Python loop (best of
+  ``--repeats``), and its size: the bytes of the stages' packed triangular factors, which it
+  streams once per step;
+- ``streaming floor``: the time of one pass of numpy's (vectorised) maximum over those bytes,
+  the least of 500 (wall clock: the least pass is one the process was not preempted in): no
+  step that reads every factor once can be much faster on this machine;
+- ``float32 factors``: the largest relative error of any stage's standard deviation, over the
+  free run, when the factors are rounded to float32 (half the bytes; computed in float64);
+- ``low rank``: per stage, the singular values of the whitened kernel rows ``g = H^-1 k`` over
+  the run (relative to the largest), and the least rank r whose projection keeps every
+  standard deviation of the run within 1e-6 (relative; in-sample, so optimistic): a low-rank
+  variance costs about r M per stage instead of M^2 / 2.
+
+Usage: ``.venv/bin/python benchmarks/bench_chain_step.py [--inducing 400] [--repeats 5]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.linalg import solve_triangular
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from bench_export import ROOT, chain_step, recording
+
+from fmu_greybox import _chainstep
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.gp.predictive import point_factor
+from fmu_greybox.model.store import load_model, save_model
+from fmu_greybox.project.config import load_config
+from fmu_greybox.project.data import prepare
+from fmu_greybox.workflow.train import train_model, with_inducing
+
+#: Accuracy every standard deviation must keep (relative to the exact one).
+STD_RTOL = 1e-6
+
+
+def factor_length(m: int) -> int:
+    """Doubles of a packed factor of m inducing points (chain_core.c, column_start(m, LD))."""
+    ld = -(-m // 8) * 8
+    return sum(ld - j // 8 * 8 for j in range(m))
+
+
+def free_run_std(plan: np.ndarray, params: np.ndarray, chain, data) -> np.ndarray:
+    """Standard deviations of the compiled chain over the recording, shape (n - 1, Q)."""
+    exo, y_wb = np.ascontiguousarray(data.exo), np.ascontiguousarray(data.y_wb)
+    state = chain.plan().start(y_wb[0], exo[0])
+    work = np.zeros(int(plan[4]))
+    std = np.empty((exo.shape[0] - 1, y_wb.shape[1]))
+    for j in range(1, exo.shape[0]):
+        _chainstep.step(plan, params, work, state.values, exo[j - 1], y_wb[j], True)
+        std[j - 1] = np.sqrt(state.out_var)
+    return std
+
+
+def float32_factors(plan: np.ndarray, params: np.ndarray) -> np.ndarray:
+    """The parameters with every stage's packed factor rounded to float32."""
+    rounded = params.copy()
+    for q in range(int(plan[1])):
+        offset, m, active = (int(plan[7 + 8 * q + k]) for k in (0, 1, 6))
+        if active:
+            block = slice(offset, offset + factor_length(m))
+            rounded[block] = params[block].astype(np.float32).astype(np.float64)
+    return rounded
+
+
+def low_rank(chain, data) -> list[dict[str, object]]:
+    """Per stage the singular values of the whitened kernel rows and the least rank that keeps
+    the latent standard deviations within STD_RTOL (see the module docstring)."""
+    figures = []
+    for q, stage in enumerate(chain.stages):
+        posterior = chain.correctors_[q].posterior_
+        X, _ = stage.teacher_forced(chain.layout, data.exo, data.y_wb, data.outputs)
+        xs = X * posterior._input_weight - posterior._input_offset
+        exponent = posterior._z_scaled @ xs.T + posterior._z_offset[:, None]
+        K = np.exp(exponent - 0.5 * np.einsum("nd,nd->n", xs, xs)[None, :])
+        H, _ = point_factor(posterior.chol_uu, posterior.chol_b, posterior.mean_weights)
+        G = solve_triangular(H, K, lower=True)
+        var = posterior.signal_variance - np.einsum("mn,mn->n", G, G)
+        U, s, _ = np.linalg.svd(G, full_matrices=False)
+        rank = G.shape[0]
+        for r in range(8, G.shape[0], 8):
+            kept = U[:, :r].T @ G
+            approx = posterior.signal_variance - np.einsum("rn,rn->n", kept, kept)
+            if np.all(np.abs(np.sqrt(np.maximum(approx, 0)) / np.sqrt(var) - 1) <= STD_RTOL):
+                rank = r
+                break
+        ratios = {r: float(s[r] / s[0]) for r in (50, 100, 200, 300) if r < s.size}
+        figures.append({"stage": stage.name, "M": G.shape[0], "rank": rank, "sv": ratios})
+    return figures
+
+
+def streaming_floor(plan: np.ndarray, params: np.ndarray) -> float:
+    """Time [us] of one pass of numpy's maximum over the stages' factors (least of 500)."""
+    blocks = []
+    for q in range(int(plan[1])):
+        offset, m = int(plan[7 + 8 * q]), int(plan[7 + 8 * q + 1])
+        blocks.append(params[offset : offset + factor_length(m)])
+    best = np.inf
+    for _ in range(500):
+        start = time.perf_counter()
+        for block in blocks:
+            np.maximum.reduce(block)
+        best = min(best, time.perf_counter() - start)
+    return best * 1e6
+
+
+def main() -> None:
+    """Train, measure, print."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--inducing", type=int, default=400, help="inducing points per stage")
+    parser.add_argument("--repeats", type=int, default=5, help="runs of the exact step")
+    args = parser.parse_args()
+    rec = recording()
+    project = load_config(ROOT / "bench_configs" / "hydraulic_actuator.toml")
+    config = with_inducing(project, args.inducing)
+    config = dataclasses.replace(config, gp=dataclasses.replace(config.gp, max_iter=5))
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = save_model(train_model(config, rec), Path(tmp) / "model")
+        exact = chain_step(folder, rec, 3000, args.repeats)
+        model = load_model(folder)
+        with open_fmu(model.whitebox_fmu) as archive:
+            data = prepare(model.config, model.chain, archive, rec)
+    chain = model.chain
+    plan, params = chain.plan().arrays
+    factor_bytes = 8 * sum(factor_length(int(plan[8 + 8 * q])) for q in range(int(plan[1])))
+    reference = free_run_std(plan, params, chain, data)
+    rounded = free_run_std(plan, float32_factors(plan, params), chain, data)
+    error = float(np.max(np.abs(rounded / reference - 1.0)))
+    print(f"chain step of three stages at M = {args.inducing} per stage (CPU time per step)")
+    print(
+        f"exact: {exact['cpu_us']:.1f} us ({exact['wall_us']:.1f} wall), streaming "
+        f"{factor_bytes / 1e6:.2f} MB of factors per step"
+    )
+    print(f"streaming floor: {streaming_floor(plan, params):.1f} us to read those factors once")
+    print(
+        f"float32 factors: {factor_bytes / 2e6:.2f} MB; largest relative std error {error:.1e} "
+        f"({'within' if error <= STD_RTOL else 'beyond'} {STD_RTOL:g})"
+    )
+    for figure in low_rank(chain, data):
+        sv = ", ".join(f"s{r}/s0 {v:.0e}" for r, v in figure["sv"].items())
+        print(
+            f"low rank, stage {figure['stage']}: rank {figure['rank']} of {figure['M']} keeps "
+            f"every std within {STD_RTOL:g} in-sample ({sv})"
+        )
+
+
+if __name__ == "__main__":
+    main()

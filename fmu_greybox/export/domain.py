@@ -1,0 +1,124 @@
+"""The input domain of an exported grey-box: the inputs it accepts at ``fmi2DoStep``.
+
+A grey-box is the white-box corrected by what it learned from its training recording; far
+beyond that recording the corrections mean nothing and the white-box alone may fail (an input
+of 1e30 drove the white-box's pressures to 1e57 Pa). So both runtimes (native and Python)
+refuse a step, with a message naming the input, its value and the domain, when an input is
+
+* not a finite number, or
+* outside its domain: the intersection of the range the white-box FMU declares for it
+  (``min``/``max`` in its model description, where declared) and its training range widened by
+  :data:`INPUT_MARGIN` times its *scale* on each side, the scale being the larger of the
+  range's width and its largest magnitude. A margin of 1 accepts, for an input recorded over
+  [-3, 3] mA, anything in [-9, 9] mA; for one held at 20.7 MPa, [0, 41.4] MPa; zero is
+  always inside. An input that training never saw away from zero, and every input of a
+  model folder older than the record of training ranges, is bounded by its declaration only.
+
+Within the domain but beyond the training range the grey-box runs and says so: its
+``out_of_domain`` flag is set (the correctors' features are clipped to their training range).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from fmu_greybox.fmi.archive import FmuArchive
+
+#: Multiples of an input's training scale the domain extends beyond its training range.
+INPUT_MARGIN = 1.0
+#: Where ``docs/bench.md`` explains the domain (quoted in the refusals).
+DOCS = "docs/bench.md, 'Input domain'"
+
+
+def training_ranges(names: Sequence[str], rows: np.ndarray) -> dict[str, list[float]]:
+    """The range of each input over the training rows (recorded in the model's training facts).
+
+    Parameters
+    ----------
+    names : sequence of str
+        FMU inputs, in the columns' order.
+    rows : ndarray, shape (n, len(names))
+
+    Returns
+    -------
+    dict of str to [low, high]
+    """
+    return {
+        name: [float(np.min(rows[:, i])), float(np.max(rows[:, i]))] for i, name in enumerate(names)
+    }
+
+
+@dataclass(frozen=True)
+class InputDomain:
+    """Per input the interval it must lie in.
+
+    Attributes
+    ----------
+    names : list of str
+        The grey-box's inputs, in value-reference order.
+    low, high : ndarray, shape (n_inputs,)
+        Bounds (-inf/inf where unbounded).
+    """
+
+    names: list[str]
+    low: np.ndarray
+    high: np.ndarray
+
+    @classmethod
+    def of(
+        cls, archive: FmuArchive, names: Sequence[str], ranges: Mapping[str, Sequence[float]]
+    ) -> InputDomain:
+        """The domain of a grey-box's inputs.
+
+        Parameters
+        ----------
+        archive : FmuArchive
+            The white-box (its declared ranges).
+        names : sequence of str
+            The inputs.
+        ranges : mapping of str to (low, high)
+            Training ranges (``model.training["input_ranges"]``; empty for old model folders).
+
+        Returns
+        -------
+        InputDomain
+        """
+        low, high = np.full(len(names), -math.inf), np.full(len(names), math.inf)
+        for i, name in enumerate(names):
+            variable = archive.variable(name)
+            if variable.minimum is not None:
+                low[i] = variable.minimum
+            if variable.maximum is not None:
+                high[i] = variable.maximum
+            if name in ranges:
+                lowest, highest = (float(v) for v in ranges[name])
+                scale = max(highest - lowest, abs(lowest), abs(highest))
+                if scale > 0.0:
+                    low[i] = max(low[i], lowest - INPUT_MARGIN * scale)
+                    high[i] = min(high[i], highest + INPUT_MARGIN * scale)
+        return cls(list(names), low, high)
+
+    def refusal(self, u: Sequence[float], time: float) -> str | None:
+        """Why the inputs ``u`` are refused at ``time``, or ``None`` if they are accepted.
+
+        The same words as the native runtime's (``native/greybox_fmu.c``,
+        ``inputs_acceptable``).
+        """
+        for name, value, low, high in zip(self.names, u, self.low, self.high, strict=True):
+            if not math.isfinite(value):
+                return (
+                    f"input {name} = {value:g} at t = {time:.9g} s is not a finite number; the "
+                    "grey-box refuses it (set a finite value and step again)"
+                )
+            if not low <= value <= high:
+                return (
+                    f"input {name} = {value:.9g} at t = {time:.9g} s lies outside the "
+                    f"grey-box's input domain [{low:.9g}, {high:.9g}] (the training range "
+                    f"widened, {DOCS}); the grey-box refuses to extrapolate this far: keep the "
+                    "input within the domain, or retrain with recordings that cover it"
+                )
+        return None

@@ -1,0 +1,344 @@
+"""The native grey-box FMU: a C binary compiled at export, no Python in the bench's process.
+
+Layout of the FMU::
+
+    modelDescription.xml
+    binaries/<platform>/<identifier>.so   compiled here from sources/ (gcc, buildDescription.xml)
+    sources/                              the C sources, the FMI 2.0 headers, greybox_config.h
+                                          and buildDescription.xml: a bench rebuilds from them
+    resources/greybox.dat                 the trained numbers (native_data.py), checked against
+                                          the SHA-256 compiled into the binary
+    resources/whitebox/                   the white-box FMU, unpacked: the binary dlopens it
+    resources/greybox_model/              the model folder (provenance, the SSP benches)
+
+The C sources live in ``fmu_greybox/native/``: ``chain_core.c`` (the chain step, the very file
+the Python package's extension compiles), ``whitebox.c`` (the white-box and its named terms,
+as :class:`~fmu_greybox.model.whitebox.NamedModel`), ``terms.c`` (every term kind),
+``greybox_fmu.c`` (the FMI functions), ``greybox_data.c`` and ``sha256.c``. Only
+``greybox_config.h`` is generated: the FMU's identifier and GUID, the data file's hash and the
+term kind codes (:mod:`fmu_greybox.export.native_terms`).
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import tempfile
+import time
+import warnings
+import zipfile
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from lxml import etree
+
+from fmu_greybox import __version__
+from fmu_greybox.atomic import atomic_write
+from fmu_greybox.errors import ExportError, FmuBuildError
+from fmu_greybox.export.native_data import data_file_bytes
+from fmu_greybox.export.native_terms import encode_term, kind_code, kind_defines
+from fmu_greybox.export.slave import MODEL_FOLDER, STEP_RTOL
+from fmu_greybox.fmi.archive import FmuArchive
+from fmu_greybox.fmi.build import c_compiler, fmi2_headers, fmi2_platform
+from fmu_greybox.model.store import file_sha256
+from fmu_greybox.model.whitebox import part_layouts
+
+if TYPE_CHECKING:
+    from fmu_greybox.export.fmu import ExportPlan
+
+#: The package's C sources of the native FMU.
+NATIVE_DIR = Path(__file__).resolve().parent.parent / "native"
+SOURCES = (
+    "greybox_fmu.c",
+    "whitebox.c",
+    "whitebox.h",
+    "terms.c",
+    "terms.h",
+    "chain_core.c",
+    "chain_core.h",
+    "greybox_data.c",
+    "greybox_data.h",
+    "sha256.c",
+    "sha256.h",
+)
+FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+#: Compiler options beyond the chain core's (``native/cflags.txt``, which the Python extension
+#: is compiled with too, so that both runtimes step the chain with the same machine code).
+EXTRA_CFLAGS = ("-fPIC", "-fvisibility=hidden", "-Wall", "-Wextra")
+LIBRARIES = ("m", "dl")
+DATA_FILE = "greybox.dat"
+CONFIG_HEADER = "greybox_config.h"
+BUILD_DESCRIPTION = "buildDescription.xml"
+WHITEBOX_FOLDER = "whitebox"
+
+
+def package_native(plan: ExportPlan, archive: FmuArchive, out: Path) -> None:
+    """Write the native FMU of an export plan (see the module docstring), atomically.
+
+    Parameters
+    ----------
+    plan : ExportPlan
+    archive : FmuArchive
+        The white-box FMU, open.
+    out : Path
+
+    Raises
+    ------
+    ExportError
+        A term has no native implementation, compiling fails, or the FMU fails validation.
+    """
+    from fmu_greybox.export.fmu import check_valid
+
+    identifier = plan.settings["model_identifier"]
+    with tempfile.TemporaryDirectory(prefix="fmu_greybox_native_") as tmp:
+        root = Path(tmp) / "fmu"
+        resources = root / "resources"
+        plan.copy_model(resources / MODEL_FOLDER)
+        shutil.copytree(archive.unzip_dir, resources / WHITEBOX_FOLDER)
+        data = data_file_bytes(data_sections(plan, archive))
+        (resources / DATA_FILE).write_bytes(data)
+        sources = root / "sources"
+        write_sources(sources, identifier, plan.guid, file_sha256(resources / DATA_FILE))
+        folder, extension = fmi2_platform()
+        compile_sources(sources, root / "binaries" / folder / f"{identifier}{extension}")
+        (root / "modelDescription.xml").write_bytes(model_description(plan))
+        staged = Path(tmp) / "staged.fmu"
+        _zip_folder(root, staged)
+        check_valid(staged)
+        with atomic_write(out, "wb") as f, open(staged, "rb") as source:
+            shutil.copyfileobj(source, f)
+
+
+# ---------------------------------------------------------------------------- the data file
+def data_sections(plan: ExportPlan, archive: FmuArchive) -> dict[str, Any]:
+    """Everything the binary reads from ``greybox.dat`` (``greybox_fmu.c``, ``whitebox.c``).
+
+    The chain's plan and parameters are stored as :class:`ChainPlan` lays them out, untouched:
+    whatever per-stage numbers a plan carries reach the compiled step without new plumbing.
+    """
+    model, iface = plan.model, plan.interface
+    chain_plan, params = model.chain.plan().arrays
+    outputs = iface.wb_outputs
+    layouts = part_layouts(
+        outputs, model.terms, model.output_stages(outputs), model.config.parameters, model.substeps
+    )
+    for term in model.terms:
+        kind_code(term)  # refuse a kind without native implementation before anything else
+    parts = _part_sections(layouts, archive, iface.input_names, model.dt)
+    sizes = [len(layouts), sum(len(layout.terms) for layout in layouts)]  # parts, terms
+    return {
+        "sizes": np.array(
+            [iface.n_inputs, len(outputs), len(model.chain.stages), iface.exo_index.size, *sizes],
+            dtype=np.int64,
+        ),
+        "plan": chain_plan,
+        "params": params,
+        "stage_output": iface.stage_output.astype(np.int64),
+        "exo_index": iface.exo_index.astype(np.int64),
+        "input_names": "\n".join(iface.input_names),
+        "input_start": np.array([p.start for p in iface.reals[: iface.n_inputs]], dtype=float),
+        "input_low": plan.domain.low,
+        "input_high": plan.domain.high,
+        "settings": np.array([model.dt, plan.settings["ood_threshold"], STEP_RTOL]),
+        "wb_input_vr": _references(archive, iface.input_names),
+        "wb_guid": archive.guid,
+        "wb_identifier": archive.model_identifier,
+        "wb_binaries": _binary_hashes(archive),
+        **parts,
+    }
+
+
+def _references(archive: FmuArchive, names: list[str]) -> np.ndarray:
+    return np.array([archive.variable(n).value_reference for n in names], dtype=np.int64)
+
+
+def _part_sections(layouts: list, archive: FmuArchive, inputs: list[str], dt: float) -> dict:
+    """The white-box instances and their terms, concatenated part after part."""
+    records, columns, bound, param_vr, param_value = [], [], [], [], []
+    term_int, term_real, channels = [], [], []
+    for layout in layouts:
+        records.append(
+            [
+                len(layout.columns),
+                len(layout.bound),
+                len(layout.parameters),
+                len(layout.terms),
+                layout.substeps,
+                layout.level,
+            ]
+        )
+        columns += layout.columns
+        bound += list(_references(archive, layout.bound))
+        param_vr += list(_references(archive, list(layout.parameters)))
+        param_value += [float(v) for v in layout.parameters.values()]
+        for term in layout.terms:
+            ints, reals, delayed = encode_term(term, inputs, layout.bound, layout.every(term, dt))
+            term_int += ints
+            term_real += reals
+            channels += delayed
+    return {
+        "part": np.array(records, dtype=np.int64),
+        "part_columns": np.array(columns, dtype=np.int64),
+        "part_bound_vr": np.array(bound, dtype=np.int64),
+        "part_param_vr": np.array(param_vr, dtype=np.int64),
+        "part_param_value": np.array(param_value, dtype=float),
+        "term_int": np.array(term_int, dtype=np.int64),
+        "term_real": np.array(term_real, dtype=float),
+        "term_channels": np.array(channels, dtype=np.int64),
+    }
+
+
+def _binary_hashes(archive: FmuArchive) -> str:
+    """``platform sha256`` lines of the white-box's binaries (checked before dlopen)."""
+    lines = []
+    for folder in sorted((archive.unzip_dir / "binaries").iterdir()):
+        for library in sorted(folder.glob(f"{archive.model_identifier}.*")):
+            lines.append(f"{folder.name} {file_sha256(library)}")
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------- sources, binary
+def write_sources(folder: Path, identifier: str, guid: str, data_sha256: str) -> None:
+    """Fill ``sources/``: the C sources, the FMI headers, the generated configuration header
+    and the build description."""
+    folder.mkdir(parents=True)
+    for name in SOURCES:
+        shutil.copyfile(NATIVE_DIR / name, folder / name)
+    for name in FMI_HEADERS:
+        shutil.copyfile(fmi2_headers() / name, folder / name)
+    (folder / CONFIG_HEADER).write_text(
+        "/* Generated by fmu-greybox at export: this FMU's identity, the SHA-256 of its data\n"
+        " * file (resources/" + DATA_FILE + ") and the term kind codes (native_terms.py). */\n"
+        "#ifndef GREYBOX_CONFIG_H\n#define GREYBOX_CONFIG_H\n"
+        f'#define GREYBOX_IDENTIFIER "{identifier}"\n'
+        f'#define GREYBOX_GUID "{{{guid}}}"\n'
+        f'#define GREYBOX_DATA_FILE "{DATA_FILE}"\n'
+        f'#define GREYBOX_DATA_SHA256 "{data_sha256}"\n'
+        f"{kind_defines()}#endif\n",
+        encoding="ascii",
+    )
+    (folder / BUILD_DESCRIPTION).write_bytes(build_description(identifier))
+
+
+def core_cflags() -> list[str]:
+    """The chain core's compiler options (``native/cflags.txt``, shared with setup.py)."""
+    return (NATIVE_DIR / "cflags.txt").read_text(encoding="ascii").split()
+
+
+def build_description(identifier: str) -> bytes:
+    """``sources/buildDescription.xml`` (the FMI build description, read by fmpy as well)."""
+    root = etree.Element("fmiBuildDescription", fmiVersion="3.0")
+    configuration = etree.SubElement(
+        root,
+        "BuildConfiguration",
+        modelIdentifier=identifier,
+        description="a shared library: compile the source files with these options and "
+        "-shared, link the libraries",
+    )
+    files = etree.SubElement(
+        configuration,
+        "SourceFileSet",
+        language="C11",
+        compiler="gcc",
+        compilerOptions=" ".join([*core_cflags(), *EXTRA_CFLAGS]),
+    )
+    for name in SOURCES:
+        if name.endswith(".c"):
+            etree.SubElement(files, "SourceFile", name=name)
+    etree.SubElement(files, "IncludeDirectory", name=".")
+    for library in LIBRARIES:
+        etree.SubElement(configuration, "Library", name=library)
+    return etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
+
+
+def compile_sources(sources: Path, library: Path) -> None:
+    """Compile a ``sources/`` folder into the shared library, as its build description says.
+
+    Raises
+    ------
+    ExportError
+        The compiler is missing or fails (its output is quoted).
+    """
+    root = etree.parse(str(sources / BUILD_DESCRIPTION)).getroot()
+    configuration = root.find("BuildConfiguration")
+    files = configuration.find("SourceFileSet")
+    command = [_compiler(), *files.get("compilerOptions").split(), "-shared"]
+    command += [f"-I{sources / d.get('name')}" for d in files.findall("IncludeDirectory")]
+    command += [str(sources / f.get("name")) for f in files.findall("SourceFile")]
+    command += ["-o", str(library)]
+    command += [f"-l{lib.get('name')}" for lib in configuration.findall("Library")]
+    library.parent.mkdir(parents=True, exist_ok=True)
+    done = subprocess.run(command, capture_output=True, text=True, check=False)
+    output = (done.stdout + done.stderr).strip()
+    if done.returncode != 0:
+        raise ExportError(
+            f"compiling the native grey-box failed (exit {done.returncode}); install gcc or "
+            f"export with --runtime python:\n{' '.join(command)}\n{output}"
+        )
+    if output:
+        warnings.warn(f"compiler messages for the native grey-box:\n{output}", stacklevel=2)
+
+
+def _compiler() -> str:
+    try:
+        return c_compiler()
+    except FmuBuildError as exc:
+        raise ExportError(f"{exc} (or export with --runtime python)") from exc
+
+
+# ---------------------------------------------------------------------------- description
+def model_description(plan: ExportPlan) -> bytes:
+    """The FMU's ``modelDescription.xml``: the variables, completed as the Python FMU's is."""
+    settings = plan.settings
+    root = etree.Element(
+        "fmiModelDescription",
+        fmiVersion="2.0",
+        modelName=settings["model_identifier"],
+        guid="{" + plan.guid + "}",
+        description=settings["description"],
+        author=settings["author"],
+        version=settings["version"],
+        generationDateAndTime=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        numberOfEventIndicators="0",
+    )
+    etree.SubElement(root, "CoSimulation", modelIdentifier=settings["model_identifier"])
+    categories = etree.SubElement(root, "LogCategories")
+    for name, text in (
+        ("logStatusWarning", "Warnings (sent while debug logging is on)."),
+        ("logStatusDiscard", "Discards (none: a refused step answers fmi2Error)."),
+        ("logStatusError", "Errors: sent at any logging level."),
+        ("logStatusFatal", "Fatal errors (none)."),
+        ("logAll", "Every message of the grey-box and its white-box."),
+    ):
+        etree.SubElement(categories, "Category", name=name, description=text)
+    etree.SubElement(root, "DefaultExperiment", stepSize=repr(plan.model.dt))
+    variables = etree.SubElement(root, "ModelVariables")
+    for reference, port in enumerate(plan.interface.ports):
+        variable = etree.SubElement(
+            variables,
+            "ScalarVariable",
+            name=port.name,
+            valueReference=str(reference),
+            causality=port.causality,
+            variability=port.variability,
+        )
+        if port.initial:
+            variable.set("initial", port.initial)
+        value = etree.SubElement(variable, port.type)
+        if port.type == "Boolean" and port.start is not None:
+            value.set("start", str(bool(port.start)).lower())
+    plan.fix(root, f"fmu-greybox {__version__} (native)", needs_execution_tool=False)
+    return etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
+
+
+def _zip_folder(folder: Path, archive: Path) -> None:
+    """Zip a staged FMU (binaries executable)."""
+    with zipfile.ZipFile(archive, "w", zipfile.ZIP_DEFLATED) as z:
+        for path in sorted(folder.rglob("*")):
+            if path.is_file():
+                info = zipfile.ZipInfo(path.relative_to(folder).as_posix())
+                info.compress_type = zipfile.ZIP_DEFLATED
+                executable = "binaries" in path.relative_to(folder).parts
+                info.external_attr = (0o755 if executable else 0o644) << 16
+                z.writestr(info, path.read_bytes())

@@ -1,0 +1,305 @@
+"""The native grey-box FMU: every term kind in C, a bare C master, libcosim, the rebuild from
+``sources/``, its integrity checks and its state.
+
+Uses the session's model and FMUs of ``test_export``. "Equal to 1e-9" as there: per signal,
+``max |a - b| <= 1e-9 * max(ptp(b), max |b|)``.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import zipfile
+from pathlib import Path
+
+import c_master as master
+import numpy as np
+import pytest
+from fmpy import extract, read_model_description, simulate_fmu
+from fmpy.model_description import read_build_description
+from libcosimpy.CosimExecution import CosimExecution
+from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+from libcosimpy.CosimManipulator import CosimManipulator
+from libcosimpy.CosimObserver import CosimObserver
+from libcosimpy.CosimSlave import CosimLocalSlave
+from test_export import (
+    INPUTS,
+    STAGE_OUTPUTS,
+    Slave,
+    assert_matches_master,
+    input_rows,
+    input_signal,
+    master_run,
+    tampered,
+    trained,
+)
+
+from fmu_greybox.errors import ExportError, FmuError
+from fmu_greybox.export.fmu import RUNTIMES, export_greybox
+from fmu_greybox.export.native import BUILD_DESCRIPTION, NATIVE_DIR
+from fmu_greybox.export.native_terms import NATIVE_KINDS
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.instance import FmuInstance
+from fmu_greybox.model import terms as term_kinds
+from fmu_greybox.model.store import load_model, save_model
+
+ROOT = Path(__file__).resolve().parents[1]
+NAMES = [f"{o}{s}" for o in STAGE_OUTPUTS for s in ("", "_std", "_wb")]
+
+#: One term of every kind, on the reference actuator, entering at the stages given: each runs
+#: with its own numbers in the native FMU and in Python (a kind missing here fails
+#: test_every_term_kind_has_a_native_implementation: add an example and its C in terms.c).
+EXAMPLES: dict[str, term_kinds.Term] = {
+    "ParameterChange": term_kinds.ParameterChange(name="bulk_modulus", value=1.1e9),
+    "InputGain": term_kinds.InputGain(input="valve_current", gain=0.04),
+    "InputOffset": term_kinds.InputOffset(input="valve_current", offset=0.05),
+    "ForceOffset": term_kinds.ForceOffset(input="load_force", offset=150.0, entry=1),
+    "InputSaturation": term_kinds.InputSaturation(input="valve_current", lower=-6.0, upper=6.5),
+    "InputHysteresis": term_kinds.InputHysteresis(input="valve_current", width=0.08),
+    "InputLag": term_kinds.InputLag(input="valve_current", tau=0.0023),
+    "InputDeadband": term_kinds.InputDeadband(input="valve_current", width=0.03),
+    "InputDelay": term_kinds.InputDelay(input="valve_current", delay=0.0017),
+    "CoulombForce": term_kinds.CoulombForce(
+        input="load_force", source="ram_velocity", force=300.0, asymmetry=40.0
+    ),
+    "ViscousForce": term_kinds.ViscousForce(
+        input="load_force", source="ram_position", coefficient=2e3, rate=True, entry=1
+    ),
+    "StribeckForce": term_kinds.StribeckForce(
+        input="load_force", source="ram_velocity", force=200.0, velocity=0.01
+    ),
+    "SpringForce": term_kinds.SpringForce(
+        input="load_force", source="ram_position", coefficient=5e4, rest=0.001, entry=2
+    ),
+    "FlowDroop": term_kinds.FlowDroop(
+        input="supply_pressure", source="supply_flow", resistance=1e9
+    ),
+    "SensorDelay": term_kinds.SensorDelay(outputs=("ram_position", "itfv_pressure"), delay=0.0025),
+    "SensorGain": term_kinds.SensorGain(output="spool_position", gain=0.02),
+    "SensorOffset": term_kinds.SensorOffset(output="itfv_pressure", offset=2e4, entry=2),
+    "SensorChannelDelay": term_kinds.SensorChannelDelay(output="spool_position", delay=0.0012),
+}
+
+
+@pytest.fixture(scope="session")
+def model_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return trained(tmp_path_factory)["model_dir"]
+
+
+@pytest.fixture(scope="session")
+def native_fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return trained(tmp_path_factory)["fmus"]["native"]
+
+
+@pytest.fixture(scope="session")
+def validation(tmp_path_factory: pytest.TempPathFactory):
+    return trained(tmp_path_factory)["validation"]
+
+
+@pytest.fixture(scope="session")
+def terms_model(model_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The session's model carrying one term of every kind (its correctors were trained
+    without them: what matters here is that every runtime computes the same)."""
+    model = load_model(model_dir)
+    model.terms = list(EXAMPLES.values())
+    return save_model(model, tmp_path_factory.mktemp("terms") / "model")
+
+
+@pytest.fixture(scope="session")
+def terms_fmus(terms_model: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("terms_fmus")
+    return {
+        runtime: export_greybox(terms_model, folder / f"{runtime}.fmu", runtime=runtime).path
+        for runtime in RUNTIMES
+    }
+
+
+def simulate(fmu: Path, recording, **kwargs) -> dict[str, np.ndarray]:
+    """fmpy's simulate_fmu over a recording; the rows after the first (the master's)."""
+    result = simulate_fmu(
+        str(fmu),
+        stop_time=recording.time[-1],
+        step_size=recording.dt,
+        output_interval=recording.dt,
+        input=input_signal(recording),
+        output=NAMES,
+        **kwargs,
+    )
+    return {n: result[n][1:] for n in NAMES}
+
+
+# ---------------------------------------------------------------------------- term kinds
+def test_every_term_kind_has_a_native_implementation() -> None:
+    source = (NATIVE_DIR / "terms.c").read_text(encoding="utf-8")
+    for kind in term_kinds.TERM_KINDS:
+        assert kind in NATIVE_KINDS, f"{kind}: no native code (native_terms.py)"
+        assert f"case TERM_{kind}" in source, f"{kind}: no case in native/terms.c"
+        assert kind in EXAMPLES, f"{kind}: no example in this test"
+
+
+def test_terms_of_every_kind_give_the_masters_outputs_in_both_runtimes(
+    model_dir: Path, terms_model: Path, terms_fmus: dict[str, Path], validation
+) -> None:
+    short = validation.slice_time(0.0, 0.6)
+    run = master_run(terms_model, short)
+    plain = master_run(model_dir, short)
+    assert np.max(np.abs(run.whitebox - plain.whitebox)) > 0  # the terms act
+    for fmu in terms_fmus.values():
+        assert_matches_master(simulate(fmu, short), run)
+
+
+def test_a_kind_without_native_code_is_refused_at_export(
+    model_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    model = load_model(model_dir)
+    model.terms = [EXAMPLES["InputGain"]]
+    save_model(model, tmp_path / "model")
+    monkeypatch.delitem(NATIVE_KINDS, "InputGain")
+    with pytest.raises(ExportError, match="--runtime python"):
+        export_greybox(tmp_path / "model", tmp_path / "x.fmu")
+    assert not (tmp_path / "x.fmu").exists()
+
+
+def test_state_with_terms_memory_continues_identically(
+    terms_fmus: dict[str, Path], validation
+) -> None:
+    u = input_rows(validation)[:300]
+    first = Slave(terms_fmus["native"], "first", u)
+    first.run(u[:150])
+    state = first.slave.getFMUstate()
+    saved = first.slave.serializeFMUstate(state)
+    reference = first.run(u[150:])
+    first.slave.setFMUstate(state)
+    first.k = 150
+    np.testing.assert_array_equal(first.run(u[150:]), reference)
+    first.slave.freeFMUstate(state)
+    first.close()
+    second = Slave(terms_fmus["native"], "second", u)
+    restored = second.slave.deSerializeFMUstate(saved)
+    second.slave.setFMUstate(restored)
+    second.slave.freeFMUstate(restored)
+    second.k = 150
+    np.testing.assert_array_equal(second.run(u[150:]), reference)
+    second.close()
+
+
+# ---------------------------------------------------------------------------- masters
+@pytest.fixture(scope="session")
+def c_master(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """benchmarks/c_master.c compiled: a master with no Python in its process."""
+    return master.build(tmp_path_factory.mktemp("c_master"))
+
+
+def run_c_master(program: Path, fmu: Path, rows: np.ndarray, folder: Path) -> np.ndarray:
+    """Run the native FMU over input rows in the C master; its outputs per step (NAMES)."""
+    done = master.run(program, fmu, list(INPUTS), NAMES, rows, folder)
+    assert not done.python_in_process
+    return done.outputs
+
+
+def test_bare_c_master_gives_the_masters_outputs_with_no_python(
+    c_master: Path, native_fmu: Path, model_dir: Path, validation, tmp_path: Path
+) -> None:
+    run = master_run(model_dir, validation)
+    rows = input_rows(validation)[:-1]  # row k acts over the step to row k + 1
+    outputs = run_c_master(c_master, native_fmu, rows, tmp_path)
+    assert outputs.shape == (run.rows.size, len(NAMES))
+    assert_matches_master({n: outputs[:, i] for i, n in enumerate(NAMES)}, run)
+
+
+def test_bare_c_master_runs_every_term_kind(
+    c_master: Path, terms_model: Path, terms_fmus: dict[str, Path], validation, tmp_path: Path
+) -> None:
+    short = validation.slice_time(0.0, 0.4)
+    run = master_run(terms_model, short)
+    outputs = run_c_master(c_master, terms_fmus["native"], input_rows(short)[:-1], tmp_path)
+    assert_matches_master({n: outputs[:, i] for i, n in enumerate(NAMES)}, run)
+
+
+def test_two_native_instances_in_libcosim_give_the_masters_outputs(
+    native_fmu: Path, model_dir: Path, validation
+) -> None:
+    short = validation.slice_time(0.0, 0.3)
+    run = master_run(model_dir, short)
+    refs = {
+        v.name: v.valueReference for v in read_model_description(str(native_fmu)).modelVariables
+    }
+    log_output_level(CosimLogLevel.ERROR)
+    execution = CosimExecution.from_step_size(step_size=1_000_000)
+    indices = [
+        execution.add_local_slave(CosimLocalSlave(fmu_path=str(native_fmu), instance_name=name))
+        for name in ("a", "b")
+    ]
+    observer = CosimObserver.create_last_value()
+    execution.add_observer(observer)
+    override = CosimManipulator.create_override()
+    execution.add_manipulator(override)
+    u = input_rows(short)
+    inputs = [refs[n] for n in INPUTS]
+    for index in indices:
+        for ref, value in zip(inputs, u[0], strict=True):
+            assert execution.real_initial_value(index, ref, float(value))
+    rows = {index: [] for index in indices}
+    for k in range(run.rows.size):
+        for index in indices:
+            assert override.slave_real_values(index, inputs, [float(v) for v in u[k]])
+        assert execution.step()
+        for index in indices:
+            rows[index].append(observer.last_real_values(index, [refs[n] for n in NAMES]))
+    execution.stop()
+    for index in indices:
+        got = np.array(rows[index])
+        assert_matches_master({n: got[:, i] for i, n in enumerate(NAMES)}, run)
+
+
+# ---------------------------------------------------------------------------- sources, checks
+def test_rebuild_from_the_shipped_sources_runs_identically(
+    native_fmu: Path, validation, tmp_path: Path
+) -> None:
+    """A bench rebuilds the binary as buildDescription.xml says, with nothing but gcc."""
+    unpacked = Path(extract(str(native_fmu), str(tmp_path / "fmu")))
+    configuration = read_build_description(str(unpacked))[0]  # checked against FMI's schema
+    identifier = configuration.modelIdentifier
+    description = (unpacked / "sources" / BUILD_DESCRIPTION).read_text(encoding="utf-8")
+    options = re.search(r'compilerOptions="([^"]*)"', description).group(1).split()
+    libraries = re.findall(r'<Library name="([^"]+)"', description)
+    sources = unpacked / "sources"
+    sources_c = [str(sources / f) for s in configuration.sourceFileSets for f in s.sourceFiles]
+    binary = unpacked / "binaries" / "linux64" / f"{identifier}.so"
+    binary.unlink()
+    command = ["gcc", *options, "-shared", f"-I{sources}", *sources_c, "-o", str(binary)]
+    subprocess.run([*command, *(f"-l{lib}" for lib in libraries)], check=True)
+    short = validation.slice_time(0.0, 0.3)
+    rebuilt = simulate(unpacked, short)
+    shipped = simulate(native_fmu, short)
+    for name in NAMES:
+        np.testing.assert_array_equal(rebuilt[name], shipped[name], err_msg=name)
+
+
+@pytest.mark.parametrize(
+    ("member", "named"),
+    [
+        ("resources/greybox.dat", "greybox.dat"),
+        ("resources/whitebox/binaries/linux64/HydraulicActuator.so", "HydraulicActuator.so"),
+    ],
+)
+def test_modified_resources_refuse_instantiation(
+    native_fmu: Path, tmp_path: Path, member: str, named: str
+) -> None:
+    def flip(data: bytes) -> bytes:
+        return data[:100] + bytes([data[100] ^ 1]) + data[101:]
+
+    flipped = tampered(native_fmu, member, flip, tmp_path)
+    with open_fmu(flipped) as archive, pytest.raises(FmuError, match="fmi2Instantiate") as caught:
+        FmuInstance(archive)
+    assert named in str(caught.value) and "SHA-256" in str(caught.value)
+    assert "Export the FMU again" in str(caught.value)
+
+
+def test_native_fmu_declares_no_python(native_fmu: Path) -> None:
+    description = read_model_description(str(native_fmu))
+    assert not description.coSimulation.needsExecutionTool
+    with zipfile.ZipFile(native_fmu) as archive:
+        names = archive.namelist()
+    assert not any("pythonfmu" in n or n.endswith(".py") for n in names)
+    assert {"sources/buildDescription.xml", "resources/greybox.dat"} <= set(names)
