@@ -46,6 +46,7 @@ from fmu_greybox.model.terms import ViscousForce
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import check_step, whitebox_path
 from fmu_greybox.workflow.metrics import improvement, rmse
+from fmu_greybox.workflow.parts import compare_parts
 
 #: Largest share of a recording used for training in a diagnosis.
 MAX_TRAIN_FRACTION = 0.8
@@ -109,7 +110,12 @@ class Diagnosis:
         ``greybox`` / ``greybox_std`` of the stage targets on the held-out rows, shape
         (n_heldout, Q).
     fit_ : dict[str, dict[str, float]]
-        Stage -> ``wb_rmse``, ``named_rmse``, ``gb_rmse`` and improvements, on held-out rows.
+        Stage -> ``wb_rmse``, ``named_rmse``, ``gb_rmse`` and improvements, on held-out rows;
+        with the grey-box also ``correctors_rmse`` (correctors on the plain white-box) and
+        ``best`` (of the three parts, :mod:`fmu_greybox.workflow.parts`).
+    parts_ : PartsComparison or None
+        The correctors alone, the named terms alone and both on the held-out rows (``None``
+        without the grey-box or without named terms).
     timings_ : dict[str, float]
         Seconds per step.
     """
@@ -275,9 +281,20 @@ class Diagnosis:
         wb = self.simulated_["whitebox"][:, targets]
         named = self.simulated_["named"][:, targets]
         gb, gb_std = named[train:], np.zeros_like(named[train:])
+        self.parts_ = None
         if self.greybox is not None:
             self.progress("training the grey-box on the named model")
             gb, gb_std = self._greybox(recording, named, recorded, train)
+        if self.greybox is not None and self.simulated_["named"] is not self.simulated_["whitebox"]:
+            self.progress("training the grey-box on the white-box (correctors alone)")
+            alone, _ = self._greybox(recording, wb, recorded, train)
+            self.parts_ = compare_parts(
+                names,
+                recorded[train:],
+                {"correctors": alone, "terms": named[train:], "terms+correctors": gb},
+                {name: float(np.std(recorded[:train, q])) for q, name in enumerate(names)},
+                train,
+            )
         self.simulated_["greybox"], self.simulated_["greybox_std"] = gb, gb_std
         for q, name in enumerate(names):
             rec = recorded[train:, q]
@@ -290,6 +307,9 @@ class Diagnosis:
             }
             row["named_improvement"] = improvement(row["wb_rmse"], row["named_rmse"])
             row["gb_improvement"] = improvement(row["wb_rmse"], row["gb_rmse"])
+            if self.parts_ is not None:
+                row["correctors_rmse"] = self.parts_.stages[name]["correctors_rmse"]
+                row["best"] = self.parts_.stages[name]["best"]
             self.fit_[name] = row
 
     def _greybox(

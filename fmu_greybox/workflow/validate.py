@@ -143,7 +143,8 @@ def validate_model(model: GreyBoxModel, recording: Recording, progress: bool = F
 
 def write_metrics(validation: Validation, model: GreyBoxModel, path: Path) -> None:
     """Write ``metrics.json`` atomically (``scored_rows``: the scored rows as ``[first, last]``
-    ranges, both included)."""
+    ranges, both included; ``parts``: for a model trained with named terms, the comparison of
+    its parts made at training, :mod:`fmu_greybox.workflow.parts`)."""
     payload = {
         "held_out": validation.held_out,
         "n_rows": int(validation.scored.size),
@@ -151,6 +152,8 @@ def write_metrics(validation: Validation, model: GreyBoxModel, path: Path) -> No
         "units": model.training.get("target_unit", {}),
         "stages": validation.table,
     }
+    if "parts" in model.training:  # train --terms: its comparison on the training's held-out rows
+        payload["parts"] = model.training["parts"]
     with atomic_write(path, "w") as f:
         json.dump(payload, f, indent=2)
 
