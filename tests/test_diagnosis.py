@@ -19,6 +19,7 @@ from fmu_greybox.fmi.builtin import model_fmus
 from fmu_greybox.project.config import load_config, parse_config
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 from fmu_greybox.synth.positioner import synthesise_positioner
+from fmu_greybox.workflow.parts import PARTS
 
 CONFIGS = Path(__file__).resolve().parents[1] / "bench_configs"
 ACTUATOR = CONFIGS / "hydraulic_actuator.toml"
@@ -116,8 +117,15 @@ def test_diagnose_command_writes_json_and_report(whitebox_fmu, truth_fmu, tmp_pa
     assert 0.5 < top["explained_fraction"] <= 1.0
     assert top["where"] and all("kind" in w for w in top["where"])
     assert top["terms"][0]["kind"] == "CoulombForce"
-    for row in payload["fit"].values():
-        assert {"wb_rmse", "named_rmse", "gb_rmse"} <= set(row)
+    parts = payload["parts"]
+    for stage, row in payload["fit"].items():
+        assert {"wb_rmse", "named_rmse", "gb_rmse", "correctors_rmse", "best"} <= set(row)
+        compared = parts["stages"][stage]
+        assert compared["terms_rmse"] == row["named_rmse"]
+        assert compared["terms+correctors_rmse"] == row["gb_rmse"]
+        assert row["best"] == min(PARTS, key=lambda part: compared[f"{part}_rmse"])
+    assert parts["best"] == min(PARTS, key=parts["score"].__getitem__)
+    assert f"best {parts['best']}" in payload["verdict"][-1]
     assert payload["fit"]["RAM"]["named_rmse"] < 0.5 * payload["fit"]["RAM"]["wb_rmse"]
     html = (out / "report.html").read_text()
     assert html.index("Verdict") < html.index("<img")
