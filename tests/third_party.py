@@ -48,6 +48,7 @@ def record(
     duration: float = 20.0,
     noise: float = 1.0,
     input_noise: bool = True,
+    amplitude: float = AMPLITUDE,
 ) -> Recording:
     """Record the truth servo in its closed loop.
 
@@ -64,6 +65,8 @@ def record(
         Scale of :data:`SENSOR_NOISE`.
     input_noise : bool
         Whether the logged inputs carry their sensor noise.
+    amplitude : float
+        Amplitude [rad] of the angle reference.
 
     Returns
     -------
@@ -73,7 +76,7 @@ def record(
     dt = 1e-3
     n = round(duration / dt) + 1
     rng = np.random.default_rng(seed)
-    reference = pilot_reference(n, dt, AMPLITUDE, rng)
+    reference = pilot_reference(n, dt, amplitude, rng)
     load = coloured_noise(n, dt, LOAD_TORQUE, LOAD_TIME, rng)
     scale = {k: v * noise * (input_noise or k not in INPUTS) for k, v in SENSOR_NOISE.items()}
     sensor = {k: rng.standard_normal(n) * s for k, s in scale.items()}
