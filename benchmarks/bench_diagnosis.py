@@ -87,7 +87,7 @@ def main() -> None:
         "hypotheses": len(diagnosis.hypotheses_),
         "timings": diagnosis.timings_,
         "top_finding": top.summary,
-        "target_seconds": 120.0,
+        "target_seconds": 60.0,
     }
     if args.json:
         print(json.dumps(result))
@@ -101,7 +101,7 @@ def main() -> None:
         f"diagnosis: {shown(figures['diagnosis_seconds'], 3, ' s')} = "
         f"{shown(figures['ratio_to_one_simulation'], 3)} white-box simulations "
         f"({result['simulations']} simulations run, {result['hypotheses']} hypotheses, "
-        f"{args.workers} workers); target < 120 s"
+        f"{args.workers} workers); target < 60 s"
     )
     print(f"steps of the last run [s]: {diagnosis.timings_}")
     print(f"top finding: {top.summary}")

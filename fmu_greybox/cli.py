@@ -23,6 +23,9 @@ import click
 from fmu_greybox import __version__
 from fmu_greybox.errors import FmuGreyboxError
 
+#: ``train --ship`` (fmu_greybox.workflow.parts.SHIP_CHOICES, not imported: it needs numpy).
+SHIP_CHOICES = ("best", "correctors", "terms", "terms+correctors")
+
 EXIT_USER_ERROR = 1
 EXIT_NOT_ACCEPTED = 3
 #: What an option factory returns: click's decorator of a command function.
@@ -343,6 +346,15 @@ def simulate(
     help="diagnosis.json of 'diagnose': fold its named terms into the white-box first; the "
     "correctors learn what remains and the model (and its exported FMU) carries the terms.",
 )
+@click.option(
+    "--ship",
+    type=click.Choice(SHIP_CHOICES),
+    default="best",
+    show_default=True,
+    help="With --terms: the model to write. Correctors on the plain white-box, the named terms "
+    "alone and correctors on the terms are compared on the held-out rows; 'best' writes the "
+    "best of them.",
+)
 @out_option("model", "Model folder to write", folder=True)
 @click.pass_context
 def train(
@@ -352,6 +364,7 @@ def train(
     inducing: int | None,
     max_iter: int | None,
     terms_path: Path | None,
+    ship: str,
     out_dir: Path,
 ) -> None:
     """Train the stage correctors of a project (teacher forcing).
@@ -369,15 +382,20 @@ def train(
     from fmu_greybox.model.whitebox import read_terms
     from fmu_greybox.project.config import load_config
     from fmu_greybox.project.data import load_project_recording
+    from fmu_greybox.workflow.parts import summary as parts_summary
     from fmu_greybox.workflow.train import train_model, with_inducing
 
     config = with_inducing(load_config(config_path), inducing, max_iter)
     with output_lock(out_dir, "--out"):
         recording = load_project_recording(config, recording_path)
         terms = read_terms(terms_path) if terms_path is not None else []
-        model = train_model(config, recording, progress=not ctx.obj["quiet"], terms=terms)
+        model = train_model(
+            config, recording, progress=not ctx.obj["quiet"], terms=terms, ship=ship
+        )
         save_model(model, out_dir)
-    named = f", named terms: {', '.join(t.effect for t in terms)}" if terms else ""
+    named = f", named terms: {', '.join(t.effect for t in model.terms)}" if model.terms else ""
+    if "parts" in model.training:
+        _info(ctx, parts_summary(model.training["parts"]))
     _info(
         ctx,
         f"wrote {out_dir} ({len(model.chain.stages)} stages, "

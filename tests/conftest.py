@@ -6,6 +6,8 @@ fmu_dir
     Folder holding ``HydraulicActuator.fmu`` and ``HydraulicActuatorTruth.fmu``.
 whitebox_fmu, truth_fmu
     The two FMU paths.
+dc_servo_fmus
+    The third-party-style DC servo's FMUs (``tests/third_party.py``), by model identifier.
 instantiate
     ``instantiate(fmu, name=..., parameters=..., inputs=...) -> (FMU2Slave, {name: vr})``: an
     fmpy slave that has left initialisation mode at t = 0.
@@ -174,3 +176,12 @@ def instantiate() -> Callable[..., tuple[FMU2Slave, dict[str, int]]]:
 def simulate() -> Callable[..., dict[str, np.ndarray]]:
     """:func:`simulate_fmu_loop`."""
     return simulate_fmu_loop
+
+
+@pytest.fixture(scope="session")
+def dc_servo_fmus(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """The third-party-style DC servo (``tests/data/dc_servo``): ``DCServo``, ``DCAxis`` (no
+    speed output) and ``DCServoTruth``, built once per test session."""
+    from third_party import build_fmus
+
+    return build_fmus(tmp_path_factory.mktemp("dc_servo"))

@@ -73,7 +73,7 @@ def test_synth_list_effects(env: dict[str, str]) -> None:
     lines = result.stdout.splitlines()
     names = [line.split()[0] for line in lines]
     assert names[:2] == ["gain_error", "offset"] and "coulomb_friction" in names
-    assert "time_delay" in names and len(names) == 11
+    assert {"time_delay", "friction_asymmetry"} <= set(names) and len(names) == 12
     coulomb = next(line for line in lines if line.startswith("coulomb_friction"))
     assert "[N]" in coulomb
 

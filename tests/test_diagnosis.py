@@ -19,6 +19,7 @@ from fmu_greybox.fmi.builtin import model_fmus
 from fmu_greybox.project.config import load_config, parse_config
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 from fmu_greybox.synth.positioner import synthesise_positioner
+from fmu_greybox.workflow.parts import PARTS
 
 CONFIGS = Path(__file__).resolve().parents[1] / "bench_configs"
 ACTUATOR = CONFIGS / "hydraulic_actuator.toml"
@@ -69,21 +70,25 @@ def test_five_effects_at_once_are_all_named(whitebox_fmu, truth_fmu) -> None:
     raw["split"]["train_fraction"] = 3000.5 / 4300
     diagnosis = Diagnosis(parse_config(raw, ACTUATOR), greybox=None).fit(recording)
     named = {named_physics(f.to_dict()): f for f in diagnosis.findings_}
-    assert set(named) == {
-        "offset",
-        "coulomb_friction",
-        "internal_leakage",
-        "compliance",
-        "time_delay",
+    consistent = {
+        named_physics(a): a
+        for f in diagnosis.findings_
+        for a in f.to_dict().get("alternatives", [])
     }
+    assert len(named) == 5
+    assert {"offset", "coulomb_friction", "internal_leakage", "time_delay"} <= set(named)
     assert named["offset"].magnitude["value"] == pytest.approx(0.2, rel=0.1)
     assert named["coulomb_friction"].magnitude["value"] == pytest.approx(600.0, rel=0.1)
     assert named["time_delay"].magnitude["value"] == pytest.approx(0.002, rel=0.1)
-    # the truth adds 2e-12 to the white-box's 2e-13; the air takes 30 % off the bulk modulus
+    # the truth adds 2e-12 to the white-box's 2e-13
     leakage = named["internal_leakage"].details
     assert leakage["estimate"] == pytest.approx(leakage["nominal"] + 2e-12, rel=0.1)
-    stiffness = named["compliance"].details
-    assert stiffness["estimate"] == pytest.approx(0.7 * stiffness["nominal"], rel=0.1)
+    # The air takes 30 % off the bulk modulus. A larger dead volume also softens the chambers;
+    # on these 4.3 s the two come within the alternatives' margin (delta BIC < 10), and the
+    # diagnosis may name either and must then give the other as equally consistent: the truth
+    # is named or an alternative, at its magnitude.
+    air = named["compliance"].to_dict() if "compliance" in named else consistent["compliance"]
+    assert air["magnitude"]["value"] == pytest.approx(-0.3, rel=0.1)
     # the friction's summary names the output it fixes, not the RAM's drifting position
     assert "itfv_pressure's" in named["coulomb_friction"].summary
     for stage in ("EHV", "RAM", "ITFV"):
@@ -116,8 +121,15 @@ def test_diagnose_command_writes_json_and_report(whitebox_fmu, truth_fmu, tmp_pa
     assert 0.5 < top["explained_fraction"] <= 1.0
     assert top["where"] and all("kind" in w for w in top["where"])
     assert top["terms"][0]["kind"] == "CoulombForce"
-    for row in payload["fit"].values():
-        assert {"wb_rmse", "named_rmse", "gb_rmse"} <= set(row)
+    parts = payload["parts"]
+    for stage, row in payload["fit"].items():
+        assert {"wb_rmse", "named_rmse", "gb_rmse", "correctors_rmse", "best"} <= set(row)
+        compared = parts["stages"][stage]
+        assert compared["terms_rmse"] == row["named_rmse"]
+        assert compared["terms+correctors_rmse"] == row["gb_rmse"]
+        assert row["best"] == min(PARTS, key=lambda part: compared[f"{part}_rmse"])
+    assert parts["best"] == min(PARTS, key=parts["score"].__getitem__)
+    assert f"best {parts['best']}" in payload["verdict"][-1]
     assert payload["fit"]["RAM"]["named_rmse"] < 0.5 * payload["fit"]["RAM"]["wb_rmse"]
     html = (out / "report.html").read_text()
     assert html.index("Verdict") < html.index("<img")

@@ -33,6 +33,7 @@ TRUTH_EFFECTS = (
     "compliance",
     "supply_pressure_droop",
     "time_delay",
+    "friction_asymmetry",
 )
 
 

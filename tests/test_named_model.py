@@ -34,6 +34,7 @@ from fmu_greybox.model.store import load_model, save_model
 from fmu_greybox.model.terms import CoulombForce, InputDelay, InputGain, SensorDelay
 from fmu_greybox.model.whitebox import NamedModel, check_terms, read_terms
 from fmu_greybox.project.config import load_config
+from fmu_greybox.workflow.parts import PARTS
 from fmu_greybox.workflow.train import train_model, with_inducing
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -145,7 +146,7 @@ def termed(tmp_path_factory: pytest.TempPathFactory) -> dict:
     config = with_inducing(load_config(ROOT / "bench_configs" / "hydraulic_actuator.toml"), 30)
     config = dataclasses.replace(config, gp=dataclasses.replace(config.gp, max_iter=15))
     recording = synth_recording(3.0, seed=21)
-    model = train_model(config, recording, terms=terms())
+    model = train_model(config, recording, terms=terms(), ship="terms+correctors")
     save_model(model, folder / "model")
     fmu = export_greybox(folder / "model", folder / "greybox.fmu", author="tests").path
     return {
@@ -154,7 +155,39 @@ def termed(tmp_path_factory: pytest.TempPathFactory) -> dict:
         "validation": synth_recording(1.0, 22),
         "recording": recording,
         "folder": folder,
+        "config": config,
+        "model": model,
     }
+
+
+def test_train_with_terms_compares_its_parts_on_held_out_rows(termed) -> None:
+    """Correctors alone, terms alone and both are free-run over the held-out rows; the
+    comparison is kept, ``best`` is the lowest score, and ``--ship terms`` writes the named
+    white-box with every corrector passed through."""
+    model, recording = termed["model"], termed["recording"]
+    parts = model.training["parts"]
+    assert parts["shipped"] == "terms+correctors"
+    assert parts["best"] == min(PARTS, key=parts["score"].__getitem__)
+    n = recording.n_samples
+    first = parts["held_out_rows"][0]
+    assert parts["held_out_rows"] == [first, n - 1]
+    with open_fmu(model.whitebox_fmu) as archive:
+        named_run = simulate_with_terms(
+            archive, INPUTS, input_rows(recording), DT, STAGE_OUTPUTS, terms(), stages=[0, 1, 2]
+        )
+    for q, stage in enumerate(model.chain.stage_names):
+        column = model.config.signals[model.chain.target_signals[q]].column
+        error = np.sqrt(np.mean((named_run[first:, q] - recording[column][first:]) ** 2))
+        assert parts["stages"][stage]["terms_rmse"] == pytest.approx(error, rel=1e-9)
+        row = parts["stages"][stage]
+        assert row["best"] == min(PARTS, key=lambda part: row[f"{part}_rmse"])
+    alone = train_model(termed["config"], recording, terms=terms(), ship="terms")
+    assert not alone.chain.active_.any() and alone.terms == terms()
+    assert alone.training["parts"]["score"] == pytest.approx(parts["score"], rel=1e-9)
+    plain = train_model(termed["config"], recording, terms=terms(), ship="correctors")
+    assert plain.terms == [] and plain.training["parts"]["shipped"] == "correctors"
+    with pytest.raises(ConfigError, match="'all' is not a part to ship"):
+        train_model(termed["config"], recording, terms=terms(), ship="all")
 
 
 def test_a_model_carries_its_terms_through_save_load_and_into_the_master(termed) -> None:
@@ -238,5 +271,8 @@ def test_train_command_folds_a_diagnosis_terms(termed, tmp_path: Path) -> None:
         ],
     )
     assert result.exit_code == 0, result.output
-    assert "named terms: coulomb_friction" in result.output
-    assert load_model(tmp_path / "model").terms == [terms()[1]]
+    model = load_model(tmp_path / "model")
+    parts = model.training["parts"]
+    assert f"best {parts['best']}; shipped {parts['best']}" in result.output
+    assert model.terms == ([] if parts["best"] == "correctors" else [terms()[1]])
+    assert ("named terms: coulomb_friction" in result.output) == bool(model.terms)

@@ -87,6 +87,21 @@ def test_coulomb_friction_raises_load_pressure_and_lowers_velocity(
     assert steady(truth, "ram_velocity") < steady(white, "ram_velocity")
 
 
+@pytest.mark.parametrize("current", [1.0, -1.0])
+def test_friction_asymmetry_is_stronger_extending(
+    simulate, whitebox_fmu: Path, truth_fmu: Path, current: float
+) -> None:
+    """F_c + F_a opposes extension, F_c - F_a retraction: the load pressure needed to move
+    rises by (F_c + sign(v) F_a) / A beside the white-box's."""
+    inputs = {"valve_current": current}
+    friction = {"coulomb_friction": 800.0, "friction_asymmetry": 300.0}
+    white = simulate(whitebox_fmu, 0.5, inputs=inputs)
+    truth = simulate(truth_fmu, 0.5, inputs=inputs, parameters=friction)
+    extra = steady(truth, "itfv_pressure") - steady(white, "itfv_pressure")
+    force = 800.0 + 300.0 if current > 0 else -(800.0 - 300.0)
+    assert extra == pytest.approx(force / PISTON_AREA, rel=0.02)
+
+
 def test_stribeck_friction_adds_breakaway_at_low_speed_only(simulate, truth_fmu: Path) -> None:
     coulomb = {"coulomb_friction": 500.0}
     stribeck = {**coulomb, "stribeck_friction": 1500.0, "stribeck_velocity": 0.01}

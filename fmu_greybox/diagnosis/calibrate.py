@@ -7,6 +7,13 @@ simulations of every candidate in an iteration runs at once on the :class:`~.run
 workers. Steps are Gauss-Newton directions with backtracking (two step lengths tried in
 parallel) inside the hypotheses' admissible ranges.
 
+A calibrator fits one **view** of the residual: the time-domain residual (optionally low-passed)
+or its **spectrum**: the log power spectral densities of every observed output, simulated
+against recorded, per frequency (:class:`SpectrumView`). The spectrum ignores phase, so a
+lightly damped mode whose frequency a parameter sets gives a smooth, single valley in it, where
+the time-domain misfit of the ringing is flat far from the right value and ripples near it
+(once simulated and recorded ringing drift out of phase, no local step helps).
+
 The covariance of the magnitudes is the larger of the Gauss-Newton one, ``s^2 (J^T J)^-1``
 inflated by the residual's integrated autocorrelation time (neighbouring samples of a
 model-error residual are not independent: the effective number of samples is ``N / tau``), and a
@@ -22,10 +29,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import filtfilt
+from scipy.signal import filtfilt, welch
 
 from fmu_greybox.diagnosis.hypotheses import Hypothesis
-from fmu_greybox.diagnosis.runner import Simulator
+from fmu_greybox.diagnosis.noise import Bands
+from fmu_greybox.diagnosis.runner import Experiment, Simulator
 from fmu_greybox.model.terms import Term
 
 
@@ -69,6 +77,68 @@ def autocorrelation_time(residual: np.ndarray, max_lag: int | None = None) -> fl
     return max(1.0, float(np.average(taus, weights=weights)))
 
 
+class SpectrumView:
+    """The spectrum view of a residual over the first ``rows`` rows of an experiment.
+
+    The residual is, per observed output and Welch frequency bin, ``w (log(S_sim + N) -
+    log(S_rec + N))``: ``S`` the power spectral densities (Welch, segments of
+    :data:`SEGMENT` samples, a quarter of the rows at most), ``N`` the sensor noise's density
+    (the recording carries it, the simulation does not), ``w`` the whitening gain against the
+    drift input noise drives (:class:`~.noise.DriftWhitening`): the simulation carries that
+    drift and the recording does not, so where it dominates (an integrating output's low
+    frequencies) a bin says nothing about the hypotheses and has no weight. Each is scaled by
+    the square root of the number of segments averaged, which makes it about unit variance.
+
+    Parameters
+    ----------
+    experiment : Experiment
+    rows : int
+    """
+
+    #: Longest Welch segment [samples]: wide bins (4 Hz at 1 kHz), so that a resonance
+    #: simulated at another frequency still overlaps the recorded one and the misfit slopes
+    #: towards it.
+    SEGMENT = 256
+
+    def __init__(self, experiment: Experiment, rows: int) -> None:
+        self.segment = max(8, min(self.SEGMENT, rows // 4))
+        self.fs = 1.0 / experiment.dt
+        freq, recorded = welch(experiment.recorded[:rows], fs=self.fs, nperseg=self.segment, axis=0)
+        self.white = 2.0 * experiment.dt * experiment.sigma**2
+        self.log_recorded = np.log(recorded + self.white)
+        scale = math.sqrt(max(1.0, 2.0 * rows / self.segment - 1.0))
+        self.weight = np.full(recorded.shape, scale)
+        whitening = experiment.whitening
+        if whitening is not None:
+            for j, ratio in enumerate(whitening.ratio.T):
+                self.weight[:, j] /= np.sqrt(1.0 + np.interp(freq, whitening.frequency, ratio))
+
+    def residual(self, simulated: np.ndarray) -> np.ndarray | None:
+        """The spectrum residual of a simulation of the rows, flattened (None if not finite)."""
+        _, power = welch(simulated, fs=self.fs, nperseg=self.segment, axis=0)
+        r = (np.log(power + self.white) - self.log_recorded) * self.weight
+        return r.ravel() if np.all(np.isfinite(r)) else None
+
+
+@dataclass
+class HeldOut:
+    """How a simulation fits the held-out rows.
+
+    Attributes
+    ----------
+    bands : Bands
+        Band powers of the residual (:meth:`~.runner.Experiment.bands`).
+    rms : ndarray, shape (n_observed,)
+        RMS of each observed signal's judged residual (noise-normalised, whitened against
+        input-noise drift: :meth:`~.runner.Experiment.residual`). For a signal without
+        input-noise drift it is its RMSE over its noise level; for an integrating one it is not
+        swayed by where the drift of its held-out part happens to wander.
+    """
+
+    bands: Bands
+    rms: np.ndarray
+
+
 @dataclass
 class Candidate:
     """Hypotheses with magnitudes, on top of fixed terms.
@@ -83,9 +153,8 @@ class Candidate:
         Terms already accepted, applied unchanged.
     cost : float
         Sum of squared normalised residuals over the training rows simulated.
-    heldout : ndarray, shape (n_observed,), or None
-        Mean squared normalised residual of each observed signal over the held-out rows
-        (``None`` unless simulated, or when no row is held out).
+    heldout : HeldOut or None
+        Fit over the held-out rows (``None`` unless simulated, or when no row is held out).
     simulated : ndarray or None
         The last simulation at ``theta``.
     cov : ndarray or None, shape (p, p)
@@ -96,7 +165,7 @@ class Candidate:
     theta: np.ndarray
     fixed: list[Term] = field(default_factory=list)
     cost: float = math.inf
-    heldout: np.ndarray | None = None
+    heldout: HeldOut | None = None
     simulated: np.ndarray | None = None
     cov: np.ndarray | None = None
     _step: float = 1.0
@@ -160,6 +229,8 @@ class Calibrator:
         Finite-difference step, in units of each magnitude's scale. A long step measures the
         trend of the misfit rather than the ripples left on it (what a first, screening step
         from "no effect" needs); a short one the local slope (what the last steps need).
+    spectrum : bool
+        Fit the spectrum view instead of the time-domain residual (``smoothing`` unused).
     """
 
     def __init__(
@@ -168,6 +239,7 @@ class Calibrator:
         rows: int,
         smoothing: float = 0.0,
         difference_step: float = 0.5,
+        spectrum: bool = False,
     ) -> None:
         self.simulator = simulator
         self.experiment = simulator.experiment
@@ -175,12 +247,15 @@ class Calibrator:
         self.fit_rows = min(rows, self.experiment.train_rows)
         self.smoothing = smoothing
         self.difference_step = difference_step
+        self.spectrum = SpectrumView(self.experiment, self.fit_rows) if spectrum else None
 
     # ------------------------------------------------------------------ residuals
     def residual(self, simulated: np.ndarray | None) -> np.ndarray | None:
         """Training-row residual vector of a simulation (None if the FMU failed)."""
         if simulated is None:
             return None
+        if self.spectrum is not None:
+            return self.spectrum.residual(simulated[: self.fit_rows])
         r = self.experiment.residual(simulated[: self.fit_rows])
         if not np.all(np.isfinite(r)):
             return None
@@ -189,13 +264,15 @@ class Calibrator:
             r = filtfilt([1.0 - a], [1.0, -a], r, axis=0)
         return r.ravel()
 
-    def heldout_cost(self, simulated: np.ndarray) -> np.ndarray | None:
-        """Mean squared normalised residual of each observed signal over the held-out rows
-        simulated, shape (n_observed,); ``None`` when none is."""
+    def heldout(self, simulated: np.ndarray) -> HeldOut | None:
+        """The fit over the held-out rows simulated; ``None`` when none is."""
         rest = simulated[self.fit_rows :]
-        if rest.shape[0] == 0:
+        if rest.shape[0] < 2:
             return None
-        return np.mean(self.experiment.residual(rest, self.fit_rows) ** 2, axis=0)
+        judged = self.experiment.residual(rest, self.fit_rows)
+        return HeldOut(
+            self.experiment.bands(rest, self.fit_rows), np.sqrt(np.mean(judged**2, axis=0))
+        )
 
     def evaluate(self, candidates: Sequence[Candidate]) -> None:
         """Simulate every candidate at its magnitudes and store cost and simulation."""
@@ -210,7 +287,7 @@ class Calibrator:
         c.theta = np.array(theta, dtype=np.float64)
         c.cost = float(np.dot(r, r))
         c.simulated = sim
-        c.heldout = self.heldout_cost(sim)
+        c.heldout = self.heldout(sim)
         return True
 
     # ------------------------------------------------------------------ sensitivities

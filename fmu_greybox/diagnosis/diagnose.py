@@ -30,7 +30,7 @@ from fmu_greybox.diagnosis.findings import (
     Finding,
     named_findings,
     none_finding,
-    stage_energy,
+    stage_structure,
     unexplained_finding,
 )
 from fmu_greybox.diagnosis.hypotheses import DataScales, generate_hypotheses
@@ -46,6 +46,7 @@ from fmu_greybox.model.terms import ViscousForce
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import check_step, whitebox_path
 from fmu_greybox.workflow.metrics import improvement, rmse
+from fmu_greybox.workflow.parts import compare_parts
 
 #: Largest share of a recording used for training in a diagnosis.
 MAX_TRAIN_FRACTION = 0.8
@@ -109,7 +110,12 @@ class Diagnosis:
         ``greybox`` / ``greybox_std`` of the stage targets on the held-out rows, shape
         (n_heldout, Q).
     fit_ : dict[str, dict[str, float]]
-        Stage -> ``wb_rmse``, ``named_rmse``, ``gb_rmse`` and improvements, on held-out rows.
+        Stage -> ``wb_rmse``, ``named_rmse``, ``gb_rmse`` and improvements, on held-out rows;
+        with the grey-box also ``correctors_rmse`` (correctors on the plain white-box) and
+        ``best`` (of the three parts, :mod:`fmu_greybox.workflow.parts`).
+    parts_ : PartsComparison or None
+        The correctors alone, the named terms alone and both on the held-out rows (``None``
+        without the grey-box or without named terms).
     timings_ : dict[str, float]
         Seconds per step.
     """
@@ -178,6 +184,8 @@ class Diagnosis:
             wb = experiment.simulate([])
             if wb is None:
                 raise ConfigError("the white-box FMU fails on this recording's inputs")
+            self.progress("estimating the noise")
+            experiment.estimate_noise(wb)
             signals.assign_stages(wb, experiment.dt)
             experiment.stages = signals.observed_stages
             self.signals_, self.experiment_ = signals, experiment
@@ -208,8 +216,8 @@ class Diagnosis:
     def _locate(self, recording: Recording, wb: np.ndarray) -> None:
         self.progress("locating the residual")
         columns = {c: recording[c] for c in recording.names}
-        regimes = regime_signals(self.signals_, columns, recording.dt)
-        self.locator_ = Locator().fit(self.experiment_, self.signals_, wb, regimes)
+        self.regimes_ = regime_signals(self.signals_, columns, recording.dt)
+        self.locator_ = Locator().fit(self.experiment_, self.signals_, wb, self.regimes_)
 
     def _name(self, archive: FmuArchive, signals: SignalMap, experiment: Experiment) -> np.ndarray:
         self.progress("generating hypotheses")
@@ -240,7 +248,10 @@ class Diagnosis:
         experiment = self.experiment_
         found: list[Finding] = []
         if self.selection_ is not None and self.selection_.selected_.hypotheses:
-            found = named_findings(experiment, self.selection_.selected_, self.prefixes_, stages)
+            units = {s.column: s.unit for s in self.config.signals.values()}
+            found = named_findings(
+                experiment, self.selection_, self.prefixes_, stages, self.regimes_, units
+            )
         rest = experiment.residual(named[experiment.train_rows :], experiment.train_rows)
         wb = self.simulated_["whitebox"]
         for stage in stages:
@@ -248,8 +259,8 @@ class Diagnosis:
             if not cols or not stage.significant:
                 continue
             ratio = float(np.max(np.sqrt(np.mean(rest[:, cols] ** 2, axis=0))))
-            before = stage_energy(experiment, wb, stage.index)
-            remaining = stage_energy(experiment, named, stage.index) / before if before else 0.0
+            before, after = stage_structure(experiment, wb, named, stage.index)
+            remaining = after / before if before else 0.0
             if not found or (ratio > 2.0 and remaining > 0.2):
                 j = cols[0]
                 sig = self.signals_.observed[j]
@@ -270,9 +281,20 @@ class Diagnosis:
         wb = self.simulated_["whitebox"][:, targets]
         named = self.simulated_["named"][:, targets]
         gb, gb_std = named[train:], np.zeros_like(named[train:])
+        self.parts_ = None
         if self.greybox is not None:
             self.progress("training the grey-box on the named model")
             gb, gb_std = self._greybox(recording, named, recorded, train)
+        if self.greybox is not None and self.simulated_["named"] is not self.simulated_["whitebox"]:
+            self.progress("training the grey-box on the white-box (correctors alone)")
+            alone, _ = self._greybox(recording, wb, recorded, train)
+            self.parts_ = compare_parts(
+                names,
+                recorded[train:],
+                {"correctors": alone, "terms": named[train:], "terms+correctors": gb},
+                {name: float(np.std(recorded[:train, q])) for q, name in enumerate(names)},
+                train,
+            )
         self.simulated_["greybox"], self.simulated_["greybox_std"] = gb, gb_std
         for q, name in enumerate(names):
             rec = recorded[train:, q]
@@ -285,6 +307,9 @@ class Diagnosis:
             }
             row["named_improvement"] = improvement(row["wb_rmse"], row["named_rmse"])
             row["gb_improvement"] = improvement(row["wb_rmse"], row["gb_rmse"])
+            if self.parts_ is not None:
+                row["correctors_rmse"] = self.parts_.stages[name]["correctors_rmse"]
+                row["best"] = self.parts_.stages[name]["best"]
             self.fit_[name] = row
 
     def _greybox(
@@ -309,8 +334,9 @@ def data_scales(
 ) -> DataScales:
     """Typical signal sizes: recorded inputs, and every FMU output simulated over a window.
 
-    Also finds, for every force input and velocity output, whether a positive input force
-    opposes positive velocity (a small viscous probe through the FMU).
+    Also finds, for every force input and velocity output (and position output, through its
+    rate), whether a positive input force opposes positive velocity (a small viscous probe
+    through the FMU).
     """
     rows = min(rows, experiment.n_samples)
     outputs = real_outputs(archive)
@@ -330,19 +356,38 @@ def data_scales(
 
     y = run([])
     output_rms = {name: float(np.sqrt(np.mean(y[:, j] ** 2))) for j, name in enumerate(outputs)}
+    rates = {
+        name: np.gradient(y[:, outputs.index(name)], experiment.dt)
+        for name in signals.outputs_with_role("position")
+        if name in outputs
+    }
     input_rms = {
         name: float(np.sqrt(np.mean(experiment.u[:, j] ** 2)))
         for j, name in enumerate(experiment.inputs)
     }
     sense: dict[tuple[str, str], float] = {}
+    sources = [(v, y[:, outputs.index(v)], False) for v in signals.outputs_with_role("velocity")]
+    sources += [(p, rate, True) for p, rate in rates.items()]
     for force in signals.inputs_with_role("force"):
-        for velocity in signals.outputs_with_role("velocity"):
-            j = outputs.index(velocity)
-            v_rms = output_rms.get(velocity, 0.0)
+        for source, velocity, rate in sources:
+            v_rms = float(np.sqrt(np.mean(velocity**2)))
             if v_rms <= 0:
                 continue
             c = 0.05 * max(input_rms.get(force, 0.0), 1e-12) / v_rms
-            probe = run([ViscousForce(input=force, source=velocity, coefficient=c)])
-            change = float(np.dot(y[:, j], probe[:, j] - y[:, j]))
-            sense[(force, velocity)] = 1.0 if change <= 0 else -1.0
-    return DataScales(input_rms, output_rms, experiment.dt, sense)
+            probe = run([ViscousForce(input=force, source=source, coefficient=c, rate=rate)])
+            j = outputs.index(source)
+            moved = probe[:, j] - y[:, j]
+            change = float(np.dot(velocity, np.gradient(moved, experiment.dt) if rate else moved))
+            sense[(force, source)] = 1.0 if change <= 0 else -1.0
+    return DataScales(
+        input_rms,
+        output_rms,
+        experiment.dt,
+        sense,
+        input_span={
+            name: (float(np.min(experiment.u[:, j])), float(np.max(experiment.u[:, j])))
+            for j, name in enumerate(experiment.inputs)
+        },
+        output_start={name: float(y[0, j]) for j, name in enumerate(outputs)},
+        rate_rms={name: float(np.sqrt(np.mean(rate**2))) for name, rate in rates.items()},
+    )

@@ -14,10 +14,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fmu_greybox.diagnosis.calibrate import Candidate
-from fmu_greybox.diagnosis.hypotheses import Hypothesis
-from fmu_greybox.diagnosis.locate import SIGNIFICANT_STRUCTURE, Regime, StageResidual
+from fmu_greybox.diagnosis.alternatives import separation
+from fmu_greybox.diagnosis.hypotheses import Hypothesis, quantity
+from fmu_greybox.diagnosis.locate import Regime, StageResidual
+from fmu_greybox.diagnosis.noise import SIGNIFICANT_STRUCTURE, structure_left
 from fmu_greybox.diagnosis.runner import Experiment
+from fmu_greybox.diagnosis.select import ForwardSelection, Round
 
 #: A correction "changes" a stage when it moves one of its signals by this many noise levels
 #: (RMS): the structure that makes a residual significant.
@@ -42,8 +44,9 @@ class Finding:
     magnitude : dict or None
         ``value``, ``unit``, ``ci95`` ([low, high]) of the main magnitude.
     explained_fraction : float or None
-        Share of the stage's residual energy it explains: of the white-box's for the first
-        finding kept, of what the earlier findings left for the others.
+        Share of the stage's residual structure it explains (whitened power beyond noise,
+        :func:`stage_structure`): of the white-box's for the first finding kept, of what the
+        earlier findings left for the others.
     where : list of dict
         Regimes and time windows where the stage's residual concentrates.
     details : dict
@@ -125,56 +128,126 @@ def best_explained_signal(
     return experiment.outputs[j], float(share[j])
 
 
-def stage_energy(experiment: Experiment, simulated: np.ndarray, stage: int) -> float:
-    """Sum of squared normalised residuals of a stage's signals over the whole recording."""
+def stage_structure(
+    experiment: Experiment, before: np.ndarray, after: np.ndarray, stage: int
+) -> tuple[float, float]:
+    """Structure of a stage's signals before and after a change: whitened power beyond noise
+    in the frequency bands where either leaves structure beyond chance
+    (:func:`~.noise.structure_left`), over the whole recording."""
     cols = [j for j, s in enumerate(experiment.stages) if s == stage]
-    r = experiment.residual(simulated)[:, cols]
-    return float(np.sum(r**2))
+    new, old, _ = structure_left(experiment.bands(after), experiment.bands(before))
+    return float(np.sum(old[cols])), float(np.sum(new[cols]))
 
 
 def named_findings(
     experiment: Experiment,
-    selected: Candidate,
+    selection: ForwardSelection,
     prefixes: list[np.ndarray],
     stages: list[StageResidual],
+    regimes: dict[str, dict[str, np.ndarray]],
+    units: dict[str, str],
 ) -> list[Finding]:
-    """Findings of the kept hypotheses, best first.
+    """Findings of the kept hypotheses, best first, each with its alternatives.
 
     Parameters
     ----------
     experiment : Experiment
-    selected : Candidate
-        Kept hypotheses with joint magnitudes and covariance.
+    selection : ForwardSelection
+        Fitted: its kept hypotheses with joint magnitudes and covariance, and its rounds with
+        the alternatives of each.
     prefixes : list of ndarray
         Simulations with the first ``i`` kept hypotheses, ``i = 0 .. m`` (0: white-box).
     stages : list of StageResidual
         The white-box residual statistics (for ``where``).
+    regimes : dict
+        Regime kind -> {recorded signal: values}, to tell alternatives apart
+        (:func:`~.alternatives.separation`).
+    units : dict[str, str]
+        Recorded signal -> unit.
 
     Returns
     -------
     list of Finding
     """
-    names = [s.name for s in stages]
+    selected = selection.selected_
     total = [float(np.sum(experiment.residual(p) ** 2)) for p in prefixes]
     ci = selected.ci95
     offsets = np.cumsum([0] + [h.n_params for h in selected.hypotheses])
+    rounds = {r.accepted: r for r in selection.rounds_ if r.accepted}
     found = []
     for i, (h, theta) in enumerate(zip(selected.hypotheses, selected.split(), strict=True)):
         before, after = prefixes[i], prefixes[i + 1]
-        stage = stage_changed(experiment, before, after)
-        stage = h.entry if stage is None else stage
-        left = stage_energy(experiment, before, stage)
-        explained = (left - stage_energy(experiment, after, stage)) / left if left > 0 else 0.0
         k = offsets[i]
-        best = best_explained_signal(experiment, before, after)
-        if best is not None and best[1] < max(explained, 0.0) + MENTION_MARGIN:
-            best = None
-        finding = _named(
-            h, theta, ci[k : k + h.n_params], names[stage], explained, stages[stage], i > 0, best
+        finding = _finding(
+            experiment, stages, h, theta, ci[k : k + h.n_params], before, after, i > 0
         )
+        round_ = rounds.get(h.key)
+        if round_ is not None and round_.alternatives:
+            _add_alternatives(finding, experiment, stages, round_, before, after, regimes, units)
         found.append(((total[i] - total[i + 1]) / total[0] if total[0] > 0 else 0.0, finding))
     found.sort(key=lambda pair: -pair[0])
     return [f for _, f in found]
+
+
+def _finding(
+    experiment: Experiment,
+    stages: list[StageResidual],
+    h: Hypothesis,
+    theta: np.ndarray,
+    ci: np.ndarray,
+    before: np.ndarray,
+    after: np.ndarray,
+    after_others: bool = False,
+) -> Finding:
+    """The finding of one hypothesis at ``theta``: simulated ``before`` and ``after`` it
+    (``after_others``: after the findings kept before it)."""
+    stage = stage_changed(experiment, before, after)
+    stage = h.entry if stage is None else stage
+    left, remains = stage_structure(experiment, before, after, stage)
+    explained = (left - remains) / left if left > 0 else 0.0
+    best = best_explained_signal(experiment, before, after)
+    if best is not None and best[1] < max(explained, 0.0) + MENTION_MARGIN:
+        best = None
+    return _named(h, theta, ci, stages[stage].name, explained, stages[stage], after_others, best)
+
+
+def _add_alternatives(
+    finding: Finding,
+    experiment: Experiment,
+    stages: list[StageResidual],
+    round_: Round,
+    before: np.ndarray,
+    after: np.ndarray,
+    regimes: dict[str, dict[str, np.ndarray]],
+    units: dict[str, str],
+) -> None:
+    """Attach a round's alternatives to its accepted finding (``alternatives``, each with the
+    fields of a finding, its margins and what separates it) and say so in the summary."""
+    scores = {entry["key"]: entry for entry in round_.refined}
+    alternatives, names = [], []
+    for c in round_.alternatives:
+        h, theta = c.hypotheses[-1], c.split()[-1]
+        alt = _finding(experiment, stages, h, theta, c.ci95[-h.n_params :], before, c.simulated)
+        margins = scores[h.key]["alternative"]
+        apart = separation(experiment, regimes, units, after, c.simulated)
+        alternatives.append(
+            {
+                **alt.to_dict(),
+                **margins,
+                "separation": None if apart is None else apart.to_dict(),
+            }
+        )
+        magnitude = alt.magnitude or {}
+        shown = quantity(magnitude.get("value", math.nan), magnitude.get("unit", ""))
+        where = (
+            ""
+            if apart is None
+            else f" (they differ most where {apart.label}: record {apart.advice} to tell "
+            "them apart)"
+        )
+        names.append(f"{named_physics(alt.to_dict())} of {shown}{where}")
+    finding.details["alternatives"] = alternatives
+    finding.summary = f"{finding.summary} Equally consistent with {'; '.join(names)}."
 
 
 def _named(
@@ -264,7 +337,7 @@ def unexplained_finding(
         summary=(
             f"Structure remains in the {stage.name} residual that no hypothesis explains: after "
             f"{named} its RMS is {noise_ratio:.3g} times the sensor noise on held-out data "
-            f"({100 * remaining:.0f} % of the white-box residual energy remains)."
+            f"({100 * remaining:.0f} % of the white-box residual structure remains)."
         ),
         magnitude={"value": rms, "unit": unit, "ci95": None},
         explained_fraction=None if math.isnan(remaining) else max(0.0, 1.0 - remaining),

@@ -8,10 +8,13 @@ found in a sentence.
 
 :func:`generate_hypotheses` builds the vocabulary for a project from signal roles and the FMU's
 declarations only: every tunable Real parameter; at command inputs (current or voltage) a gain
-error, an offset, a deadband and a delay, acting either at the input or only downstream of the
-stage the input drives; at force inputs a missing Coulomb, viscous or Stribeck force fed back
-from each velocity output; at pressure inputs a droop with each flow output; a delay of every
-sensor.
+error, an offset, a deadband, a delay and a play (hysteresis), acting either at the input or only
+downstream of the stage the input drives, and a saturation (symmetric or not); at force inputs a
+constant force, a spring from each position output, and a missing Coulomb (symmetric or
+stronger in one direction), viscous or Stribeck force fed back from each velocity output (from
+the rate of each position output when the FMU has no velocity output); at pressure inputs a
+droop with each flow output; a delay of every sensor together, and a gain error, an offset and a
+delay of each observed signal's sensor alone.
 """
 
 from __future__ import annotations
@@ -29,12 +32,19 @@ from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.model.terms import (
     CoulombForce,
     FlowDroop,
+    ForceOffset,
     InputDeadband,
     InputDelay,
     InputGain,
+    InputHysteresis,
     InputOffset,
+    InputSaturation,
     ParameterChange,
+    SensorChannelDelay,
     SensorDelay,
+    SensorGain,
+    SensorOffset,
+    SpringForce,
     StribeckForce,
     Term,
     ViscousForce,
@@ -83,7 +93,7 @@ class Hypothesis(ABC):
     scale : tuple of float
         Typical size of each magnitude (sets finite-difference steps and conditioning).
     lower, upper : tuple of float
-        Admissible range of each magnitude.
+        Admissible range of each magnitude (one value stands for every magnitude).
     """
 
     entry: int = field(default=0, kw_only=True)
@@ -95,6 +105,11 @@ class Hypothesis(ABC):
     effect = ""
     #: Names of the magnitudes.
     names: ClassVar[tuple[str, ...]] = ("value",)
+
+    def __post_init__(self) -> None:
+        n = len(self.scale)
+        self.lower = self.lower * n if len(self.lower) == 1 else self.lower
+        self.upper = self.upper * n if len(self.upper) == 1 else self.upper
 
     @property
     def n_params(self) -> int:
@@ -137,7 +152,7 @@ class Hypothesis(ABC):
         return {}
 
 
-def _fmt(value: float, unit: str = "") -> str:
+def quantity(value: float, unit: str = "") -> str:
     """A number with 2-3 significant digits and its unit."""
     text = f"{value:.3g}" if abs(value) >= 1e-3 and abs(value) < 1e5 else f"{value:.2e}"
     return f"{text} {unit}".strip() if unit and unit != "1" else text
@@ -187,7 +202,7 @@ class ParameterMismatch(Hypothesis):
         physics = f" ({self.physics.replace('_', ' ')})" if self.physics else ""
         return (
             f"Parameter {self.name}{physics} is about {abs(100 * change):.3g} % {direction} "
-            f"than set: {_fmt(value, self.unit)} instead of {_fmt(self.nominal, self.unit)}"
+            f"than set: {quantity(value, self.unit)} instead of {quantity(self.nominal, self.unit)}"
         )
 
     def extra(self, theta: np.ndarray) -> dict:
@@ -262,7 +277,7 @@ class Offset(_CommandHypothesis):
 
     def phrase(self, theta: np.ndarray) -> str:
         return (
-            f"An offset (null bias) of about {_fmt(float(theta[0]), self.unit)} acts on "
+            f"An offset (null bias) of about {quantity(float(theta[0]), self.unit)} acts on "
             f"{self.input}{self._path()}"
         )
 
@@ -283,7 +298,7 @@ class Deadband(_CommandHypothesis):
 
     def phrase(self, theta: np.ndarray) -> str:
         return (
-            f"A deadband of about +/-{_fmt(float(theta[0]), self.unit)} of {self.input} is "
+            f"A deadband of about +/-{quantity(float(theta[0]), self.unit)} of {self.input} is "
             f"missing{self._path()}"
         )
 
@@ -309,29 +324,123 @@ class CommandDelay(_CommandHypothesis):
         )
 
 
+@dataclass
+class Hysteresis(_CommandHypothesis):
+    """A play of total width ``w`` between the command and what acts (hysteresis of a valve,
+    backlash in a command path): the acting value follows only once the command has moved
+    ``w / 2`` past it."""
+
+    effect = "hysteresis"
+    names = ("width",)
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return (self.unit,)
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [InputHysteresis(input=self.input, width=float(theta[0]), entry=self.entry)]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        return (
+            f"A play (hysteresis or backlash) of about {quantity(float(theta[0]), self.unit)} in "
+            f"total acts on {self.input}{self._path()}"
+        )
+
+
+@dataclass
+class Saturation(_CommandHypothesis):
+    """What acts is limited to ``+/- limit`` (an amplifier that saturates); ``theta`` is the
+    limit, and "no effect" is the largest recorded magnitude."""
+
+    effect = "saturation"
+    names = ("limit",)
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return (self.unit,)
+
+    def start(self) -> np.ndarray:
+        return self.clip(np.array(self.upper, dtype=np.float64))
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        limit = abs(float(theta[0]))
+        return [InputSaturation(input=self.input, lower=-limit, upper=limit, entry=self.entry)]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        return (
+            f"{self.input} saturates at about +/-{quantity(abs(float(theta[0])), self.unit)}"
+            f"{self._path()}"
+        )
+
+
+@dataclass
+class AsymmetricSaturation(_CommandHypothesis):
+    """What acts is limited to ``[lower, upper]``; "no effect" is the recorded range."""
+
+    effect = "saturation"
+    names = ("upper", "lower")
+
+    @property
+    def key(self) -> str:
+        return f"{super().key}+asymmetric"
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return (self.unit, self.unit)
+
+    def start(self) -> np.ndarray:
+        return self.clip(np.array([self.upper[0], self.lower[1]], dtype=np.float64))
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        upper, lower = float(theta[0]), float(theta[1])
+        return [InputSaturation(input=self.input, lower=lower, upper=upper, entry=self.entry)]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        return (
+            f"{self.input} saturates at about {quantity(float(theta[0]), self.unit)} and "
+            f"{quantity(float(theta[1]), self.unit)}{self._path()}"
+        )
+
+
 # ---------------------------------------------------------------------------- forces
 @dataclass
 class _ForceHypothesis(Hypothesis):
-    """A force missing at a force input, a function of a velocity output fed back."""
+    """A missing force at a force input, a function of a velocity output fed back (or, with
+    ``rate``, of the rate of a position output: for an FMU without a velocity output)."""
 
     input: str = ""
     velocity: str = ""
     force_unit: str = ""
     velocity_unit: str = ""
     smoothing: float = 1e-3
+    rate: bool = False
     #: +1 when a positive input force opposes positive velocity, -1 when it aids it.
     opposes: float = 1.0
 
     @property
+    def source(self) -> str:
+        """The velocity fed back, in words."""
+        return f"d/dt {self.velocity}" if self.rate else self.velocity
+
+    @property
     def key(self) -> str:
-        return f"{self.effect}@{self.input}({self.velocity})"
+        return f"{self.effect}@{self.input}({self.source})"
 
     @property
     def location(self) -> str:
-        return f"input {self.input}, fed back from {self.velocity}"
+        return f"input {self.input}, fed back from {self.source}"
 
     def _sense(self, value: float) -> str:
         return "opposing" if value * self.opposes >= 0 else "aiding"
+
+    def _feedback(self) -> dict:
+        """Fields every feedback term of this hypothesis takes."""
+        return {
+            "input": self.input,
+            "source": self.velocity,
+            "rate": self.rate,
+            "entry": self.entry,
+        }
 
 
 @dataclass
@@ -346,21 +455,48 @@ class CoulombFriction(_ForceHypothesis):
         return (self.force_unit,)
 
     def terms(self, theta: np.ndarray) -> list[Term]:
-        return [
-            CoulombForce(
-                input=self.input,
-                source=self.velocity,
-                force=float(theta[0]),
-                smoothing=self.smoothing,
-                entry=self.entry,
-            )
-        ]
+        return [CoulombForce(**self._feedback(), force=float(theta[0]), smoothing=self.smoothing)]
 
     def phrase(self, theta: np.ndarray) -> str:
         f = float(theta[0])
         return (
-            f"A Coulomb-like friction force of about {_fmt(abs(f), self.force_unit)} "
-            f"{self._sense(f)} {self.velocity} is missing"
+            f"A Coulomb-like friction force of about {quantity(abs(f), self.force_unit)} "
+            f"{self._sense(f)} {self.source} is missing"
+        )
+
+
+@dataclass
+class AsymmetricCoulombFriction(_ForceHypothesis):
+    """A Coulomb force of different magnitudes in the two directions of motion:
+    ``force + asymmetry`` while the velocity is positive, ``force - asymmetry`` while negative."""
+
+    effect = "coulomb_friction"
+    names = ("force", "asymmetry")
+
+    @property
+    def key(self) -> str:
+        return f"{super().key}+asymmetric"
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return (self.force_unit, self.force_unit)
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [
+            CoulombForce(
+                **self._feedback(),
+                force=float(theta[0]),
+                asymmetry=float(theta[1]),
+                smoothing=self.smoothing,
+            )
+        ]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        f, a = float(theta[0]), float(theta[1])
+        return (
+            f"A Coulomb-like friction force stronger in one direction is missing: about "
+            f"{quantity(abs(f + a), self.force_unit)} {self._sense(f + a)} positive {self.source}, "
+            f"{quantity(abs(f - a), self.force_unit)} {self._sense(f - a)} negative"
         )
 
 
@@ -376,20 +512,13 @@ class ViscousFriction(_ForceHypothesis):
         return (f"{self.force_unit}/({self.velocity_unit})",)
 
     def terms(self, theta: np.ndarray) -> list[Term]:
-        return [
-            ViscousForce(
-                input=self.input,
-                source=self.velocity,
-                coefficient=float(theta[0]),
-                entry=self.entry,
-            )
-        ]
+        return [ViscousForce(**self._feedback(), coefficient=float(theta[0]))]
 
     def phrase(self, theta: np.ndarray) -> str:
         c = float(theta[0])
         return (
-            f"A viscous force of about {_fmt(abs(c), self.units[0])} {self._sense(c)} "
-            f"{self.velocity} is missing"
+            f"A viscous force of about {quantity(abs(c), self.units[0])} {self._sense(c)} "
+            f"{self.source} is missing"
         )
 
 
@@ -407,12 +536,10 @@ class StribeckFriction(_ForceHypothesis):
     def terms(self, theta: np.ndarray) -> list[Term]:
         return [
             StribeckForce(
-                input=self.input,
-                source=self.velocity,
+                **self._feedback(),
                 force=float(theta[0]),
                 velocity=max(float(theta[1]), 1e-12),
                 smoothing=self.smoothing,
-                entry=self.entry,
             )
         ]
 
@@ -422,9 +549,87 @@ class StribeckFriction(_ForceHypothesis):
     def phrase(self, theta: np.ndarray) -> str:
         f = float(theta[0])
         return (
-            f"A breakaway (Stribeck) friction force of about {_fmt(abs(f), self.force_unit)} "
-            f"{self._sense(f)} {self.velocity}, fading above "
-            f"{_fmt(float(theta[1]), self.velocity_unit)}, is missing"
+            f"A breakaway (Stribeck) friction force of about {quantity(abs(f), self.force_unit)} "
+            f"{self._sense(f)} {self.source}, fading above "
+            f"{quantity(float(theta[1]), self.velocity_unit)}, is missing"
+        )
+
+
+@dataclass
+class ConstantForce(Hypothesis):
+    """A constant force on a force input that the recording does not show (a load offset)."""
+
+    input: str = ""
+    force_unit: str = ""
+    effect = "force_offset"
+    names = ("force",)
+
+    @property
+    def key(self) -> str:
+        return f"{self.effect}@{self.input}"
+
+    @property
+    def location(self) -> str:
+        return f"input {self.input}"
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return (self.force_unit,)
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [ForceOffset(input=self.input, offset=float(theta[0]), entry=self.entry)]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        return (
+            f"A constant force of about {quantity(float(theta[0]), self.force_unit)} on "
+            f"{self.input} is missing"
+        )
+
+
+@dataclass
+class Stiffness(Hypothesis):
+    """A force proportional to a position output, on a force input (a spring the white-box
+    leaves out), relaxed at the position's initial value ``rest``."""
+
+    input: str = ""
+    position: str = ""
+    force_unit: str = ""
+    position_unit: str = ""
+    rest: float = 0.0
+    #: +1 when a positive input force opposes positive motion, -1 when it aids it.
+    opposes: float = 1.0
+    effect = "stiffness"
+    names = ("coefficient",)
+
+    @property
+    def key(self) -> str:
+        return f"{self.effect}@{self.input}({self.position})"
+
+    @property
+    def location(self) -> str:
+        return f"input {self.input}, fed back from {self.position}"
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return (f"{self.force_unit}/{self.position_unit}",)
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [
+            SpringForce(
+                input=self.input,
+                source=self.position,
+                coefficient=float(theta[0]),
+                rest=self.rest,
+                entry=self.entry,
+            )
+        ]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        k = float(theta[0])
+        sense = "restoring" if k * self.opposes >= 0 else "destabilising"
+        return (
+            f"A {sense} spring of about {quantity(abs(k), self.units[0])} from {self.position} "
+            f"onto {self.input} is missing"
         )
 
 
@@ -462,7 +667,7 @@ class SupplyDroop(Hypothesis):
     def phrase(self, theta: np.ndarray) -> str:
         return (
             f"{self.input} droops with {self.flow}: a line resistance of about "
-            f"{_fmt(float(theta[0]), self.units[0])}"
+            f"{quantity(float(theta[0]), self.units[0])}"
         )
 
 
@@ -494,6 +699,80 @@ class SensorLag(Hypothesis):
         return f"The sensors report about {1e3 * float(theta[0]):.3g} ms late"
 
 
+@dataclass
+class _SensorHypothesis(Hypothesis):
+    """A fault of the sensor of one observed output alone."""
+
+    output: str = ""
+    unit: str = ""
+
+    @property
+    def key(self) -> str:
+        return f"{self.effect}@{self.output}"
+
+    @property
+    def location(self) -> str:
+        return f"sensor of {self.output}"
+
+
+@dataclass
+class SensorGainError(_SensorHypothesis):
+    """The sensor reads ``1 + g`` times the output."""
+
+    effect = "sensor_gain"
+    names = ("gain_error",)
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return ("1",)
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [SensorGain(output=self.output, gain=float(theta[0]), entry=self.entry)]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        g = float(theta[0])
+        high = "high" if g > 0 else "low"
+        return f"The sensor of {self.output} reads about {abs(100 * g):.3g} % {high}"
+
+
+@dataclass
+class SensorBias(_SensorHypothesis):
+    """The sensor reads the output plus a constant."""
+
+    effect = "sensor_offset"
+    names = ("offset",)
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return (self.unit,)
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [SensorOffset(output=self.output, offset=float(theta[0]), entry=self.entry)]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        return (
+            f"The sensor of {self.output} is offset by about {quantity(float(theta[0]), self.unit)}"
+        )
+
+
+@dataclass
+class SensorChannelLag(_SensorHypothesis):
+    """The sensor of one output reports late (the others on time)."""
+
+    effect = "sensor_delay"
+    names = ("delay",)
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return ("s",)
+
+    def terms(self, theta: np.ndarray) -> list[Term]:
+        return [SensorChannelDelay(output=self.output, delay=float(theta[0]), entry=self.entry)]
+
+    def phrase(self, theta: np.ndarray) -> str:
+        return f"The sensor of {self.output} reports about {1e3 * float(theta[0]):.3g} ms late"
+
+
 # ---------------------------------------------------------------------------- vocabulary
 @dataclass(frozen=True)
 class DataScales:
@@ -508,14 +787,23 @@ class DataScales:
     dt : float
         Sample time [s].
     force_sense : dict[tuple[str, str], float]
-        (force input, velocity output) -> +1 when a positive input force opposes positive
-        velocity, -1 when it aids it.
+        (force input, velocity or position output) -> +1 when a positive input force opposes
+        positive velocity (of the position), -1 when it aids it.
+    input_span : dict[str, tuple[float, float]]
+        FMU input -> least and largest recorded value.
+    output_start : dict[str, float]
+        FMU output -> its white-box value at the start.
+    rate_rms : dict[str, float]
+        Position output -> RMS of the rate of its white-box prediction.
     """
 
     input_rms: dict[str, float]
     output_rms: dict[str, float]
     dt: float
     force_sense: dict[tuple[str, str], float] = field(default_factory=dict)
+    input_span: dict[str, tuple[float, float]] = field(default_factory=dict)
+    output_start: dict[str, float] = field(default_factory=dict)
+    rate_rms: dict[str, float] = field(default_factory=dict)
 
 
 def generate_hypotheses(
@@ -543,16 +831,7 @@ def generate_hypotheses(
     hypotheses += _command_hypotheses(signals, scales)
     hypotheses += _force_hypotheses(signals, scales)
     hypotheses += _droop_hypotheses(signals, scales)
-    if signals.observed:
-        dt = scales.dt
-        hypotheses.append(
-            SensorLag(
-                outputs=tuple(signals.observed_variables),
-                scale=(2 * dt,),
-                lower=(0.0,),
-                upper=(50 * dt,),
-            )
-        )
+    hypotheses += _sensor_hypotheses(signals, scales)
     return hypotheses
 
 
@@ -619,41 +898,99 @@ def _command_hypotheses(signals: SignalMap, scales: DataScales) -> list[Hypothes
                 Offset(**common, scale=(0.02 * rms,)),
                 Deadband(**common, scale=(0.02 * rms,), lower=(0.0,), upper=(10 * rms,)),
                 CommandDelay(**common, scale=(2 * dt,), lower=(0.0,), upper=(50 * dt,)),
+                Hysteresis(**common, scale=(0.02 * rms,), lower=(0.0,), upper=(2 * rms,)),
             ]
+        found += _saturations(name, unit, stage, scales.input_span.get(name, (0.0, 0.0)))
+    return found
+
+
+def _saturations(name: str, unit: str, stage: int, span: tuple[float, float]) -> list[Hypothesis]:
+    """Saturations of a command input whose recorded values span ``span``: "no effect" is the
+    recorded range, the limits may come down to a twentieth of it."""
+    low, high = span
+    largest = max(abs(low), abs(high))
+    if largest <= 0:
+        return []
+    common = {"input": name, "unit": unit, "entry": stage}
+    found: list[Hypothesis] = [
+        Saturation(**common, scale=(0.1 * largest,), lower=(0.05 * largest,), upper=(largest,))
+    ]
+    if low < 0 < high:
+        found.append(
+            AsymmetricSaturation(
+                **common,
+                scale=(0.1 * high, 0.1 * -low),
+                lower=(0.05 * high, low),
+                upper=(high, 0.05 * low),
+            )
+        )
     return found
 
 
 def _force_hypotheses(signals: SignalMap, scales: DataScales) -> list[Hypothesis]:
+    """At every force input: a constant force, a spring from each position output, and the
+    friction forces fed back from each velocity output (from the rate of each position output
+    when the FMU has no velocity output)."""
     found: list[Hypothesis] = []
+    positions = [p for p in signals.outputs_with_role("position") if p in scales.output_rms]
+    sources = [(v, False) for v in signals.outputs_with_role("velocity")]
+    sources = sources or [(p, True) for p in positions]
     for name in signals.inputs_with_role("force"):
-        force_rms = scales.input_rms.get(name, 0.0)
         stage = signals.input_stage.get(name)
         if stage is None:
             continue
-        force = max(force_rms, 1e-12)
-        for velocity in signals.outputs_with_role("velocity"):
-            v_rms = scales.output_rms.get(velocity, 0.0)
-            if v_rms <= 0:
+        force = max(scales.input_rms.get(name, 0.0), 1e-12)
+        unit = signals.units.get(name, "")
+        found.append(ConstantForce(input=name, force_unit=unit, scale=(0.05 * force,)))
+        for position in positions:
+            x_rms = scales.output_rms[position]
+            if x_rms <= 0:
                 continue
-            common = {
-                "input": name,
-                "velocity": velocity,
-                "force_unit": signals.units.get(name, ""),
-                "velocity_unit": signals.units.get(velocity, ""),
-                "smoothing": 0.03 * v_rms,
-                "opposes": scales.force_sense.get((name, velocity), 1.0),
-            }
-            found += [
-                CoulombFriction(**common, scale=(0.05 * force,)),
-                ViscousFriction(**common, scale=(0.05 * force / v_rms,)),
-                StribeckFriction(
-                    **common,
-                    scale=(0.05 * force, 0.3 * v_rms),
-                    lower=(-math.inf, 0.05 * v_rms),
-                    upper=(math.inf, 5.0 * v_rms),
-                ),
-            ]
+            found.append(
+                Stiffness(
+                    input=name,
+                    position=position,
+                    force_unit=unit,
+                    position_unit=signals.units.get(position, ""),
+                    rest=scales.output_start.get(position, 0.0),
+                    opposes=scales.force_sense.get((name, position), 1.0),
+                    scale=(0.05 * force / x_rms,),
+                )
+            )
+        for source, rate in sources:
+            found += _frictions(signals, scales, name, source, rate, force)
     return found
+
+
+def _frictions(
+    signals: SignalMap, scales: DataScales, force_input: str, source: str, rate: bool, force: float
+) -> list[Hypothesis]:
+    """Coulomb (symmetric or not), viscous and Stribeck forces on ``force_input`` fed back from
+    ``source`` (a velocity output, or a position output's rate)."""
+    v_rms = (scales.rate_rms if rate else scales.output_rms).get(source, 0.0)
+    if v_rms <= 0:
+        return []
+    unit = signals.units.get(source, "")
+    common = {
+        "input": force_input,
+        "velocity": source,
+        "force_unit": signals.units.get(force_input, ""),
+        "velocity_unit": f"{unit}/s" if rate and unit else unit,
+        "smoothing": 0.03 * v_rms,
+        "rate": rate,
+        "opposes": scales.force_sense.get((force_input, source), 1.0),
+    }
+    return [
+        CoulombFriction(**common, scale=(0.05 * force,)),
+        AsymmetricCoulombFriction(**common, scale=(0.05 * force, 0.05 * force)),
+        ViscousFriction(**common, scale=(0.05 * force / v_rms,)),
+        StribeckFriction(
+            **common,
+            scale=(0.05 * force, 0.3 * v_rms),
+            lower=(-math.inf, 0.05 * v_rms),
+            upper=(math.inf, 5.0 * v_rms),
+        ),
+    ]
 
 
 def _droop_hypotheses(signals: SignalMap, scales: DataScales) -> list[Hypothesis]:
@@ -676,4 +1013,23 @@ def _droop_hypotheses(signals: SignalMap, scales: DataScales) -> list[Hypothesis
                     scale=(0.01 * p_rms / q_rms,),
                 )
             )
+    return found
+
+
+def _sensor_hypotheses(signals: SignalMap, scales: DataScales) -> list[Hypothesis]:
+    """A delay of every observed sensor together, and a gain error, an offset and a delay of
+    each observed signal's sensor alone."""
+    if not signals.observed:
+        return []
+    dt = scales.dt
+    delay = {"scale": (2 * dt,), "lower": (0.0,), "upper": (50 * dt,)}
+    found: list[Hypothesis] = [SensorLag(outputs=tuple(signals.observed_variables), **delay)]
+    for sig in signals.observed:
+        size = scales.output_rms.get(sig.variable, 0.0) or 1.0
+        common = {"output": sig.variable, "unit": sig.unit}
+        found += [
+            SensorGainError(**common, scale=(0.01,), lower=(-0.5,), upper=(1.0,)),
+            SensorBias(**common, scale=(0.01 * size,)),
+            SensorChannelLag(**common, **delay),
+        ]
     return found

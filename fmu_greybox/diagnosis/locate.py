@@ -1,10 +1,12 @@
 """Locate the mismatch: how large each residual is, where in time, in which regime, which stage.
 
 For every observed signal (stage targets and the other recorded signals the FMU predicts) the
-white-box residual is measured against the signal's sensor noise: RMS, RMS normalised by the
-signal's spread, RMS in units of the noise. Then where it concentrates: in time (windows with
-the most residual energy), in operating regimes named by signal roles (direction of motion,
-load level, pressure level, command amplitude), in frequency bands.
+white-box residual is measured against the noise a right white-box would leave (the
+experiment's residual: in sensor-noise levels, whitened against the drift that the recorded
+inputs' noise drives, :mod:`.noise`): RMS, RMS normalised by the signal's spread, RMS in units
+of the noise. Then where it concentrates: in time (windows with the most residual energy), in
+operating regimes named by signal roles (direction of motion, load level, pressure level,
+command amplitude), in frequency bands.
 
 The origin stage is the first stage, in chain order, whose residual exceeds the noise: the
 stages before it match, so everything it shows is its own. For every later stage the share of
@@ -21,15 +23,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter, welch
 
+from fmu_greybox.diagnosis.noise import SIGNIFICANT_RATIO, significance
 from fmu_greybox.diagnosis.runner import Experiment
 from fmu_greybox.diagnosis.signals import SignalMap
-
-#: A residual is significant when its RMS exceeds this many sensor-noise levels: structure of
-#: about 0.83 noise levels (RMS) on top of the noise. Lower thresholds flag the drift that
-#: sensor noise on recorded inputs causes in an integrating white-box.
-SIGNIFICANT_RATIO = 1.3
-#: The RMS of structure that makes a residual significant, in noise levels.
-SIGNIFICANT_STRUCTURE = (SIGNIFICANT_RATIO**2 - 1.0) ** 0.5
 
 #: Frequency band edges of the residual spectrum [Hz] (the last band ends at Nyquist).
 BAND_EDGES = (0.0, 0.1, 1.0, 10.0, 100.0)
@@ -101,9 +97,14 @@ class SignalResidual:
     noise : float
         Estimated sensor-noise standard deviation [unit].
     noise_ratio : float
-        ``rms / noise``.
+        RMS of the judged residual (whitened against input-noise drift) over the noise.
+    drift : float
+        RMS of the drift that input noise alone drives, in noise levels.
     significant : bool
-        Whether the residual exceeds the noise (``noise_ratio > threshold``).
+        Whether the residual exceeds the noise (``noise_ratio > threshold``, or a frequency
+        band holds significant structure, :func:`~.noise.significance`).
+    structure_bands : list of str
+        Frequency bands holding significant structure of their own.
     regimes : list of Regime
         Direction, load, pressure and command regimes, frequency bands and the time windows
         with the most energy.
@@ -118,7 +119,9 @@ class SignalResidual:
     nrms: float
     noise: float
     noise_ratio: float
+    drift: float
     significant: bool
+    structure_bands: list[str] = field(default_factory=list)
     regimes: list[Regime] = field(default_factory=list)
 
     def to_dict(self) -> dict:
@@ -130,7 +133,9 @@ class SignalResidual:
             "nrms": self.nrms,
             "noise": self.noise,
             "noise_ratio": self.noise_ratio,
+            "input_noise_drift": self.drift,
             "significant": self.significant,
+            "structure_bands": self.structure_bands,
             "regimes": [r.to_dict() for r in self.regimes],
         }
 
@@ -228,6 +233,10 @@ class Locator:
         """
         recorded = experiment.recorded
         residual = recorded - simulated
+        judged = experiment.residual(simulated)
+        bands = experiment.bands(simulated)
+        ratios, significant = significance(judged, bands)
+        whitening = experiment.whitening
         dt = experiment.dt
         time = experiment.start_time + dt * np.arange(recorded.shape[0])
         per_signal = []
@@ -236,8 +245,10 @@ class Locator:
             rms = float(np.sqrt(np.mean(r**2)))
             spread = float(np.std(recorded[:, j])) or 1.0
             noise = float(experiment.sigma[j])
-            ratio = rms / noise
-            regimes = self._regimes(r, time, dt, regressors)
+            ratio = float(ratios[j])
+            structured = bands.frequency[bands.significant[:, j]]
+            labels = [f"{lo:.3g}-{hi:.3g} Hz" for lo, hi in structured]
+            regimes = self._regimes(judged[:, j], time, dt, regressors)
             per_signal.append(
                 SignalResidual(
                     name=sig.name,
@@ -249,7 +260,9 @@ class Locator:
                     nrms=rms / spread,
                     noise=noise,
                     noise_ratio=ratio,
-                    significant=ratio > self.threshold,
+                    drift=0.0 if whitening is None else float(whitening.drift[j]),
+                    significant=bool(significant[j]) or ratio > self.threshold,
+                    structure_bands=labels,
                     regimes=regimes,
                 )
             )
@@ -257,11 +270,8 @@ class Locator:
             StageResidual(name, q, [s for s in per_signal if s.stage == q])
             for q, name in enumerate(signals.stage_names)
         ]
-        normalised = residual / experiment.sigma
         for stage in self.stages_[1:]:
-            stage.inherited_fraction = _inherited(
-                normalised, signals.observed_stages, stage.index, dt
-            )
+            stage.inherited_fraction = _inherited(judged, signals.observed_stages, stage.index, dt)
         self.origin_ = next((s.index for s in self.stages_ if s.significant), None)
         return self
 

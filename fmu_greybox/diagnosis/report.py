@@ -17,6 +17,7 @@ from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.diagnosis.figures import regime_figure, residual_figure, trace_figure
 from fmu_greybox.report.html import escape, figure, fmt, page, percent, table, verdict
+from fmu_greybox.workflow.parts import summary as parts_summary
 
 SCHEMA_VERSION = 1
 
@@ -56,22 +57,54 @@ def diagnosis_payload(diagnosis, recording) -> dict:
         "stages": [s.to_dict() for s in diagnosis.locator_.stages_],
         "findings": findings,
         "fit": diagnosis.fit_,
+        "parts": None if diagnosis.parts_ is None else parts_payload(diagnosis.parts_),
+        "inferred_roles": [r.to_dict() for r in diagnosis.signals_.inferred_roles],
+        "input_noise": dict(zip(exp.inputs, exp.input_sigma, strict=True)),
         "hypotheses_tested": [h.key for h in diagnosis.hypotheses_],
-        "selection": [
-            {"screened": r.screened, "refined": r.refined, "accepted": r.accepted}
-            for r in (selection.rounds_ if selection is not None else [])
-        ],
+        "selection": selection_rounds(selection),
         "simulations": diagnosis.simulations_,
         "timings": diagnosis.timings_,
     }
 
 
+def selection_rounds(selection) -> list[dict]:
+    """``diagnosis.json``'s ``selection``: per round what was screened, refined (with the reason
+    a candidate was rejected for harm, or the margins of an alternative) and accepted; the
+    hypotheses dropped after the rounds for worsening a held-out signal are listed under the
+    last round's ``dropped``."""
+    if selection is None:
+        return []
+    rounds = [
+        {
+            "screen_rows": r.screen_rows,
+            "refine_rows": r.refine_rows,
+            "screened": r.screened,
+            "refined": r.refined,
+            "accepted": r.accepted,
+            "dropped": [],
+        }
+        for r in selection.rounds_
+    ]
+    if rounds:
+        rounds[-1]["dropped"] = selection.dropped_
+    return rounds
+
+
 def verdict_lines(diagnosis) -> list[str]:
     """The verdict in a few lines of text (what the terminal prints)."""
     lines = []
+    read = [r for r in diagnosis.signals_.inferred_roles if r.source != "unit"]
+    if read:
+        roles = ", ".join(f"{r.variable} {r.role} ('{r.evidence}')" for r in read)
+        lines.append(
+            f"Roles read from the FMU's names and descriptions: {roles} (declare them under "
+            "[signals] to override)."
+        )
     stages = diagnosis.locator_.stages_
+    drift = diagnosis.experiment_.whitening is not None
+    noise = "sensor noise and the drift its inputs' noise explains" if drift else "sensor noise"
     if diagnosis.origin_stage_ is None:
-        lines.append("No significant mismatch: every stage matches within sensor noise.")
+        lines.append(f"No significant mismatch: every stage matches within {noise}.")
     else:
         before = [s.name for s in stages if stages.index(s) < diagnosis.locator_.origin_]
         matched = f" ({', '.join(before)} match{'es' if len(before) == 1 else ''} within noise)"
@@ -84,11 +117,21 @@ def verdict_lines(diagnosis) -> list[str]:
         lines.append(f"{i}. [{finding.stage}] {finding.effect}: {finding.summary}")
     for name, row in diagnosis.fit_.items():
         unit = row["unit"]
+        alone = f"; correctors alone {row['correctors_rmse']:.3g}" if "best" in row else ""
         lines.append(
             f"   {name}: held-out RMSE white-box {row['wb_rmse']:.3g} -> named "
-            f"{row['named_rmse']:.3g} -> grey-box {row['gb_rmse']:.3g} {unit}"
+            f"{row['named_rmse']:.3g} -> grey-box {row['gb_rmse']:.3g}{alone} {unit}"
         )
+    if diagnosis.parts_ is not None:
+        parts = parts_summary(parts_payload(diagnosis.parts_))
+        lines.append(f"   Parts on held-out rows: {parts}.")
     return lines
+
+
+def parts_payload(parts) -> dict:
+    """``diagnosis.json``'s ``parts``: the comparison without ``shipped`` (a diagnosis ships no
+    model; ``train --terms`` compares again with the project's own corrector settings)."""
+    return {k: v for k, v in parts.to_dict().items() if k != "shipped"}
 
 
 def write_outputs(diagnosis, recording, out_dir: str | Path) -> dict:

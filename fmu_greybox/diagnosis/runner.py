@@ -1,6 +1,8 @@
 """The recording as the diagnosis sees it, and the simulations it runs, in parallel.
 
-:class:`Experiment` holds the recorded inputs, the observed outputs and their noise levels.
+:class:`Experiment` holds the recorded inputs, the observed outputs and the noise model of
+:mod:`.noise` (sensor noise, input noise, the drift input noise drives); its
+:meth:`~Experiment.residual` is the residual every step judges and fits.
 :class:`Simulator` runs the white-box with sets of correction terms over a prefix of the
 recording, in worker processes (each worker receives the extracted FMU and the arrays once).
 Workers are forked where the platform allows it (no re-import of the caller's main module);
@@ -22,7 +24,15 @@ from typing import Protocol
 import numpy as np
 
 from fmu_greybox.data.recording import Recording
-from fmu_greybox.diagnosis.signals import SignalMap, noise_level
+from fmu_greybox.diagnosis.noise import (
+    Bands,
+    DriftWhitening,
+    input_noise_levels,
+    noise_level,
+    residual_bands,
+    sensor_noise_level,
+)
+from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.errors import FmuError
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.model.simulate import simulate_with_terms
@@ -59,6 +69,12 @@ class Experiment:
         Project parameter values.
     train_rows : int
         Rows ``0 .. train_rows - 1`` train; the rest is held out.
+    input_sigma : ndarray, shape (n_inputs,)
+        Sensor-noise standard deviations of the recorded inputs (after
+        :meth:`estimate_noise`; zeros before).
+    whitening : DriftWhitening or None
+        Whitening against the drift input noise drives (after :meth:`estimate_noise`, when an
+        input is noisy).
     """
 
     archive: FmuArchive
@@ -72,6 +88,8 @@ class Experiment:
     sigma: np.ndarray
     parameters: dict[str, float]
     train_rows: int
+    input_sigma: np.ndarray | None = None
+    whitening: DriftWhitening | None = None
     _cache: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -84,12 +102,12 @@ class Experiment:
         train_rows: int,
     ) -> Experiment:
         """Arrange a recording of a project: inputs bound as the project says, every observed
-        signal with its noise level (floored at 1e-6 of its RMS, for noise-free recordings).
+        signal with the noise level of its recording (floored at 1e-6 of its RMS, for
+        noise-free recordings) until :meth:`estimate_noise` refines it.
         """
         binding = bind_project_inputs(config, archive, recording)
         recorded = np.column_stack([recording[s.column] for s in signals.observed])
-        sigma = np.array([noise_level(x) for x in recorded.T])
-        floor = 1e-6 * np.sqrt(np.mean(recorded**2, axis=0)) + 1e-300
+        sigma = _floored([noise_level(x) for x in recorded.T], recorded)
         return cls(
             archive=archive,
             inputs=binding.inputs,
@@ -99,7 +117,7 @@ class Experiment:
             outputs=signals.observed_variables,
             stages=signals.observed_stages,
             recorded=recorded,
-            sigma=np.maximum(sigma, floor),
+            sigma=sigma,
             parameters=dict(config.parameters),
             train_rows=train_rows,
         )
@@ -109,9 +127,42 @@ class Experiment:
         """Number of rows."""
         return self.u.shape[0]
 
+    def estimate_noise(self, simulated: np.ndarray, runs: int = 4, seed: int = 0) -> None:
+        """Set the noise model from the white-box simulation (:mod:`.noise`): each observed
+        signal's sensor noise, each input's noise, and the whitening against the drift that
+        ``runs`` simulations with re-noised inputs show.
+
+        Parameters
+        ----------
+        simulated : ndarray, shape (n, n_outputs)
+            The white-box over the recorded inputs.
+        runs : int
+            Simulations with re-noised inputs.
+        seed : int
+            Seed of the re-noising.
+        """
+        pairs = zip(self.recorded.T, simulated.T, strict=True)
+        levels = [sensor_noise_level(recorded, sim) for recorded, sim in pairs]
+        self.sigma = _floored(levels, self.recorded)
+        self.input_sigma = input_noise_levels(self.u, self.recorded)
+        self.whitening = None
+        if not np.any(self.input_sigma > 0) or runs < 1:
+            return
+        rng = np.random.default_rng(seed)
+        deviations = []
+        for _ in range(runs):
+            run = self.renoised(rng).simulate([])
+            if run is not None:
+                deviations.append(run - simulated)
+        if deviations:
+            self.whitening = DriftWhitening(np.array(deviations), self.sigma, self.dt)
+
     def renoised(self, rng: np.random.Generator) -> Experiment:
-        """A copy whose inputs carry extra white noise at each input's estimated noise level."""
-        sigma = np.array([noise_level(x) for x in self.u.T])
+        """A copy whose inputs carry extra white noise at each input's noise level (the
+        estimated one, else that of its second differences)."""
+        sigma = self.input_sigma
+        if sigma is None:
+            sigma = np.array([noise_level(x) for x in self.u.T])
         u = self.u + rng.standard_normal(self.u.shape) * sigma
         return dataclasses.replace(self, u=u, _cache={})
 
@@ -140,7 +191,9 @@ class Experiment:
             return None
 
     def residual(self, simulated: np.ndarray, start: int = 0) -> np.ndarray:
-        """Noise-normalised residual ``(recorded - simulated) / sigma``.
+        """Noise-normalised residual ``(recorded - simulated) / sigma``, whitened against the
+        drift input noise drives (:attr:`whitening`) over the rows given: white at unit level
+        where the white-box is right.
 
         Parameters
         ----------
@@ -153,8 +206,24 @@ class Experiment:
         -------
         ndarray, shape (rows, n_outputs)
         """
+        normalised = self.normalised(simulated, start)
+        return normalised if self.whitening is None else self.whitening(normalised)
+
+    def normalised(self, simulated: np.ndarray, start: int = 0) -> np.ndarray:
+        """``(recorded - simulated) / sigma`` (not whitened); arguments as :meth:`residual`."""
         rows = simulated.shape[0]
         return (self.recorded[start : start + rows] - simulated) / self.sigma
+
+    def bands(self, simulated: np.ndarray, start: int = 0) -> Bands:
+        """Band powers of the residual against sensor noise and input-noise drift
+        (:func:`~.noise.residual_bands`); arguments as :meth:`residual`."""
+        return residual_bands(self.normalised(simulated, start), self.whitening, self.dt)
+
+
+def _floored(levels: Sequence[float], recorded: np.ndarray) -> np.ndarray:
+    """Noise levels floored at 1e-6 of each signal's RMS (for noise-free recordings)."""
+    floor = 1e-6 * np.sqrt(np.mean(recorded**2, axis=0)) + 1e-300
+    return np.maximum(np.asarray(levels, dtype=np.float64), floor)
 
 
 _WORKER: dict[str, Experiment] = {}

@@ -2,13 +2,21 @@
 
 Each round, on top of the hypotheses already kept:
 
-1. **screen** every remaining hypothesis on a short leading window of the training rows: one
+1. **screen** every remaining hypothesis on a leading window of the training rows (at least
+   ``screen_rows``, and long enough to hold 30 % of the residual's energy beyond noise: a
+   simulation starts at the first row, and the mismatch may show only later): one
    linearised (Gauss-Newton) step from "no effect" on top of the kept hypotheses, with
-   sensitivities over a long difference step (two scales), tried at two step lengths, once on
-   the low-passed residual and once on the raw one; a hypothesis ranks by the better of the
-   two (a delay shows in the fast part the low-pass removes, a stiffness in the slow part the
-   ripples of the raw misfit hide) and is refined from its low-passed step;
-2. **refine** the best few on a longer leading window (damped Gauss-Newton) with the kept
+   sensitivities over a long difference step (two scales), tried at two step lengths, on the
+   low-passed residual, the raw one and the spectrum; a hypothesis ranks by its best view (a
+   delay shows in the fast part the low-pass removes, a stiffness in the slow part the ripples
+   of the raw misfit hide, a lightly damped mode's frequency in the spectrum, where the step
+   is also compared with probes at a few multiples of its scale) and is refined
+   from its low-passed step, or from its spectrum step when the spectrum ranked it best. The
+   best ``refine_top`` of distinct physics go on;
+2. **refine** them on a longer leading window (at least ``refine_rows``, and 60 % of the
+   energy beyond noise; damped Gauss-Newton; the spectrum-ranked ones on
+   the spectrum first, which brings a mode's frequency into the narrow valley the time-domain
+   misfit has around it) with the kept
    magnitudes free (an offset kept first may have absorbed part of a leakage's drift: the
    leakage only pays once the offset may move back), and the kept hypotheses alone refined
    the same way as the reference; then score them on the raw residual over the whole
@@ -24,8 +32,15 @@ Each round, on top of the hypotheses already kept:
    ``min_explained`` of the residual energy above the noise floor that is left (so that a
    later hypothesis is not kept for polishing the shape of an earlier one). Each test is
    against the reference (the kept hypotheses, re-tuned when that lowers their cost), and the
-   information criterion counts the new hypothesis' magnitudes only;
+   information criterion counts the new hypothesis' magnitudes only. A candidate that makes any
+   observed signal's held-out RMSE worse by more than ``max_harm`` is never accepted. The
+   other refined candidates whose fit is nearly as good (:func:`~.alternatives.is_alternative`)
+   are kept as the accepted one's alternatives;
 4. refit every kept hypothesis jointly over the whole training part.
+
+After the last round every kept hypothesis is checked once more, with the others at their joint
+magnitudes: one without which some observed signal's held-out RMSE is better by more than
+``max_harm`` is dropped (``dropped_``).
 
 Magnitudes are fitted to the low-passed residual (see :class:`~.calibrate.Calibrator`): it keeps
 the fit out of the ripples that lightly damped modes and stick-slip put into the raw misfit.
@@ -43,9 +58,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fmu_greybox.diagnosis.calibrate import Calibrator, Candidate, autocorrelation_time
+from fmu_greybox.diagnosis.alternatives import is_alternative, physics_of
+from fmu_greybox.diagnosis.calibrate import Calibrator, Candidate, HeldOut, autocorrelation_time
 from fmu_greybox.diagnosis.hypotheses import Hypothesis
-from fmu_greybox.diagnosis.locate import SIGNIFICANT_RATIO
+from fmu_greybox.diagnosis.noise import SIGNIFICANT_RATIO, significance, structure_left
 from fmu_greybox.diagnosis.runner import Simulator
 
 
@@ -63,11 +79,18 @@ class Round:
         ``delta_bic``.
     accepted : str or None
         Key of the hypothesis kept.
+    alternatives : list of Candidate
+        Refined candidates nearly as good as the accepted one, best first.
+    screen_rows, refine_rows : int
+        Rows of the screening and the refinement windows.
     """
 
     screened: list[tuple[str, float]] = field(default_factory=list)
     refined: list[dict] = field(default_factory=list)
     accepted: str | None = None
+    alternatives: list[Candidate] = field(default_factory=list)
+    screen_rows: int = 0
+    refine_rows: int = 0
 
 
 class ForwardSelection:
@@ -98,6 +121,9 @@ class ForwardSelection:
         Low-pass time constant [samples] of the residual the magnitudes are fitted to.
     polish_iter : int
         Gauss-Newton iterations on the raw residual that finish the kept magnitudes.
+    max_harm : float
+        Largest relative worsening of any observed signal's held-out RMSE a kept hypothesis
+        may cause.
 
     Attributes
     ----------
@@ -107,6 +133,9 @@ class ForwardSelection:
     baseline_ : Candidate
         The plain white-box, simulated over the whole recording.
     rounds_ : list of Round
+    dropped_ : list of dict
+        Hypotheses dropped after the rounds because they worsened a held-out signal: ``key``,
+        ``signal``, ``worsening`` (relative RMSE change).
     """
 
     def __init__(
@@ -122,7 +151,9 @@ class ForwardSelection:
         max_iter: int = 5,
         smoothing: float = 20.0,
         polish_iter: int = 2,
+        max_harm: float = 0.05,
     ) -> None:
+        self.max_harm = max_harm
         self.smoothing = smoothing
         self.polish_iter = polish_iter
         self.screen_rows = screen_rows
@@ -146,12 +177,6 @@ class ForwardSelection:
         experiment = simulator.experiment
         n = experiment.n_samples
         full = Calibrator(simulator, n)
-        screen_rows = min(self.screen_rows, experiment.train_rows)
-        windows = [
-            Calibrator(simulator, screen_rows, self.smoothing, 2.0),
-            Calibrator(simulator, screen_rows, 0.0, 2.0),
-        ]
-        longer = Calibrator(simulator, min(self.refine_rows, experiment.train_rows), self.smoothing)
         joint_fit = Calibrator(simulator, n, self.smoothing)
         current = Candidate([], np.zeros(0))
         full.evaluate([current])
@@ -161,10 +186,22 @@ class ForwardSelection:
         while len(current.hypotheses) < self.max_findings and not self._within_noise(full, current):
             round_ = Round()
             self.rounds_.append(round_)
+            train = experiment.residual(current.simulated[: experiment.train_rows])
+            round_.screen_rows = max(self.screen_rows, informative_rows(train, 0.3))
+            round_.refine_rows = max(self.refine_rows, informative_rows(train, 0.6))
+            screen_rows = min(round_.screen_rows, experiment.train_rows)
+            windows = [
+                Calibrator(simulator, screen_rows, self.smoothing, 2.0),
+                Calibrator(simulator, screen_rows, 0.0, 2.0),
+                Calibrator(simulator, screen_rows, 0.0, 2.0, spectrum=True),
+            ]
+            refine_rows = min(round_.refine_rows, experiment.train_rows)
+            longer = Calibrator(simulator, refine_rows, self.smoothing)
+            spectral = Calibrator(simulator, refine_rows, spectrum=True)
             top = self._screen(windows, current, remaining, round_)
             if not top:
                 break
-            best = self._refine(longer, full, current, top, round_)
+            best = self._refine(longer, spectral, full, current, top, round_)
             if best is None:
                 break
             round_.accepted = best.hypotheses[-1].key
@@ -176,14 +213,63 @@ class ForwardSelection:
             current = joint
         if current.hypotheses:
             full.polish([current], self.polish_iter)
-        self.selected_ = current
+        self.dropped_: list[dict] = []
+        self.selected_ = self._drop_harmful(full, current)
+        alternatives = [c for r in self.rounds_ for c in r.alternatives]
+        if alternatives:
+            full.covariance(alternatives)
         return self
 
     # ------------------------------------------------------------------ steps
+    def harm(self, new: HeldOut | None, old: HeldOut | None) -> tuple[int, float] | None:
+        """The observed signal whose held-out RMS (of the judged residual, :class:`HeldOut`)
+        ``new`` worsens most against ``old``, and by how much (relative), when that exceeds
+        :attr:`max_harm`; else ``None``."""
+        if new is None or old is None:
+            return None
+        change = new.rms / np.maximum(old.rms, 1e-300) - 1.0
+        j = int(np.argmax(change))
+        return (j, float(change[j])) if change[j] > self.max_harm else None
+
+    def _drop_harmful(self, full: Calibrator, selected: Candidate) -> Candidate:
+        """The kept hypotheses without those that worsen a held-out signal beyond
+        :attr:`max_harm` with the others at their joint magnitudes (worst first, one at a
+        time)."""
+        outputs = full.experiment.outputs
+        while selected.hypotheses:
+            pairs = list(zip(selected.hypotheses, selected.split(), strict=True))
+            without = [
+                Candidate([h for h, _ in pairs if h is not left], _joined(pairs, left))
+                for left, _ in pairs
+            ]
+            full.evaluate(without)
+            harms = [self.harm(selected.heldout, c.heldout) for c in without]
+            worst = max(
+                (i for i, h in enumerate(harms) if h is not None),
+                key=lambda i: harms[i][1],
+                default=None,
+            )
+            if worst is None:
+                return selected
+            signal, worsening = harms[worst]
+            self.dropped_.append(
+                {
+                    "key": pairs[worst][0].key,
+                    "signal": outputs[signal],
+                    "worsening": worsening,
+                }
+            )
+            selected = without[worst]
+        return selected
+
     def _within_noise(self, calibrator: Calibrator, c: Candidate) -> bool:
         rows = calibrator.fit_rows
-        r = calibrator.experiment.residual(c.simulated[:rows])
-        return bool(np.all(np.sqrt(np.mean(r**2, axis=0)) <= self.noise_ratio))
+        experiment = calibrator.experiment
+        simulated = c.simulated[:rows]
+        ratio, significant = significance(
+            experiment.residual(simulated), experiment.bands(simulated)
+        )
+        return not np.any(significant | (ratio > self.noise_ratio))
 
     def _screen(
         self,
@@ -191,12 +277,23 @@ class ForwardSelection:
         current: Candidate,
         remaining: list[Hypothesis],
         round_: Round,
-    ) -> list[Candidate]:
+    ) -> list[tuple[Candidate, bool]]:
         """One linearised step of every remaining hypothesis on top of the kept ones, on each
-        screening view (the low-passed and the raw residual, in that order); a hypothesis ranks
-        by its better view and is refined from its step on the first (the refinement fits the
-        low-passed residual: a step on the raw one can land in another of its basins)."""
-        best: dict[str, tuple[float, Candidate]] = {}
+        screening view (the low-passed residual, the raw one, the spectrum, in that order); a
+        hypothesis ranks by its best view. It is refined from its step on the low-passed
+        residual (the one the refinement fits: a step on the raw one can land in another of its
+        basins), unless the spectrum ranked it best: then from its step there, and first on the
+        spectrum. The best few of distinct physics go on (two variants of one effect compete
+        for one place, so that a near tie of duplicates does not crowd out other physics); a
+        variant with more magnitudes (``KEY+asymmetric``) brings its simpler form along, so
+        that the information criterion can choose between them.
+
+        Returns
+        -------
+        list of (Candidate, bool)
+            The candidates to refine, and whether each starts on the spectrum.
+        """
+        best: dict[str, tuple[float, Candidate, bool]] = {}
         for window in windows:
             start = Candidate([], np.zeros(0), fixed=current.terms())
             window.evaluate([start])
@@ -206,28 +303,49 @@ class ForwardSelection:
             for c in candidates:
                 c.cost, c.simulated, c.heldout = start.cost, start.simulated, start.heldout
             window.fit(candidates, max_iter=1, tries=1)
+            spectral = window.spectrum is not None
+            if spectral:
+                _probe(window, candidates)
             for c in candidates:
                 key, ratio = c.hypotheses[-1].key, c.cost / start.cost
                 if key not in best:
-                    best[key] = (ratio, c)
+                    best[key] = (ratio, c, spectral)
                 elif ratio < best[key][0]:
-                    best[key] = (ratio, best[key][1])
+                    best[key] = (ratio, c if spectral else best[key][1], spectral)
         ranked = sorted(best.items(), key=lambda item: item[1][0])
-        round_.screened = [(key, ratio) for key, (ratio, _) in ranked[:10]]
-        better = [c for _, (ratio, c) in ranked if ratio < 0.99]
-        return better[: self.refine_top]
+        round_.screened = [(key, ratio) for key, (ratio, _, _) in ranked[:10]]
+        top: list[tuple[Candidate, bool]] = []
+        families: set[str] = set()
+        for key, (ratio, c, spectral) in ranked:
+            family = physics_of(c.hypotheses[-1])
+            if ratio >= 0.99 or len(families) == self.refine_top:
+                break
+            if family in families:
+                continue
+            families.add(family)
+            top.append((c, spectral))
+            simpler = best.get(key.split("+")[0])
+            if simpler is not None and simpler[1] is not c:
+                top.append((simpler[1], simpler[2]))
+        return top
 
     def _refine(
         self,
         smoothed: Calibrator,
+        spectral: Calibrator,
         full: Calibrator,
         current: Candidate,
-        top: list[Candidate],
+        top: list[tuple[Candidate, bool]],
         round_: Round,
     ) -> Candidate | None:
-        """Refine the screened candidates (kept magnitudes free) and accept the best that
-        passes the three tests against the kept hypotheses refined the same way alone."""
-        refined = [_extended(current, c.hypotheses[0], c.theta) for c in top]
+        """Refine the screened candidates (kept magnitudes free; those the spectrum ranked best
+        on the spectrum first) and accept the best that passes the three tests against the kept
+        hypotheses refined the same way alone."""
+        refined = [_extended(current, c.hypotheses[0], c.theta) for c, _ in top]
+        first = [c for c, (_, on_spectrum) in zip(refined, top, strict=True) if on_spectrum]
+        if first:
+            spectral.evaluate(first)
+            spectral.fit(first, max_iter=self.max_iter)
         retuned = [_extended(current, None, np.zeros(0))] if current.hypotheses else []
         group = [*refined, *retuned]
         smoothed.evaluate(group)
@@ -240,6 +358,8 @@ class ForwardSelection:
         base_r = full.experiment.residual(reference.simulated[:rows])
         n_eff = base_r.size / autocorrelation_time(base_r)
         best, best_bic = None, -self.bic_threshold
+        scored = []
+        outputs = full.experiment.outputs
         for c in refined:
             if not math.isfinite(c.cost):
                 continue
@@ -248,19 +368,88 @@ class ForwardSelection:
                 math.log(n_eff)
             )
             held = heldout_ratio(c.heldout, reference.heldout)
-            round_.refined.append(
-                {
-                    "key": added.key,
-                    "theta": c.split()[-1].tolist(),
-                    "train_ratio": c.cost / reference.cost,
-                    "heldout_ratio": held,
-                    "delta_bic": bic,
-                }
-            )
+            harm = self.harm(c.heldout, reference.heldout)
+            entry = {
+                "key": added.key,
+                "start": "spectrum" if any(c is f for f in first) else "residual",
+                "theta": c.split()[-1].tolist(),
+                "train_ratio": c.cost / reference.cost,
+                "heldout_ratio": held,
+                "delta_bic": bic,
+            }
+            if harm is not None:
+                entry["rejected"] = (
+                    f"worsens the held-out fit of {outputs[harm[0]]} by {100 * harm[1]:.1f} %"
+                )
+            round_.refined.append(entry)
+            scored.append((c, bic, harm is None))
             enough = reference.cost - c.cost >= needed
-            if bic < best_bic and held <= 1.0 - self.min_heldout_gain and enough:
+            passes = held <= 1.0 - self.min_heldout_gain and enough and harm is None
+            if bic < best_bic and passes:
                 best, best_bic = c, bic
+        if best is None:
+            return None
+        for (c, bic, harmless), entry in zip(scored, round_.refined, strict=True):
+            margins = {
+                "delta_bic": bic - best_bic,
+                "heldout_ratio": heldout_ratio(c.heldout, best.heldout),
+            }
+            if c is not best and harmless and is_alternative(best, c, **margins):
+                entry["alternative"] = margins
+                round_.alternatives.append(c)
+        round_.alternatives.sort(key=lambda c: c.cost)
         return best
+
+
+#: Multiples of its scale at which the spectrum screen probes a hypothesis' first magnitude.
+PROBES = (-10.0, -3.0, 3.0, 10.0)
+
+
+def _probe(window: Calibrator, candidates: list[Candidate]) -> None:
+    """Move each candidate to the best of its probes (:data:`PROBES`) where that beats its
+    screening step: far from a mode's frequency the spectrum is flat, and no local step from
+    "no effect" reaches the valley around it."""
+    probes = []
+    for c in candidates:
+        h = c.hypotheses[-1]
+        for multiple in PROBES:
+            theta = h.start()
+            theta[0] += multiple * h.scale[0]
+            probes.append((c, Candidate([h], h.clip(theta), fixed=c.fixed)))
+    window.evaluate([p for _, p in probes])
+    for c, p in probes:
+        if p.cost < c.cost:
+            c.theta, c.cost, c.simulated, c.heldout = p.theta, p.cost, p.simulated, p.heldout
+
+
+def informative_rows(residual: np.ndarray, share: float) -> int:
+    """Rows from the start within which ``share`` of a residual's energy beyond noise lies.
+
+    A window that starts at the first row (a simulation starts there) must reach the rows where
+    the mismatch shows: an amplifier that saturates only on the large commands of the test's
+    second half leaves its first seconds at noise level.
+
+    Parameters
+    ----------
+    residual : ndarray, shape (n, n_observed)
+        Noise-normalised residual (noise alone: unit mean square).
+    share : float
+
+    Returns
+    -------
+    int
+        Between 1 and ``n``.
+    """
+    excess = np.cumsum(np.sum(np.maximum(residual**2 - 1.0, 0.0), axis=1))
+    if excess.size == 0 or excess[-1] <= 0:
+        return residual.shape[0]
+    return int(np.searchsorted(excess, share * excess[-1])) + 1
+
+
+def _joined(pairs: list[tuple[Hypothesis, np.ndarray]], left: Hypothesis) -> np.ndarray:
+    """The magnitudes of every hypothesis of ``pairs`` but ``left``, concatenated."""
+    kept = [theta for h, theta in pairs if h is not left]
+    return np.concatenate(kept) if kept else np.zeros(0)
 
 
 def _extended(kept: Candidate, hypothesis: Hypothesis | None, theta: np.ndarray) -> Candidate:
@@ -269,13 +458,19 @@ def _extended(kept: Candidate, hypothesis: Hypothesis | None, theta: np.ndarray)
     return Candidate([*kept.hypotheses, *added], np.concatenate([kept.theta, theta]))
 
 
-def heldout_ratio(new: np.ndarray | None, old: np.ndarray | None) -> float:
-    """Geometric mean over the observed signals of the held-out cost ratio ``new / old``.
+def heldout_ratio(new: HeldOut | None, old: HeldOut | None) -> float:
+    """Geometric mean over the observed signals of the held-out structure ratio ``new / old``.
+
+    A signal's structure is its whitened held-out power beyond noise in the frequency bands
+    where either fit leaves structure beyond chance (:attr:`~.noise.Bands.structured`); both
+    are regularised by the power at the chance threshold of those bands, so that a signal
+    left at noise level by both counts 1. Structure concentrated in a band (an offset, a
+    resonance) then counts in full, not diluted by the noise of the other bands.
 
     Parameters
     ----------
-    new, old : ndarray, shape (n_observed,), or None
-        Mean squared normalised held-out residual of each signal (``None``: no held-out rows).
+    new, old : HeldOut or None
+        Fits over the held-out rows (``None``: no held-out rows).
 
     Returns
     -------
@@ -284,8 +479,6 @@ def heldout_ratio(new: np.ndarray | None, old: np.ndarray | None) -> float:
     """
     if new is None or old is None:
         return 1.0
-    kept = old > 0
-    if not np.any(kept):
-        return 1.0
-    ratios = np.maximum(new[kept], 1e-300) / old[kept]
+    excess_new, excess_old, floor = structure_left(new.bands, old.bands)
+    ratios = np.where(floor > 0, (excess_new + floor) / np.maximum(excess_old + floor, 1e-300), 1.0)
     return float(np.exp(np.mean(np.log(ratios))))

@@ -1,8 +1,8 @@
 """What each FMU input and output is, physically, and which recorded signals observe the FMU.
 
 Roles come from the project's signals first (``role`` in the config) and, for FMU variables the
-project does not mention, from the units the FMU declares (``m/s`` is a velocity, ``m3/s`` a flow,
-``Pa`` a pressure, ...). Nothing here knows any particular model's variable names.
+project does not mention, from the FMU's own declarations (:mod:`.roles`: the unit, else the
+name and description). Nothing here knows any particular model's variable names.
 """
 
 from __future__ import annotations
@@ -11,51 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fmu_greybox.data.recording import Recording, normalise_unit
+from fmu_greybox.data.recording import Recording
+from fmu_greybox.diagnosis.roles import VariableRole, infer_role
 from fmu_greybox.fmi.archive import FmuArchive
-from fmu_greybox.project.config import ROLE_UNITS, ProjectConfig
-
-#: Roles that a declared unit alone identifies (dimensionless units identify nothing).
-_UNIT_ROLES: dict[str, str] = {
-    normalise_unit(unit): role
-    for role, units in ROLE_UNITS.items()
-    if role not in ("command", "other")
-    for unit in units
-}
-
-
-def role_from_unit(unit: str) -> str:
-    """The physical role a unit implies (``"other"`` when it implies none).
-
-    Examples
-    --------
-    >>> role_from_unit("m3/s"), role_from_unit("N"), role_from_unit("1")
-    ('flow', 'force', 'other')
-    """
-    return _UNIT_ROLES.get(normalise_unit(unit), "other") if unit else "other"
-
-
-def noise_level(x: np.ndarray) -> float:
-    """Standard deviation of a signal's white sensor noise, from its high-frequency content.
-
-    Robust and model-free: the median absolute deviation of the second differences divided by
-    ``sqrt(6)`` (a second difference of white noise of variance s^2 has variance 6 s^2), scaled
-    to a standard deviation. Smooth signal content barely contributes at usual sample rates.
-
-    Parameters
-    ----------
-    x : ndarray, shape (n,)
-
-    Returns
-    -------
-    float
-        Estimated noise standard deviation (0 for fewer than 4 samples or a constant signal).
-    """
-    if x.size < 4:
-        return 0.0
-    d2 = np.diff(np.asarray(x, dtype=np.float64), 2)
-    mad = np.median(np.abs(d2 - np.median(d2)))
-    return float(1.4826 * mad / np.sqrt(6.0))
+from fmu_greybox.project.config import ProjectConfig, Signal
 
 
 @dataclass(frozen=True)
@@ -101,7 +60,7 @@ class SignalMap:
     output_roles : dict[str, str]
         FMU Real output -> role.
     units : dict[str, str]
-        FMU variable -> unit (the FMU's declaration).
+        FMU variable -> unit (the FMU's declaration, else the project's).
     input_columns : dict[str, str]
         FMU input -> recorded column, for recorded inputs.
     input_stage : dict[str, int]
@@ -111,6 +70,8 @@ class SignalMap:
         Stage targets in chain order, then the other recorded signals mapped to FMU outputs.
     stage_names : list of str
         Stage names in chain order.
+    roles : list of VariableRole
+        Every Real input and output with its role and where the role came from.
     """
 
     input_roles: dict[str, str]
@@ -120,6 +81,7 @@ class SignalMap:
     input_stage: dict[str, int]
     observed: list[ObservedSignal]
     stage_names: list[str]
+    roles: list[VariableRole]
 
     @classmethod
     def from_project(
@@ -141,9 +103,14 @@ class SignalMap:
         inputs = [v.name for v in reals if v.causality == "input"]
         outputs = [v.name for v in reals if v.causality == "output"]
 
-        def role(name: str) -> str:
+        def role(name: str) -> VariableRole:
             sig = by_variable.get(name)
-            return sig.role if sig is not None else role_from_unit(variables[name].unit)
+            if sig is not None:
+                return VariableRole(name, variables[name].causality, sig.role, "project", "")
+            return infer_role(variables[name])
+
+        roles = [role(name) for name in (*inputs, *outputs)]
+        role_of = {r.variable: r.role for r in roles}
 
         stage_of_signal: dict[str, int] = {}
         predicted_by: dict[str, str] = {}
@@ -176,14 +143,20 @@ class SignalMap:
             name: by_variable[name].column if name in by_variable else name for name in inputs
         }
         return cls(
-            input_roles={name: role(name) for name in inputs},
-            output_roles={name: role(name) for name in outputs},
-            units={v.name: v.unit for v in reals},
+            input_roles={name: role_of[name] for name in inputs},
+            output_roles={name: role_of[name] for name in outputs},
+            units={v.name: v.unit or _declared_unit(by_variable.get(v.name)) for v in reals},
             input_columns={k: v for k, v in columns.items() if v in recording.signals},
             input_stage=input_stage,
             observed=observed,
             stage_names=[s.name for s in config.stages],
+            roles=roles,
         )
+
+    @property
+    def inferred_roles(self) -> list[VariableRole]:
+        """Roles the project did not declare and the FMU's declarations gave (none ``other``)."""
+        return [r for r in self.roles if r.source != "project" and r.role != "other"]
 
     @property
     def observed_variables(self) -> list[str]:
@@ -230,6 +203,11 @@ class SignalMap:
                     if score > best:
                         best, stage = score, self.observed[t].stage
             self.observed[j] = ObservedSignal(**{**sig.__dict__, "stage": stage})
+
+
+def _declared_unit(signal: Signal | None) -> str:
+    """The unit a project declares for a signal (empty when it declares none)."""
+    return signal.unit if signal is not None else ""
 
 
 def _correlation(a: np.ndarray, b: np.ndarray) -> float:

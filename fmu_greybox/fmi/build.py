@@ -102,7 +102,7 @@ class Variable:
     causality, variability, type : str
         FMI 2.0 causality, variability and base type.
     unit : str or None
-        Unit of a Real variable, e.g. ``"m3/(s.Pa)"``.
+        Unit of a Real variable, e.g. ``"m3/(s.Pa)"`` (``""``: none declared).
     description : str
         What the variable is.
     start : float, int, bool, str or None
@@ -240,11 +240,15 @@ def _parse_variable(path: Path, index: int, raw: dict[str, Any], identifiers: se
         raise _table_error(path, where, "description is required.")
     unit = raw.get("unit")
     if vtype == "Real":
-        if not isinstance(unit, str) or not unit:
+        if not isinstance(unit, str):
             raise _table_error(
-                path, where, 'unit is required for Real variables ("1" if dimensionless).'
+                path,
+                where,
+                'unit is required for Real variables ("1" if dimensionless; "" declares none, '
+                "as some third-party FMUs do).",
             )
-        _parse_unit(unit, path, where)
+        if unit:
+            _parse_unit(unit, path, where)
     elif unit is not None:
         raise _table_error(path, where, "only Real variables have a unit.")
     start = raw.get("start")
@@ -496,8 +500,9 @@ def model_description(table: VariableTable, identifier: str, guid: str) -> bytes
             "providesDirectionalDerivative": "false",
         },
     )
-    units = ET.SubElement(root, "UnitDefinitions")
-    for unit in sorted({v.unit for v in variables if v.unit}):
+    declared = sorted({v.unit for v in variables if v.unit})
+    units = ET.SubElement(root, "UnitDefinitions") if declared else None
+    for unit in declared:
         exps, factor, offset = _parse_unit(unit)
         element = ET.SubElement(units, "Unit", {"name": unit})
         attributes = {k: str(exps[k]) for k in BASE_UNITS if k in exps}

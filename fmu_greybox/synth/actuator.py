@@ -6,7 +6,11 @@ an aerodynamic spring load plus turbulence, the supply pressure ripples and drif
 keeps the valve current the controller produced, so driving the white-box open-loop with it
 reproduces a flight-test situation: small mismatches drift.
 
-Sensors add white noise of realistic size (scaled by ``noise``; 0 gives a clean recording).
+Sensors add white noise of realistic size (scaled by ``noise``; 0 gives a clean recording) to
+every recorded signal, the recorded inputs included: the logged valve current carries the noise
+of its current sensor (the valve received the controller's value), as a flight-test log does.
+Faults around the plant (an amplifier that saturates, a sensor that reads high, a load nobody
+recorded) are switched on by name beside the truth FMU's effects (:mod:`.loop`).
 Columns carry the white-box FMU's own variable names and units.
 """
 
@@ -25,9 +29,12 @@ from fmu_greybox.fmi.archive import FmuArchive, FmuVariable, real_outputs
 from fmu_greybox.fmi.instance import FmuInstance
 from fmu_greybox.progress import track
 from fmu_greybox.suggest import did_you_mean
+from fmu_greybox.synth.loop import Loop, is_loop_effect, parse_loop_effects
 
 #: Standard deviation of each sensor's white noise at ``noise = 1`` [SI units of the signal].
 SENSOR_NOISE: dict[str, float] = {
+    "valve_current": 0.02,
+    "engage": 0.01,
     "supply_pressure": 2.0e4,
     "load_force": 20.0,
     "spool_position": 1.0e-6,
@@ -91,6 +98,9 @@ class FlightTestProfile:
         Pump ripple frequency [Hz].
     supply_drift : float
         Standard deviation of the slow supply drift [Pa].
+    ramp_rate : float or None
+        ``None``: the pilot-like reference (:func:`pilot_reference`); a rate [m/s]: holds and
+        ramps at this one rate only (:func:`ramp_reference`), a test with few velocity levels.
     """
 
     duration: float = 30.0
@@ -105,6 +115,7 @@ class FlightTestProfile:
     supply_ripple: float = 1.0e5
     supply_ripple_frequency: float = 37.0
     supply_drift: float = 2.0e5
+    ramp_rate: float | None = None
 
     @property
     def n_samples(self) -> int:
@@ -122,16 +133,24 @@ class SynthRequest:
         Truth-model effect parameter -> value (units as the truth FMU declares).
     seed : int
         Seed of every random choice (reference, turbulence, noise).
+        Names with ``@`` are effects around the FMU (:mod:`.loop`), e.g.
+        ``sensor_gain@ram_position``.
+    seed : int
+        Seed of every random choice (reference, turbulence, noise).
     noise : float
         Sensor-noise scale factor (0 = noise-free).
     profile : FlightTestProfile
         The closed-loop test.
+    input_noise : bool
+        Whether the recorded inputs carry sensor noise too (the outputs always do, at
+        ``noise``).
     """
 
     effects: dict[str, float] = field(default_factory=dict)
     seed: int = 0
     noise: float = 1.0
     profile: FlightTestProfile = field(default_factory=FlightTestProfile)
+    input_noise: bool = True
 
 
 def list_effects(truth: FmuArchive, whitebox: FmuArchive) -> list[FmuVariable]:
@@ -174,10 +193,12 @@ def parse_effects(texts: list[str] | tuple[str, ...]) -> dict[str, float]:
 
 
 def check_effects(effects: Mapping[str, float], truth: FmuArchive, whitebox: FmuArchive) -> None:
-    """Raise :class:`ConfigError` for an effect the truth FMU does not offer."""
+    """Raise :class:`ConfigError` for an effect the truth FMU does not offer, or a loop effect
+    (:mod:`.loop`) on a variable it lacks."""
     offered = [v.name for v in list_effects(truth, whitebox)]
+    parse_loop_effects(effects, truth.inputs, real_outputs(truth))
     for name in effects:
-        if name not in offered:
+        if name not in offered and not is_loop_effect(name):
             raise ConfigError(
                 f"unknown effect {name!r}{did_you_mean(name, offered)}; effects offered: "
                 f"{', '.join(offered)} "
@@ -234,6 +255,43 @@ def pilot_reference(n: int, dt: float, amplitude: float, rng: np.random.Generato
     return r
 
 
+def ramp_reference(
+    n: int, dt: float, amplitude: float, rate: float, rng: np.random.Generator
+) -> np.ndarray:
+    """A reference with few velocity levels: holds, and ramps at ``+/- rate`` between them.
+
+    Parameters
+    ----------
+    n : int
+        Number of samples.
+    dt : float
+        Sample time [s].
+    amplitude : float
+        Largest commanded position [m].
+    rate : float
+        The one ramp rate [m/s].
+    rng : numpy.random.Generator
+        Source of the random choices.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Commanded position [m].
+    """
+    r = np.empty(n)
+    level, k = 0.0, 0
+    while k < n:
+        target = rng.uniform(-0.8, 0.8) * amplitude
+        ramp = max(1, round(abs(target - level) / rate / dt))
+        hold = int(rng.uniform(0.3, 1.0) / dt)
+        end = min(n, k + ramp)
+        r[k:end] = level + (target - level) * np.arange(1, end - k + 1) / ramp
+        level = float(r[end - 1])
+        r[end : min(n, end + hold)] = level
+        k = min(n, end + hold)
+    return r
+
+
 def coloured_noise(
     n: int, dt: float, std: float, tau: float, rng: np.random.Generator
 ) -> np.ndarray:
@@ -277,7 +335,10 @@ def synthesise(
     rng = np.random.default_rng(request.seed)
     n, dt = profile.n_samples, profile.dt
     time = np.arange(n) * dt
-    reference = pilot_reference(n, dt, profile.reference_amplitude, rng)
+    if profile.ramp_rate is None:
+        reference = pilot_reference(n, dt, profile.reference_amplitude, rng)
+    else:
+        reference = ramp_reference(n, dt, profile.reference_amplitude, profile.ramp_rate, rng)
     turbulence = coloured_noise(n, dt, profile.turbulence_force, profile.turbulence_time, rng)
     supply = (
         profile.supply_pressure
@@ -286,6 +347,8 @@ def synthesise(
     )
     outputs = real_outputs(whitebox)
     sensor = {name: SENSOR_NOISE.get(name, 0.0) * request.noise for name in (*INPUTS, *outputs)}
+    if not request.input_noise:
+        sensor.update(dict.fromkeys(INPUTS, 0.0))
     noise = {name: rng.standard_normal(n) * s for name, s in sensor.items()}
     u, y = _closed_loop(truth, request, outputs, reference, turbulence, supply, noise, progress)
     signals = {name: u[:, j] + noise[name] for j, name in enumerate(INPUTS)}
@@ -298,6 +361,7 @@ def synthesise(
         "effects": json.dumps(request.effects, sort_keys=True),
         "seed": str(request.seed),
         "noise": repr(request.noise),
+        "input_noise": str(request.input_noise).lower(),
         "reference_step": repr(dt * stride),
         "reference": json.dumps(reference[::stride].round(6).tolist()),
     }
@@ -314,29 +378,33 @@ def _closed_loop(
     noise: Mapping[str, np.ndarray],
     progress: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Run the controller and the truth FMU sample by sample.
+    """Run the controller and the truth FMU sample by sample, with the loop effects.
 
     Returns
     -------
     u : ndarray, shape (n, 4)
-        True inputs applied (valve current, supply pressure, load force, engage).
+        Inputs the loop commanded (valve current, supply pressure, load force, engage), before
+        any loop effect on the inputs.
     y : ndarray, shape (n, n_outputs)
-        True (noise-free) outputs, ``y[k]`` observed before ``u[k]`` acts.
+        Noise-free outputs as the sensors report them, ``y[k]`` observed before ``u[k]`` acts.
     """
     profile = request.profile
     n = reference.size
     ram = outputs.index("ram_position")
     u = np.empty((n, len(INPUTS)))
     y = np.empty((n, len(outputs)))
+    loop = Loop(request.effects, INPUTS, outputs, profile.dt)
+    parameters = {k: v for k, v in request.effects.items() if not is_loop_effect(k)}
     start = {"supply_pressure": float(supply[0]), "engage": 1.0}
-    with FmuInstance(truth, INPUTS, outputs, request.effects, start, "synth") as inst:
-        y[0] = inst.read_outputs()
+    with FmuInstance(truth, INPUTS, outputs, parameters, start, "synth") as inst:
+        true = inst.read_outputs().copy()
         for k in track(range(n), "Recording the truth model in closed loop", n, progress):
+            y[k] = loop.sensed(true)
             measured = y[k, ram] + noise["ram_position"][k]
             current = profile.position_gain * (reference[k] - measured)
             current = min(max(current, -profile.current_limit), profile.current_limit)
-            force = profile.aero_stiffness * y[k, ram] + turbulence[k]
+            force = profile.aero_stiffness * true[ram] + turbulence[k]
             u[k] = (current, supply[k], force, 1.0)
             if k + 1 < n:
-                y[k + 1] = inst.step(u[k], profile.dt)
+                true = inst.step(loop.applied(u[k], true), profile.dt).copy()
     return u, y

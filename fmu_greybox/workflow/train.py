@@ -20,6 +20,7 @@ from fmu_greybox.progress import Progress
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import prepare, split_row, whitebox_path
 from fmu_greybox.project.fingerprint import data_rows, row_digests
+from fmu_greybox.workflow.parts import FittedModel, check_ship, ship_part
 
 #: Fewest rows a model is trained on: fewer cannot pin down a corrector's hyperparameters, and
 #: the free-run checks of training need a tail of them.
@@ -41,11 +42,15 @@ def train_model(
     progress: bool = False,
     target_mode: str | None = None,
     terms: Sequence[Term] = (),
+    ship: str = "best",
 ) -> GreyBoxModel:
     """Simulate the white-box over the recording and fit every stage's corrector.
 
     The leading ``config.train_fraction`` of the recording trains; the rest stays held out for
-    ``validate``.
+    ``validate``. With named ``terms``, correctors are also trained on the plain white-box, and
+    the correctors alone, the terms alone and both are compared on the held-out rows
+    (:mod:`fmu_greybox.workflow.parts`); the model is the part ``ship`` names, by default the
+    best, and ``training["parts"]`` keeps the comparison.
 
     Parameters
     ----------
@@ -58,6 +63,8 @@ def train_model(
     terms : sequence of Term
         Named correction terms (from a diagnosis) folded into the white-box first: the
         correctors then learn what white-box + terms leave, and the model carries the terms.
+    ship : str
+        One of :data:`~fmu_greybox.workflow.parts.SHIP_CHOICES` (used with ``terms`` only).
 
     Returns
     -------
@@ -67,8 +74,25 @@ def train_model(
     ------
     ConfigError
         Fewer than :data:`MIN_TRAIN_ROWS` training rows, or more inducing points than
-        training rows per stage (the message names the field to change).
+        training rows per stage (the message names the field to change), or an unknown
+        ``ship``.
     """
+    check_ship(ship)
+    named = fit_model(config, recording, progress, target_mode, terms)
+    if not terms:
+        return named.model
+    plain = fit_model(config, recording, progress, target_mode, ())
+    return ship_part(named, plain, ship)
+
+
+def fit_model(
+    config: ProjectConfig,
+    recording: Recording,
+    progress: bool,
+    target_mode: str | None,
+    terms: Sequence[Term],
+) -> FittedModel:
+    """One chain of correctors on the white-box with ``terms`` (see :func:`train_model`)."""
     started = time.perf_counter()
     fmu_path = whitebox_path(config)
     chain = GreyBoxChain(config, target_mode)
@@ -115,7 +139,7 @@ def train_model(
         "whitebox_sha256": file_sha256(fmu_path),
         "seconds": round(time.perf_counter() - started, 2),
     }
-    return GreyBoxModel(
+    model = GreyBoxModel(
         config=config,
         chain=chain,
         whitebox_fmu=fmu_path,
@@ -124,6 +148,7 @@ def train_model(
         terms=list(terms),
         trained_rows=row_digests(data_rows(data)[rows]),
     )
+    return FittedModel(model, data, split)
 
 
 def check_training_size(config: ProjectConfig, chain: GreyBoxChain, recording: Recording) -> None:

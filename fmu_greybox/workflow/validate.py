@@ -241,7 +241,8 @@ def frequency_table(validation: Validation) -> dict[str, dict]:
 
 def write_metrics(validation: Validation, model: GreyBoxModel, path: Path) -> dict:
     """Write ``metrics.json`` atomically (``scored_rows``: the scored rows as ``[first, last]``
-    ranges, both included); returns its content."""
+    ranges, both included; ``parts``: for a model trained with named terms, the comparison of
+    its parts made at training, :mod:`fmu_greybox.workflow.parts`); returns its content."""
     payload = {
         "held_out": validation.held_out,
         "n_rows": int(validation.scored.size),
@@ -251,6 +252,8 @@ def write_metrics(validation: Validation, model: GreyBoxModel, path: Path) -> di
         "frequency": frequency_table(validation),
         "acceptance": validation.acceptance.to_dict() if validation.acceptance else None,
     }
+    if "parts" in model.training:  # train --terms: its comparison on the training's held-out rows
+        payload["parts"] = model.training["parts"]
     with atomic_write(path, "w") as f:
         json.dump(payload, f, indent=2)
     return payload

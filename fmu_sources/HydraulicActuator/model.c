@@ -111,8 +111,9 @@ static void flows(const SimData *d, const double x[N_STATES], Flows *f) {
 #ifdef TRUTH_MODEL
 static double friction(const SimData *d, double v) {
     const double vs = v / REAL(d, stribeck_velocity);
-    return (REAL(d, coulomb_friction) + REAL(d, stribeck_friction) * exp(-vs * vs)) *
-           tanh(v / REAL(d, friction_smoothing_velocity));
+    const double direction = tanh(v / REAL(d, friction_smoothing_velocity));
+    return (REAL(d, coulomb_friction) + REAL(d, stribeck_friction) * exp(-vs * vs)) * direction +
+           REAL(d, friction_asymmetry) * fabs(direction);
 }
 #endif
 

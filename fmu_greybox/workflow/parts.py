@@ -1,0 +1,208 @@
+"""Never worse than its parts: named terms alone, correctors alone and both, on held-out rows.
+
+A model with named terms (from a diagnosis) is one of three candidates: the paper's correctors
+on the plain white-box (``correctors``), the white-box with the named terms and no corrector
+(``terms``), and correctors trained on top of the named terms (``terms+correctors``).
+``train --terms`` and ``diagnose`` free-run each over the rows held out from training and
+compare them stage by stage; the model shipped is the best unless the user names another.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from fmu_greybox.errors import ConfigError
+from fmu_greybox.workflow.metrics import rmse
+
+if TYPE_CHECKING:
+    from fmu_greybox.model.store import GreyBoxModel
+    from fmu_greybox.project.data import ProjectData
+
+#: The candidates, in the order they are reported.
+PARTS = ("correctors", "terms", "terms+correctors")
+#: What ``train --ship`` accepts: the best candidate on held-out rows, or one named.
+SHIP_CHOICES = ("best", *PARTS)
+#: Fewest held-out rows a comparison is made on; with fewer the data cannot decide.
+MIN_COMPARED_ROWS = 50
+
+
+@dataclass(frozen=True)
+class PartsComparison:
+    """The held-out comparison of the candidates.
+
+    Attributes
+    ----------
+    stages : dict
+        Stage -> ``{PART}_rmse`` for each part, and ``best`` (the part with the lowest RMSE).
+    score : dict
+        Part -> mean over the stages of its RMSE divided by the stage's scale (its training
+        target's spread).
+    best : str or None
+        The part with the lowest score; ``None`` when fewer than :data:`MIN_COMPARED_ROWS`
+        rows were held out.
+    shipped : str
+        The part the model is.
+    rows : list of int
+        ``[first, last]`` held-out rows compared.
+    """
+
+    stages: dict[str, dict[str, float | str]]
+    score: dict[str, float]
+    best: str | None
+    shipped: str
+    rows: list[int]
+
+    def to_dict(self) -> dict:
+        """Plain data for ``model.json``, ``metrics.json`` and ``diagnosis.json``."""
+        return {
+            "held_out_rows": self.rows,
+            "stages": self.stages,
+            "score": self.score,
+            "best": self.best,
+            "shipped": self.shipped,
+        }
+
+
+def summary(parts: Mapping) -> str:
+    """One line of a comparison (:meth:`PartsComparison.to_dict`): each part's score, the best
+    and what was shipped (when it says)."""
+    scores = ", ".join(f"{part} {parts['score'][part]:.3g}" for part in PARTS)
+    if parts["best"] is None:
+        best = f"too few held-out rows to compare (fewer than {MIN_COMPARED_ROWS})"
+    else:
+        best = f"best {parts['best']}"
+    shipped = f"; shipped {parts['shipped']}" if "shipped" in parts else ""
+    return f"held-out nRMSE {scores}: {best}{shipped}"
+
+
+def compare_parts(
+    names: Sequence[str],
+    recorded: np.ndarray,
+    predictions: Mapping[str, np.ndarray],
+    scale: Mapping[str, float],
+    first_row: int,
+    ship: str = "best",
+) -> PartsComparison:
+    """Compare the candidates' predictions of the held-out rows.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Stage names, one per column.
+    recorded : ndarray, shape (m, Q)
+        Recorded stage targets of the held-out rows.
+    predictions : mapping of str to ndarray, each shape (m, Q)
+        Part (each of :data:`PARTS`) -> its free run over the same rows.
+    scale : mapping of str to float
+        Stage -> spread of its training target (normalises the RMSE).
+    first_row : int
+        Recording row of the first held-out row.
+    ship : str
+        One of :data:`SHIP_CHOICES`. ``"best"`` ships the best part, or ``terms+correctors``
+        when too few rows were held out to compare.
+
+    Returns
+    -------
+    PartsComparison
+
+    Raises
+    ------
+    ConfigError
+        ``ship`` is not one of :data:`SHIP_CHOICES`.
+    """
+    check_ship(ship)
+    stages: dict[str, dict[str, float | str]] = {}
+    normalised = {part: [] for part in PARTS}
+    for q, name in enumerate(names):
+        row: dict[str, float | str] = {}
+        for part in PARTS:
+            error = rmse(predictions[part][:, q], recorded[:, q])
+            row[f"{part}_rmse"] = error
+            normalised[part].append(error / (scale[name] or 1.0))
+        row["best"] = min(PARTS, key=lambda part: row[f"{part}_rmse"])
+        stages[name] = row
+    score = {part: float(np.mean(values)) for part, values in normalised.items()}
+    m = recorded.shape[0]
+    best = min(PARTS, key=score.__getitem__) if m >= MIN_COMPARED_ROWS else None
+    shipped = ship if ship != "best" else (best or "terms+correctors")
+    return PartsComparison(stages, score, best, shipped, [first_row, first_row + m - 1])
+
+
+def check_ship(ship: str) -> None:
+    """Raise :class:`ConfigError` unless ``ship`` is one of :data:`SHIP_CHOICES`."""
+    if ship not in SHIP_CHOICES:
+        raise ConfigError(
+            f"{ship!r} is not a part to ship; choose one of {', '.join(SHIP_CHOICES)}",
+            field="--ship",
+        )
+
+
+@dataclass(frozen=True)
+class FittedModel:
+    """A trained model with the data it was trained on.
+
+    Attributes
+    ----------
+    model : GreyBoxModel
+    data : ProjectData
+        The recording arranged for its chain (``y_wb``: the white-box with its terms).
+    split : int
+        Last training row; the rows after it are held out.
+    """
+
+    model: GreyBoxModel
+    data: ProjectData
+    split: int
+
+    def held_out(self) -> np.ndarray:
+        """The chain's free run over the held-out rows, from the recorded outputs up to the
+        split; shape (n - split - 1, Q)."""
+        data = self.data
+        mean, _ = self.model.chain.free_run(data.exo, data.y_wb, data.outputs, self.split)
+        return mean
+
+
+def ship_part(named: FittedModel, plain: FittedModel, ship: str) -> GreyBoxModel:
+    """The model of the part to ship, with the comparison in ``training["parts"]``.
+
+    Parameters
+    ----------
+    named : FittedModel
+        Correctors trained on the white-box with the named terms.
+    plain : FittedModel
+        Correctors trained on the plain white-box, on the same rows.
+    ship : str
+        One of :data:`SHIP_CHOICES`.
+
+    Returns
+    -------
+    GreyBoxModel
+        ``plain``'s model for ``correctors``; ``named``'s for ``terms+correctors``, and with
+        every corrector passed through for ``terms``.
+    """
+    rows = slice(named.split + 1, None)
+    predictions = {
+        "correctors": plain.held_out(),
+        "terms": named.data.y_wb[rows],
+        "terms+correctors": named.held_out(),
+    }
+    comparison = compare_parts(
+        named.model.chain.stage_names,
+        named.data.outputs[rows],
+        predictions,
+        named.model.target_std,
+        named.split + 1,
+        ship,
+    )
+    model = plain.model if comparison.shipped == "correctors" else named.model
+    if comparison.shipped == "terms":
+        model.chain.active_[:] = False
+    model.training["parts"] = comparison.to_dict()
+    model.training["seconds"] = round(
+        named.model.training["seconds"] + plain.model.training["seconds"], 2
+    )
+    return model

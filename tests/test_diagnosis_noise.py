@@ -1,0 +1,103 @@
+"""The noise model of the diagnosis: sensor noise of fast signals, input noise of closed-loop
+commands, the drift input noise drives, and structure concentrated in one band."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from third_party import INPUTS as SERVO_INPUTS
+from third_party import SENSOR_NOISE as SERVO_NOISE
+from third_party import record
+
+from fmu_greybox.diagnosis.noise import (
+    DriftWhitening,
+    input_noise_levels,
+    noise_level,
+    residual_bands,
+    sensor_noise_level,
+    significance,
+)
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.model.simulate import simulate_with_terms
+from fmu_greybox.synth.actuator import (
+    INPUTS,
+    SENSOR_NOISE,
+    FlightTestProfile,
+    SynthRequest,
+    coloured_noise,
+)
+from fmu_greybox.synth.actuator import synthesise as record_actuator
+
+
+def test_closed_loop_command_noise_is_told_from_its_genuine_fast_content(
+    whitebox_fmu, truth_fmu
+) -> None:
+    """The logged valve current is the controller's reaction to the position sensor's noise
+    (genuine, the valve follows it) plus its own sensor's noise (0.02 mA): the second
+    differences alone see both, the other recorded signals explain the first."""
+    profile = FlightTestProfile(duration=8.0)
+    with open_fmu(truth_fmu) as truth, open_fmu(whitebox_fmu) as whitebox:
+        recording = record_actuator(truth, whitebox, SynthRequest({}, seed=5, profile=profile))
+    u = np.column_stack([recording[name] for name in INPUTS])
+    outputs = np.column_stack(
+        [recording[name] for name in ("spool_position", "ram_position", "ram_velocity")]
+    )
+    levels = input_noise_levels(u, outputs)
+    assert noise_level(recording["valve_current"]) > 1.8 * SENSOR_NOISE["valve_current"]
+    assert levels[0] == pytest.approx(SENSOR_NOISE["valve_current"], rel=0.1)
+    assert levels[1] == pytest.approx(SENSOR_NOISE["supply_pressure"], rel=0.1)
+
+
+def test_fast_signal_noise_is_taken_from_its_residual(dc_servo_fmus) -> None:
+    """The servo's armature current (1.7 ms time constant) moves a lot between samples: its
+    recording's second differences overstate its sensor noise twofold; its residual against
+    the white-box does not."""
+    with open_fmu(dc_servo_fmus["DCServoTruth"]) as truth:
+        recording = record(truth, {}, seed=6, duration=6.0)
+    with open_fmu(dc_servo_fmus["DCServo"]) as whitebox:
+        u = np.column_stack([recording[name] for name in SERVO_INPUTS])
+        current = simulate_with_terms(whitebox, SERVO_INPUTS, u, recording.dt, ["ia"])[:, 0]
+    true = SERVO_NOISE["ia"]
+    assert noise_level(recording["ia"]) > 1.8 * true
+    assert sensor_noise_level(recording["ia"], current) == pytest.approx(true, rel=0.3)
+
+
+def test_whitening_makes_input_noise_drift_white_at_the_sensor_level() -> None:
+    """An integrator of a noisy input: the residual is the sensor noise plus a random walk of
+    ten noise levels; whitened against the drift re-noised runs show, it is white at about
+    one noise level, with no band structured beyond chance."""
+    rng = np.random.default_rng(7)
+    n, dt, sigma = 20000, 1e-3, 1.0
+
+    def walk() -> np.ndarray:
+        return np.cumsum(rng.standard_normal(n)) * 0.12
+
+    residual = (rng.standard_normal(n) * sigma + walk())[:, None]
+    assert np.sqrt(np.mean(residual**2)) > 5.0
+    whitening = DriftWhitening(np.array([walk()[:, None] for _ in range(4)]), np.ones(1), dt)
+    whitened = whitening(residual)
+    ratio, significant = significance(whitened, residual_bands(residual, whitening, dt))
+    assert 0.7 < ratio[0] < 1.2
+    assert not significant[0]
+
+
+def test_an_offset_of_two_noise_levels_under_drift_is_significant_in_its_band() -> None:
+    """Input noise makes the residual wander slowly by about a noise level (as the load
+    torque's noise moves a servo's current): far more power at low frequencies than the
+    sensor noise has there, so an offset of two noise levels lifts the whitened RMS little;
+    in its band (the mean) it stands out."""
+    rng = np.random.default_rng(8)
+    n, dt = 20000, 1e-3
+
+    def wander() -> np.ndarray:
+        return coloured_noise(n, dt, 1.0, 0.5, rng)[:, None]
+
+    whitening = DriftWhitening(np.array([wander() for _ in range(4)]), np.ones(1), dt)
+    noise = rng.standard_normal((n, 1)) + wander()
+    for offset, expected in ((0.0, False), (2.0, True)):
+        residual = noise + offset
+        bands = residual_bands(residual, whitening, dt)
+        ratio, significant = significance(whitening(residual), bands)
+        assert significant[0] == expected, offset
+    assert ratio[0] < 1.3  # the RMS alone would not see it
+    assert bands.significant[0, 0]  # the mean's band
