@@ -51,7 +51,7 @@ def main() -> None:
         signals = SignalMap.from_project(config, whitebox, recording)
         train = int(0.8 * recording.n_samples)
         experiment = Experiment.from_project(config, whitebox, recording, signals, train)
-        experiment.estimate_noise(experiment.simulate([]))
+        experiment.estimate_noise()
         nominal = whitebox.variable("bulk_modulus").start
         with Simulator(experiment, workers=2) as simulator:
             views = {

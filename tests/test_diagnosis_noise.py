@@ -11,6 +11,7 @@ from third_party import record
 
 from fmu_greybox.diagnosis.noise import (
     DriftWhitening,
+    InputSmoother,
     input_noise_levels,
     noise_level,
     residual_bands,
@@ -60,6 +61,28 @@ def test_fast_signal_noise_is_taken_from_its_residual(dc_servo_fmus) -> None:
     true = SERVO_NOISE["ia"]
     assert noise_level(recording["ia"]) > 1.8 * true
     assert sensor_noise_level(recording["ia"], current) == pytest.approx(true, rel=0.3)
+
+
+def test_smoothing_removes_input_noise_and_keeps_the_command() -> None:
+    """A slow command (0.5 and 3 Hz) logged with white noise of 0.02: smoothed, its error is a
+    fifth of the noise away from the ends, no lag, and the remaining error's draws have the
+    Wiener error's power (the noise's power times the mean gain)."""
+    dt, n, sigma = 1e-3, 20_000, 0.02
+    t = np.arange(n) * dt
+    command = np.sin(2 * np.pi * 0.5 * t) + 0.3 * np.sin(2 * np.pi * 3.0 * t)
+    rng = np.random.default_rng(4)
+    logged = (command + sigma * rng.standard_normal(n))[:, None]
+    smoother = InputSmoother(logged, np.array([sigma]))
+    error = smoother(logged)[:, 0] - command
+    assert np.sqrt(np.mean(error[200:-200] ** 2)) < 0.2 * sigma
+    # the mirror image puts a kink where the command has a slope at an end: a few rows there
+    assert np.sum(np.abs(error) > sigma) < 50
+    lag = np.argmax(np.correlate(smoother(logged)[:, 0], command, "full")) - (n - 1)
+    assert lag == 0
+    draws = np.array([smoother.noise(rng, np.array([sigma]))[:, 0] for _ in range(4)])
+    assert np.mean(draws**2) == pytest.approx(np.mean(smoother.gain) * sigma**2, rel=0.2)
+    quiet = InputSmoother(command[:, None], np.array([0.0]))
+    np.testing.assert_allclose(quiet(command[:, None])[:, 0], command, atol=1e-12)
 
 
 def test_whitening_makes_input_noise_drift_white_at_the_sensor_level() -> None:

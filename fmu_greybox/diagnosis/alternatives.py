@@ -2,10 +2,14 @@
 what to record to tell them apart.
 
 A refined candidate is an **alternative** to the one a selection round accepts when it names
-other physics and the data hardly prefer the accepted one: its Bayesian information criterion
-is less than :data:`ALTERNATIVE_BIC` above the accepted one's (on the training rows), and its
-held-out structure is within :data:`ALTERNATIVE_HELDOUT` of the accepted one's
-(:func:`~.select.heldout_ratio`).
+other physics, passes the acceptance tests itself, and fits **nearly as well**
+(:func:`nearly_as_good`) by either measure: its Bayesian information criterion is less than
+:data:`ALTERNATIVE_BIC` above the accepted one's (on the training rows), or its held-out
+structure is within :data:`ALTERNATIVE_HELDOUT` of the accepted one's
+(:func:`~.select.heldout_ratio`). Either suffices: the criterion treats what is left of the
+training residual as noise, so where other effects still leave structure (or the recording is
+long) a difference of a fraction of a percent in fit counts as strong evidence; the held-out
+rows, which neither fit saw, then say whether one predicts better.
 
 Where two explanations predict the recording alike, a different recording separates them. Their
 simulated outputs say where: :func:`separation` finds the observed signal where they differ
@@ -61,7 +65,8 @@ def physics_of(h: Hypothesis) -> str:
 def is_alternative(
     accepted: Candidate, other: Candidate, delta_bic: float, heldout_ratio: float
 ) -> bool:
-    """Whether ``other`` is an alternative to ``accepted`` (see the module docstring).
+    """Whether ``other`` names other physics than ``accepted`` and fits nearly as well (see the
+    module docstring; the caller checks that it passes the acceptance tests).
 
     Parameters
     ----------
@@ -73,11 +78,22 @@ def is_alternative(
         ``other``'s held-out structure over ``accepted``'s.
     """
     a, b = accepted.hypotheses[-1], other.hypotheses[-1]
-    return (
-        physics_of(a) != physics_of(b)
-        and delta_bic < ALTERNATIVE_BIC
-        and heldout_ratio <= 1.0 + ALTERNATIVE_HELDOUT
-    )
+    return physics_of(a) != physics_of(b) and nearly_as_good(delta_bic, heldout_ratio)
+
+
+def nearly_as_good(delta_bic: float, heldout_ratio: float) -> bool:
+    """Whether a fit is nearly as good as another: its information criterion is less than
+    :data:`ALTERNATIVE_BIC` above, or its held-out structure within :data:`ALTERNATIVE_HELDOUT`
+    of, the other's.
+
+    Parameters
+    ----------
+    delta_bic : float
+        Its criterion minus the other's.
+    heldout_ratio : float
+        Its held-out structure over the other's.
+    """
+    return delta_bic < ALTERNATIVE_BIC or heldout_ratio <= 1.0 + ALTERNATIVE_HELDOUT
 
 
 @dataclass

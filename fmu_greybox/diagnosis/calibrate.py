@@ -463,10 +463,10 @@ class Calibrator:
         * **score**: both residuals are consistent scores of a correct model; where their
           estimates differ, a structural difference between the hypothesis and the real
           physics weighs differently in the two;
-        * **input noise**: the recorded inputs drive the white-box with their sensor noise,
-          which biases the estimate (errors in variables). The shift of one Gauss-Newton step
-          when the inputs are re-noised at their estimated noise level measures it; for inputs
-          with genuine fast content (a controller's command) the estimate is an upper bound.
+        * **input noise**: what is left of the recorded inputs' sensor noise after their
+          smoothing still drives the white-box (errors in variables). The shift of one
+          Gauss-Newton step when that error is drawn afresh
+          (:meth:`~.runner.Experiment.renoised`) measures it.
 
         The candidates must have been evaluated by this calibrator.
         """

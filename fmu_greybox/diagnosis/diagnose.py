@@ -180,12 +180,10 @@ class Diagnosis:
             n = recording.n_samples
             train = max(2, min(n - 2, int(min(config.train_fraction, MAX_TRAIN_FRACTION) * n)))
             experiment = Experiment.from_project(config, archive, recording, signals, train)
-            self.progress("simulating the white-box")
-            wb = experiment.simulate([])
+            self.progress("estimating the noise and simulating the white-box")
+            wb = experiment.estimate_noise()
             if wb is None:
                 raise ConfigError("the white-box FMU fails on this recording's inputs")
-            self.progress("estimating the noise")
-            experiment.estimate_noise(wb)
             signals.assign_stages(wb, experiment.dt)
             experiment.stages = signals.observed_stages
             self.signals_, self.experiment_ = signals, experiment

@@ -14,8 +14,11 @@ Three estimates, each from the recording and the FMU, none from a model of the t
   genuine fast content (a controller's reaction to its own sensors' noise, which the plant then
   follows) is explained by the recorded outputs; the noise of the sensor that logged it is
   explained by nothing, since the plant never felt it.
-* **input-noise drift** (:class:`DriftWhitening`): the white-box is run again with each
-  recorded input re-noised at its estimated level; the spread of the outputs is what input noise
+* **smoothed inputs** (:class:`InputSmoother`): each noisy input is Wiener-smoothed against its
+  noise before it drives any simulation, so that fits answer the inputs and not their sensors'
+  noise (whose answer through the FMU depends on the magnitudes fitted: errors in variables).
+* **input-noise drift** (:class:`DriftWhitening`): the white-box is run again with a fresh draw
+  of each smoothed input's remaining error; the spread of the outputs is what input noise
   alone drives (an integrating output such as an angle or a position wanders like a random
   walk). Its spectrum, against the sensor noise's, sets a zero-phase whitening filter per
   observed signal: frequencies where input-noise drift dominates count less, in proportion.
@@ -132,6 +135,58 @@ def input_noise_levels(u: np.ndarray, others: np.ndarray, lags: int = INPUT_LAGS
             keep = np.abs(left) <= 4.0 * scale
         levels[i] = scale / np.sqrt(6.0)
     return levels
+
+
+class InputSmoother:
+    """Zero-phase Wiener smoothing of the recorded inputs against their sensor noise.
+
+    A recorded input is its true value plus the white noise of the sensor that logged it
+    (:func:`input_noise_levels`). Simulated over it, the white-box also answers the noise: in a
+    least-squares fit that answer's power depends on the hypotheses' magnitudes (a softer
+    actuator passes less of it), which biases them (errors in variables). Per input and
+    frequency, the gain ``H = max(0, 1 - N / S)`` (``S`` the input's smoothed power spectrum,
+    ``N`` its noise's) keeps what stands above the noise and drops what does not; what is left
+    of the error has the spectrum ``H N`` (the Wiener error), which :meth:`noise` draws for the
+    drift estimate. The filter runs over the input followed by its mirror image (no jump at the
+    wrap), so it adds no lag and no end transients.
+
+    Parameters
+    ----------
+    u : ndarray, shape (n, n_inputs)
+        Recorded inputs.
+    sigma : ndarray, shape (n_inputs,)
+        Their noise levels (0: leave that input as it is).
+
+    Attributes
+    ----------
+    gain : ndarray, shape (n + 1, n_inputs)
+        ``H`` on the rfft grid of the mirrored inputs (``2 n`` samples).
+    """
+
+    def __init__(self, u: np.ndarray, sigma: np.ndarray) -> None:
+        n = u.shape[0]
+        power = np.abs(np.fft.rfft(_mirrored(u, 0), axis=0)) ** 2
+        noise = 2 * n * np.asarray(sigma, dtype=np.float64) ** 2
+        smoothed = np.maximum(_smooth(power), 1e-300)
+        self.gain = np.clip(1.0 - noise / smoothed, 0.0, 1.0)
+        self.gain[0] = 1.0
+
+    def __call__(self, u: np.ndarray) -> np.ndarray:
+        """The inputs smoothed, shape (n, n_inputs) (a new array)."""
+        return self._filtered(u, self.gain)
+
+    def noise(self, rng: np.random.Generator, sigma: np.ndarray) -> np.ndarray:
+        """A draw of the error left in the smoothed inputs: white noise at ``sigma`` shaped by
+        ``sqrt(H)``, shape (n, n_inputs)."""
+        n = self.gain.shape[0] - 1
+        white = rng.standard_normal((n, self.gain.shape[1])) * sigma
+        return self._filtered(white, np.sqrt(self.gain))
+
+    @staticmethod
+    def _filtered(x: np.ndarray, gain: np.ndarray) -> np.ndarray:
+        n = x.shape[0]
+        spectrum = np.fft.rfft(_mirrored(x, 0), axis=0) * gain
+        return np.fft.irfft(spectrum, n=2 * n, axis=0)[:n]
 
 
 class DriftWhitening:

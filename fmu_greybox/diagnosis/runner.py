@@ -27,6 +27,7 @@ from fmu_greybox.data.recording import Recording
 from fmu_greybox.diagnosis.noise import (
     Bands,
     DriftWhitening,
+    InputSmoother,
     input_noise_levels,
     noise_level,
     residual_bands,
@@ -52,7 +53,8 @@ class Experiment:
     inputs : list of str
         FMU inputs, one per column of ``u``.
     u : ndarray, shape (n, n_inputs)
-        Recorded (or fixed) inputs.
+        Recorded (or fixed) inputs; after :meth:`estimate_noise`, smoothed against their
+        noise (:attr:`smoother`).
     dt : float
         Sample time [s].
     start_time : float
@@ -75,6 +77,9 @@ class Experiment:
     whitening : DriftWhitening or None
         Whitening against the drift input noise drives (after :meth:`estimate_noise`, when an
         input is noisy).
+    smoother : InputSmoother or None
+        The smoothing of the noisy recorded inputs (after :meth:`estimate_noise`, when an
+        input is noisy).
     """
 
     archive: FmuArchive
@@ -90,6 +95,7 @@ class Experiment:
     train_rows: int
     input_sigma: np.ndarray | None = None
     whitening: DriftWhitening | None = None
+    smoother: InputSmoother | None = None
     _cache: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -127,27 +133,42 @@ class Experiment:
         """Number of rows."""
         return self.u.shape[0]
 
-    def estimate_noise(self, simulated: np.ndarray, runs: int = 4, seed: int = 0) -> None:
-        """Set the noise model from the white-box simulation (:mod:`.noise`): each observed
-        signal's sensor noise, each input's noise, and the whitening against the drift that
-        ``runs`` simulations with re-noised inputs show.
+    def estimate_noise(self, runs: int = 4, seed: int = 0) -> np.ndarray | None:
+        """Set the noise model (:mod:`.noise`) and return the white-box simulation it leads to.
+
+        Each recorded input's noise is estimated, and noisy inputs are smoothed against it
+        (:class:`~.noise.InputSmoother`: the simulations that follow answer the inputs, not
+        their sensors' noise). Then, against the white-box over those inputs: each observed
+        signal's sensor noise, and the whitening against the drift that ``runs`` simulations
+        with the inputs' remaining error re-drawn show.
 
         Parameters
         ----------
-        simulated : ndarray, shape (n, n_outputs)
-            The white-box over the recorded inputs.
         runs : int
-            Simulations with re-noised inputs.
+            Simulations with re-drawn input error.
         seed : int
-            Seed of the re-noising.
+            Seed of the re-drawing.
+
+        Returns
+        -------
+        ndarray, shape (n, n_outputs), or None
+            The white-box over the (smoothed) inputs; None if the FMU fails on them.
         """
+        self.input_sigma = input_noise_levels(self.u, self.recorded)
+        self.whitening = None
+        self.smoother = None
+        if np.any(self.input_sigma > 0):
+            self.smoother = InputSmoother(self.u, self.input_sigma)
+            self.u = self.smoother(self.u)
+            self._cache = {}
+        simulated = self.simulate([])
+        if simulated is None:
+            return None
         pairs = zip(self.recorded.T, simulated.T, strict=True)
         levels = [sensor_noise_level(recorded, sim) for recorded, sim in pairs]
         self.sigma = _floored(levels, self.recorded)
-        self.input_sigma = input_noise_levels(self.u, self.recorded)
-        self.whitening = None
-        if not np.any(self.input_sigma > 0) or runs < 1:
-            return
+        if self.smoother is None or runs < 1:
+            return simulated
         rng = np.random.default_rng(seed)
         deviations = []
         for _ in range(runs):
@@ -156,14 +177,17 @@ class Experiment:
                 deviations.append(run - simulated)
         if deviations:
             self.whitening = DriftWhitening(np.array(deviations), self.sigma, self.dt)
+        return simulated
 
     def renoised(self, rng: np.random.Generator) -> Experiment:
-        """A copy whose inputs carry extra white noise at each input's noise level (the
-        estimated one, else that of its second differences)."""
-        sigma = self.input_sigma
-        if sigma is None:
+        """A copy whose inputs carry a fresh draw of their error: the smoothed inputs' remaining
+        error (:meth:`~.noise.InputSmoother.noise`) after :meth:`estimate_noise`, else white
+        noise at each input's second-difference noise level."""
+        if self.smoother is not None and self.input_sigma is not None:
+            u = self.u + self.smoother.noise(rng, self.input_sigma)
+        else:
             sigma = np.array([noise_level(x) for x in self.u.T])
-        u = self.u + rng.standard_normal(self.u.shape) * sigma
+            u = self.u + rng.standard_normal(self.u.shape) * sigma
         return dataclasses.replace(self, u=u, _cache={})
 
     def simulate(self, terms: Sequence[Term], rows: int | None = None) -> np.ndarray | None:

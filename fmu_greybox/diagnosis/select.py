@@ -34,8 +34,11 @@ Each round, on top of the hypotheses already kept:
    against the reference (the kept hypotheses, re-tuned when that lowers their cost), and the
    information criterion counts the new hypothesis' magnitudes only. A candidate that makes any
    observed signal's held-out RMSE worse by more than ``max_harm`` is never accepted. The
-   other refined candidates whose fit is nearly as good (:func:`~.alternatives.is_alternative`)
-   are kept as the accepted one's alternatives;
+   other refined candidates that pass these tests and fit nearly as well
+   (:func:`~.alternatives.is_alternative`) are kept as the accepted one's alternatives. Where
+   an added term and a mis-set parameter of the white-box name the same physics and fit
+   nearly as well, the parameter is accepted: it corrects the model's own physics instead of adding
+   structure beside it;
 4. refit every kept hypothesis jointly over the whole training part.
 
 After the last round every kept hypothesis is checked once more, with the others at their joint
@@ -58,9 +61,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fmu_greybox.diagnosis.alternatives import is_alternative, physics_of
+from fmu_greybox.diagnosis.alternatives import is_alternative, nearly_as_good, physics_of
 from fmu_greybox.diagnosis.calibrate import Calibrator, Candidate, HeldOut, autocorrelation_time
-from fmu_greybox.diagnosis.hypotheses import Hypothesis
+from fmu_greybox.diagnosis.hypotheses import Hypothesis, ParameterMismatch
 from fmu_greybox.diagnosis.noise import SIGNIFICANT_RATIO, significance, structure_left
 from fmu_greybox.diagnosis.runner import Simulator
 
@@ -286,7 +289,11 @@ class ForwardSelection:
         spectrum. The best few of distinct physics go on (two variants of one effect compete
         for one place, so that a near tie of duplicates does not crowd out other physics); a
         variant with more magnitudes (``KEY+asymmetric``) brings its simpler form along, so
-        that the information criterion can choose between them.
+        that the information criterion can choose between them. Variants of a chosen physics
+        that the screen cannot tell from it (:func:`_tied`: a viscous force on the motor's speed
+        and a mis-set load friction behind a rigid gear) come along too, up to
+        :data:`TIED_VARIANTS` in all, outside the count: the refinement decides between them or
+        gives them as alternatives.
 
         Returns
         -------
@@ -315,18 +322,24 @@ class ForwardSelection:
         ranked = sorted(best.items(), key=lambda item: item[1][0])
         round_.screened = [(key, ratio) for key, (ratio, _, _) in ranked[:10]]
         top: list[tuple[Candidate, bool]] = []
-        families: set[str] = set()
+        families: dict[str, list[float]] = {}
         for key, (ratio, c, spectral) in ranked:
-            family = physics_of(c.hypotheses[-1])
-            if ratio >= 0.99 or len(families) == self.refine_top:
+            if ratio >= 0.99:
                 break
-            if family in families:
+            family = physics_of(c.hypotheses[-1])
+            chosen = families.get(family)
+            if chosen is None and len(families) < self.refine_top:
+                families[family] = [ratio]
+                picks = [(c, spectral)]
+                simpler = best.get(key.split("+")[0])
+                if simpler is not None and simpler[1] is not c:
+                    picks.append((simpler[1], simpler[2]))
+            elif chosen is not None and len(chosen) < TIED_VARIANTS and _tied(ratio, chosen[0]):
+                chosen.append(ratio)
+                picks = [(c, spectral)]
+            else:
                 continue
-            families.add(family)
-            top.append((c, spectral))
-            simpler = best.get(key.split("+")[0])
-            if simpler is not None and simpler[1] is not c:
-                top.append((simpler[1], simpler[2]))
+            top.extend(p for p in picks if not any(p[0] is t for t, _ in top))
         return top
 
     def _refine(
@@ -359,6 +372,7 @@ class ForwardSelection:
         n_eff = base_r.size / autocorrelation_time(base_r)
         best, best_bic = None, -self.bic_threshold
         scored = []
+        passing: list[tuple[Candidate, float]] = []
         outputs = full.experiment.outputs
         for c in refined:
             if not math.isfinite(c.cost):
@@ -382,23 +396,69 @@ class ForwardSelection:
                     f"worsens the held-out fit of {outputs[harm[0]]} by {100 * harm[1]:.1f} %"
                 )
             round_.refined.append(entry)
-            scored.append((c, bic, harm is None))
             enough = reference.cost - c.cost >= needed
             passes = held <= 1.0 - self.min_heldout_gain and enough and harm is None
+            scored.append((c, bic, passes))
+            if passes:
+                passing.append((c, bic))
             if bic < best_bic and passes:
                 best, best_bic = c, bic
         if best is None:
             return None
-        for (c, bic, harmless), entry in zip(scored, round_.refined, strict=True):
+        best, best_bic = _own_parameter_first(best, best_bic, passing)
+        for (c, bic, passed), entry in zip(scored, round_.refined, strict=True):
             margins = {
                 "delta_bic": bic - best_bic,
                 "heldout_ratio": heldout_ratio(c.heldout, best.heldout),
             }
-            if c is not best and harmless and is_alternative(best, c, **margins):
+            if c is not best and passed and is_alternative(best, c, **margins):
                 entry["alternative"] = margins
                 round_.alternatives.append(c)
         round_.alternatives.sort(key=lambda c: c.cost)
         return best
+
+
+def _own_parameter_first(
+    best: Candidate, best_bic: float, passing: list[tuple[Candidate, float]]
+) -> tuple[Candidate, float]:
+    """The accepted candidate, or a mis-set parameter of the white-box of the same physics that
+    the data cannot tell from it (:func:`~.alternatives.nearly_as_good`):
+    it corrects the model's own physics instead of adding structure beside it.
+
+    Parameters
+    ----------
+    best : Candidate
+        The best candidate by the information criterion, ``best_bic`` its criterion.
+    passing : list of (Candidate, float)
+        The candidates that passed the acceptance tests, with their criteria.
+
+    Returns
+    -------
+    (Candidate, float)
+    """
+    if isinstance(best.hypotheses[-1], ParameterMismatch):
+        return best, best_bic
+    physics = physics_of(best.hypotheses[-1])
+    tied = [
+        (c, bic)
+        for c, bic in passing
+        if isinstance(c.hypotheses[-1], ParameterMismatch)
+        and physics_of(c.hypotheses[-1]) == physics
+        and nearly_as_good(bic - best_bic, heldout_ratio(c.heldout, best.heldout))
+    ]
+    return min(tied, key=lambda pair: pair[1], default=(best, best_bic))
+
+
+#: Most variants of one physics refined in a round (the best and those tied with it).
+TIED_VARIANTS = 3
+#: A variant is tied with its physics' best when it explains at least this share of what the
+#: best explains in the screen.
+TIE_SHARE = 0.9
+
+
+def _tied(ratio: float, best: float) -> bool:
+    """Whether a screen cost ratio ``ratio`` ties with ``best`` (:data:`TIE_SHARE`)."""
+    return 1.0 - ratio >= TIE_SHARE * (1.0 - best)
 
 
 #: Multiples of its scale at which the spectrum screen probes a hypothesis' first magnitude.
