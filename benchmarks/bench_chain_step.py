@@ -54,6 +54,17 @@ def factor_length(m: int) -> int:
     return sum(ld - j // 8 * 8 for j in range(m))
 
 
+#: Fields of the plan's header before the stage records (``ChainPlan``'s layout).
+PLAN_HEADER = 7
+
+
+def stage_record(plan: np.ndarray, q: int) -> np.ndarray:
+    """Stage ``q``'s record of the plan (params offset, M, ..., active, ...), whatever the
+    record's length in this plan version."""
+    length = (plan.size - PLAN_HEADER) // int(plan[1])
+    return plan[PLAN_HEADER + q * length : PLAN_HEADER + (q + 1) * length]
+
+
 def free_run_std(plan: np.ndarray, params: np.ndarray, chain, data) -> np.ndarray:
     """Standard deviations of the compiled chain over the recording, shape (n - 1, Q)."""
     exo, y_wb = np.ascontiguousarray(data.exo), np.ascontiguousarray(data.y_wb)
@@ -70,7 +81,7 @@ def float32_factors(plan: np.ndarray, params: np.ndarray) -> np.ndarray:
     """The parameters with every stage's packed factor rounded to float32."""
     rounded = params.copy()
     for q in range(int(plan[1])):
-        offset, m, active = (int(plan[7 + 8 * q + k]) for k in (0, 1, 6))
+        offset, m, active = (int(stage_record(plan, q)[k]) for k in (0, 1, 6))
         if active:
             block = slice(offset, offset + factor_length(m))
             rounded[block] = params[block].astype(np.float32).astype(np.float64)
@@ -107,7 +118,7 @@ def streaming_floor(plan: np.ndarray, params: np.ndarray) -> float:
     """Time [us] of one pass of numpy's maximum over the stages' factors (least of 500)."""
     blocks = []
     for q in range(int(plan[1])):
-        offset, m = int(plan[7 + 8 * q]), int(plan[7 + 8 * q + 1])
+        offset, m = (int(v) for v in stage_record(plan, q)[:2])
         blocks.append(params[offset : offset + factor_length(m)])
     best = np.inf
     for _ in range(500):
@@ -136,7 +147,9 @@ def main() -> None:
             data = prepare(model.config, model.chain, archive, rec)
     chain = model.chain
     plan, params = chain.plan().arrays
-    factor_bytes = 8 * sum(factor_length(int(plan[8 + 8 * q])) for q in range(int(plan[1])))
+    factor_bytes = 8 * sum(
+        factor_length(int(stage_record(plan, q)[1])) for q in range(int(plan[1]))
+    )
     reference = free_run_std(plan, params, chain, data)
     rounded = free_run_std(plan, float32_factors(plan, params), chain, data)
     error = float(np.max(np.abs(rounded / reference - 1.0)))

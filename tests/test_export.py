@@ -215,6 +215,25 @@ def unpacked(fmu: Path) -> str:
     return extract(str(fmu), unzipdir=str(fmu.with_suffix("")))
 
 
+def simulate_over(
+    fmu: Path, recording: Recording, names: list[str], **kwargs
+) -> dict[str, np.ndarray]:
+    """fmpy's ``simulate_fmu`` fed the recording's inputs at its step; each named output
+    without its first row (the master's outputs start one step later), shape (n - 1,)."""
+    result = simulate_fmu(
+        str(fmu),
+        start_time=0.0,
+        stop_time=recording.time[-1],
+        step_size=recording.dt,
+        output_interval=recording.dt,
+        input=input_signal(recording),
+        output=names,
+        **kwargs,
+    )
+    assert len(result) == recording.n_samples
+    return {n: result[n][1:] for n in names}
+
+
 def input_rows(recording: Recording) -> np.ndarray:
     return np.column_stack([recording[n] for n in INPUTS])
 
@@ -260,17 +279,7 @@ def test_simulate_fmu_gives_the_masters_outputs(
 ) -> None:
     run = master_run(model_dir, validation)
     names = [f"{o}{s}" for o in STAGE_OUTPUTS for s in ("", "_std", "_wb")]
-    result = simulate_fmu(
-        str(greybox_fmu),
-        start_time=0.0,
-        stop_time=validation.time[-1],
-        step_size=validation.dt,
-        output_interval=validation.dt,
-        input=input_signal(validation),
-        output=names,
-    )
-    assert len(result) == validation.n_samples
-    assert_matches_master({n: result[n][1:] for n in names}, run)
+    assert_matches_master(simulate_over(greybox_fmu, validation, names), run)
 
 
 @pytest.mark.parametrize("runtime", RUNTIMES)
@@ -294,17 +303,9 @@ def test_calibrated_std_equals_the_masters(
     np.testing.assert_allclose(run.std, expected, rtol=1e-12)
     assert np.all(run.std > 1.7 * run.latent_std)  # the calibration is far from the identity
     names = [o + "_std" for o in STAGE_OUTPUTS]
-    result = simulate_fmu(
-        str(fmu),
-        start_time=0.0,
-        stop_time=validation.time[-1],
-        step_size=validation.dt,
-        output_interval=validation.dt,
-        input=input_signal(validation),
-        output=names,
-    )
+    result = simulate_over(fmu, validation, names)
     for q, name in enumerate(names):
-        assert_close(result[name][1:], run.std[:, q], name)
+        assert_close(result[name], run.std[:, q], name)
 
 
 def test_correction_disabled_gives_the_whitebox_exactly(

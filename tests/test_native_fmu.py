@@ -15,7 +15,7 @@ from pathlib import Path
 import c_master as master
 import numpy as np
 import pytest
-from fmpy import extract, read_model_description, simulate_fmu
+from fmpy import extract, read_model_description
 from fmpy.model_description import read_build_description
 from libcosimpy.CosimExecution import CosimExecution
 from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
@@ -28,8 +28,8 @@ from test_export import (
     Slave,
     assert_matches_master,
     input_rows,
-    input_signal,
     master_run,
+    simulate_over,
     tampered,
     trained,
 )
@@ -116,16 +116,7 @@ def terms_fmus(terms_model: Path, tmp_path_factory: pytest.TempPathFactory) -> d
 
 def simulate(fmu: Path, recording, **kwargs) -> dict[str, np.ndarray]:
     """fmpy's simulate_fmu over a recording; the rows after the first (the master's)."""
-    result = simulate_fmu(
-        str(fmu),
-        stop_time=recording.time[-1],
-        step_size=recording.dt,
-        output_interval=recording.dt,
-        input=input_signal(recording),
-        output=NAMES,
-        **kwargs,
-    )
-    return {n: result[n][1:] for n in NAMES}
+    return simulate_over(fmu, recording, NAMES, **kwargs)
 
 
 # ---------------------------------------------------------------------------- term kinds

@@ -25,7 +25,7 @@
  * Plan, int64 (fmu_greybox/model/chain_step.py, ChainPlan):
  *   version, Q, n_exo, params length, work length, state length, history depth H
  *   per stage: params offset, M, D, sources S, memory length n, target mode, active,
- *              memory offset in the state
+ *              memory offset in the state, calibration offset (a, b) in params
  */
 #include "chain_core.h"
 
