@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import tomllib
 from pathlib import Path
 
@@ -90,8 +91,12 @@ def test_five_effects_at_once_are_all_named(whitebox_fmu, truth_fmu) -> None:
     # consistent: the truth is named or an alternative, at its magnitude.
     air = named["compliance"].to_dict() if "compliance" in named else consistent["compliance"]
     assert air["magnitude"]["value"] == pytest.approx(-0.3, rel=0.1)
-    # the friction's summary names the output it fixes, not the RAM's drifting position
-    assert "itfv_pressure's" in named["coulomb_friction"].summary
+    # the friction's summary does not undersell it: it explains a fair share of the RAM
+    # residual, or it names the output it fixes most (the pressure, where input noise leaves
+    # the RAM position drifting)
+    summary = named["coulomb_friction"].summary
+    share = int(re.search(r"explains (\d+) % of the RAM", summary).group(1))
+    assert share >= 30 or "itfv_pressure's" in summary, summary
     for stage in ("EHV", "RAM", "ITFV"):
         fit = diagnosis.fit_[stage]
         assert fit["named_rmse"] < 0.2 * fit["wb_rmse"], stage
