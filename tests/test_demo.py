@@ -180,10 +180,10 @@ def run_chromium(page: Path, tmp_path: Path, *args: str) -> subprocess.Completed
 def test_report_renders_in_headless_chromium(demo: tuple[Path, dict], tmp_path: Path) -> None:
     report = Path(demo[0]) / "report.html"
     shot = tmp_path / "report.png"
-    done = run_chromium(report, tmp_path, "--window-size=1200,2400", f"--screenshot={shot}")
+    done = run_chromium(report, tmp_path, "--window-size=1200,3000", f"--screenshot={shot}")
     assert shot.is_file(), done.stderr[-2000:]
     pixels = np.asarray(Image.open(shot).convert("L"), dtype=float)
-    assert pixels.shape == (2400, 1200)
+    assert pixels.shape == (3000, 1200)
     assert (pixels < 200).mean() > 0.03  # text, tables and plots, not a blank page
     assert pixels.std() > 20
     # the same page with a probe that counts images that failed to decode and measures where
@@ -203,7 +203,7 @@ def test_report_renders_in_headless_chromium(demo: tuple[Path, dict], tmp_path: 
         encoding="utf-8",
     )
     dom = run_chromium(
-        probe, tmp_path, "--window-size=1200,2400", "--virtual-time-budget=10000", "--dump-dom"
+        probe, tmp_path, "--window-size=1200,3000", "--virtual-time-budget=10000", "--dump-dom"
     ).stdout
     found = re.search(r'data-images="(\d+)/(\d+)"', dom)
     assert found, dom[-500:]
@@ -218,7 +218,7 @@ def test_report_renders_in_headless_chromium(demo: tuple[Path, dict], tmp_path: 
     assert badges > 500, badges
     # the uncertainty band is drawn, with an area one can see, in the residual figure
     left, top, right, bottom = box(dom, "band")
-    assert bottom <= 2400, "render the page taller: the residual figure is below the shot"
+    assert bottom <= 3000, "render the page taller: the residual figure is below the shot"
     figure = colour[top:bottom, left:right]
     band = np.all(np.abs(figure - BAND_RGB) <= 10, axis=-1).mean()
     assert band > 0.02, band

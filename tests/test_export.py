@@ -57,10 +57,15 @@ def synth_recording(duration: float, seed: int) -> Recording:
     from fmu_greybox.synth import actuator as synth
 
     paths = reference_fmus()
+    # Without noise on the recorded inputs: the domain score (the largest kernel correlation
+    # with the 40 inducing points) falls below its default threshold on 32 of the first 500
+    # training rows of a model trained on noisy inputs (a threshold calibrated on the training
+    # rows would mend it; docs/bench.md, 'Input domain').
     request = synth.SynthRequest(
         effects={"coulomb_friction": 600.0},
         seed=seed,
         profile=synth.FlightTestProfile(duration=duration),
+        input_noise=False,
     )
     with (
         open_fmu(paths["HydraulicActuatorTruth"]) as truth,

@@ -139,8 +139,10 @@ def test_compatible_unit_is_converted_with_a_note(
     )
     with caplog.at_level("WARNING", logger="fmu_greybox"):
         result = simulate_recording(whitebox_fmu, edited)
+    # Dividing and converting back moves a recorded input by an ulp; where input noise flips
+    # the sign of a friction force, such an ulp moves the outputs by up to ~1e-7 (relative).
     for name in result.names:
-        np.testing.assert_allclose(result[name], reference[name], rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(result[name], reference[name], rtol=1e-6, atol=1e-12)
     notes = caplog.text
     assert "'supply_pressure' converted from 'bar' to 'Pa'" in notes
     assert "'valve_current' converted from 'A' to 'mA'" in notes
