@@ -18,6 +18,7 @@ from fmu_greybox.diagnosis.noise import (
     sensor_noise_level,
     significance,
 )
+from fmu_greybox.diagnosis.runner import Experiment
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.simulate import simulate_with_terms
 from fmu_greybox.synth.actuator import (
@@ -124,3 +125,24 @@ def test_an_offset_of_two_noise_levels_under_drift_is_significant_in_its_band() 
         assert significant[0] == expected, offset
     assert ratio[0] < 1.3  # the RMS alone would not see it
     assert bands.significant[0, 0]  # the mean's band
+
+
+def test_inputs_without_noise_are_not_renoised() -> None:
+    """Where the noise model found no input noise, a re-drawn copy keeps the inputs as they are
+    (the polish's input-noise variance is then zero, not the inputs' second-difference level)."""
+    u = np.column_stack([np.sin(np.linspace(0.0, 6.0, 400)), np.zeros(400)])
+    experiment = Experiment(
+        archive=None,
+        inputs=["a", "b"],
+        u=u,
+        dt=1e-3,
+        start_time=0.0,
+        outputs=[],
+        stages=[],
+        recorded=np.zeros((400, 0)),
+        sigma=np.zeros(0),
+        parameters={},
+        train_rows=300,
+        input_sigma=np.zeros(2),
+    )
+    np.testing.assert_array_equal(experiment.renoised(np.random.default_rng(0)).u, u)

@@ -181,13 +181,16 @@ class Experiment:
 
     def renoised(self, rng: np.random.Generator) -> Experiment:
         """A copy whose inputs carry a fresh draw of their error: the smoothed inputs' remaining
-        error (:meth:`~.noise.InputSmoother.noise`) after :meth:`estimate_noise`, else white
-        noise at each input's second-difference noise level."""
-        if self.smoother is not None and self.input_sigma is not None:
-            u = self.u + self.smoother.noise(rng, self.input_sigma)
-        else:
+        error (:meth:`~.noise.InputSmoother.noise`) after :meth:`estimate_noise` (none where it
+        found no input noise), else white noise at each input's second-difference noise
+        level."""
+        if self.input_sigma is None:
             sigma = np.array([noise_level(x) for x in self.u.T])
             u = self.u + rng.standard_normal(self.u.shape) * sigma
+        elif self.smoother is not None:
+            u = self.u + self.smoother.noise(rng, self.input_sigma)
+        else:
+            u = self.u.copy()
         return dataclasses.replace(self, u=u, _cache={})
 
     def simulate(self, terms: Sequence[Term], rows: int | None = None) -> np.ndarray | None:
