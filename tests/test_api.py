@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -44,3 +45,16 @@ def test_the_api_page_example_runs(tmp_path: Path) -> None:
     # a 5 % gain error is what the correctors learn: the valve stage improves
     assert rmse["EHV"][1] < 0.5 * rmse["EHV"][0]
     assert lines[-1] == "exported greybox.fmu"
+
+
+def test_importing_the_package_lets_idle_blas_threads_sleep_unless_the_user_chose() -> None:
+    code = "import os, fmu_greybox; print(os.environ['OPENBLAS_THREAD_TIMEOUT'])"
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_THREAD_TIMEOUT"}
+    default = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    chosen = subprocess.run(
+        [sys.executable, "-c", code],
+        env={**env, "OPENBLAS_THREAD_TIMEOUT": "7"},
+        capture_output=True,
+        text=True,
+    )
+    assert (default.stdout.strip(), chosen.stdout.strip()) == ("1", "7")
