@@ -18,7 +18,8 @@ fi
 # the package as a user installs it: wheel, fresh venv, a short run away from the checkout
 bash scripts/wheel_check.sh
 status=0
-.venv/bin/python -m pytest -q "$@" || status=$?
+# one pytest worker per CPU (pytest-xdist); the tests share no files, ports or folders
+.venv/bin/python -m pytest -q -n auto "$@" || status=$?
 if [ "$status" -eq 5 ]; then
   echo "pytest collected no tests: that is a failure" >&2
   exit 1
