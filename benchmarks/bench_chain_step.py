@@ -5,9 +5,9 @@ The three-stage actuator is trained as in ``bench_export.py`` (6 s recording, M 
 per stage, 5 optimiser iterations) and its compiled chain step (``native/chain_core.c``, the
 code both runtimes run) is run over the recording's white-box outputs (a free run). Printed:
 
-- ``exact``: CPU time per step of the compiled step, called from a Python loop (best of
-  ``--repeats``), and its size: the bytes of the stages' packed triangular factors, which it
-  streams once per step;
+- ``exact``: CPU time per step of the compiled step, called from a Python loop (the median of
+  ``--repeats`` runs, with their range, the date and the load: ``spread.py``), and its size:
+  the bytes of the stages' packed triangular factors, which it streams once per step;
 - ``streaming floor``: the time of one pass of numpy's (vectorised) maximum over those bytes,
   the least of 500 (wall clock: the least pass is one the process was not preempted in): no
   step that reads every factor once can be much faster on this machine;
@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import sys
 import tempfile
 import time
@@ -35,6 +36,7 @@ from scipy.linalg import solve_triangular
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from bench_export import ROOT, chain_step, recording
+from spread import conditions, conditions_line
 
 from fmu_greybox import _chainstep
 from fmu_greybox.fmi.archive import open_fmu
@@ -135,6 +137,7 @@ def main() -> None:
     parser.add_argument("--inducing", type=int, default=400, help="inducing points per stage")
     parser.add_argument("--repeats", type=int, default=5, help="runs of the exact step")
     args = parser.parse_args()
+    load_before = os.getloadavg()[0]
     rec = recording()
     project = load_config(ROOT / "bench_configs" / "hydraulic_actuator.toml")
     config = with_inducing(project, args.inducing)
@@ -154,8 +157,11 @@ def main() -> None:
     rounded = free_run_std(plan, float32_factors(plan, params), chain, data)
     error = float(np.max(np.abs(rounded / reference - 1.0)))
     print(f"chain step of three stages at M = {args.inducing} per stage (CPU time per step)")
+    print(conditions_line(conditions(load_before), args.repeats))
+    low, high = exact["cpu_us_range"]
     print(
-        f"exact: {exact['cpu_us']:.1f} us ({exact['wall_us']:.1f} wall), streaming "
+        f"exact: {exact['cpu_us']:.1f} us ({low:.1f}-{high:.1f}; {exact['wall_us']:.1f} wall), "
+        "streaming "
         f"{factor_bytes / 1e6:.2f} MB of factors per step"
     )
     print(f"streaming floor: {streaming_floor(plan, params):.1f} us to read those factors once")

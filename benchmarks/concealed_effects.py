@@ -36,10 +36,11 @@ Scoring (this file knows the truth; the diagnosis does not):
 Usage::
 
     .venv/bin/python benchmarks/concealed_effects.py [--quick] [--json] [--workers N]
-        [--suite actuator|servo] [--case EFFECT=VALUE[+EFFECT=VALUE] ...]
+        [--suite actuator|servo] [--case EFFECT=VALUE[+EFFECT=VALUE] ...] [--start N]
 
-``--case`` replaces the suite by the cases given (actuator, noise scale 1, seeds 301, 302, ...),
-e.g. magnitudes outside the suite's.
+``--start N`` skips the suite's first N-1 cases (each case's seed is its own, so the rest
+run exactly as in a whole run). ``--case`` replaces the suite by the cases given (actuator,
+noise scale 1, seeds 301, 302, ...), e.g. magnitudes outside the suite's.
 
 ``--coverage`` also checks the calibrated uncertainty on each case, as the demo does: the
 named terms folded into the white-box, the grey-box trained on the recording (``--inducing``,
@@ -500,6 +501,13 @@ def main() -> None:
         metavar="EFFECT=VALUE[+EFFECT=VALUE]",
         help="Run these actuator cases instead of the suite (repeatable).",
     )
+    parser.add_argument(
+        "--start",
+        type=int,
+        default=1,
+        metavar="N",
+        help="Begin at the suite's N-th case (1-based), to resume an interrupted run.",
+    )
     args = parser.parse_args()
     duration = args.duration or (12.0 if args.quick else 20.0)
     print(
@@ -511,7 +519,7 @@ def main() -> None:
     chosen = [given_case(text, 301 + i) for i, text in enumerate(args.case)]
     with tempfile.TemporaryDirectory(prefix="concealed-") as folder:
         paths = fmu_paths(Path(folder))
-        for case in chosen or cases(args.quick, suites):
+        for case in (chosen or cases(args.quick, suites))[max(args.start, 1) - 1 :]:
             sizes = (args.inducing, args.max_iter) if args.coverage else None
             row = run_case(case, paths, args.workers, duration, sizes)
             rows.append(row)
