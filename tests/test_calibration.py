@@ -24,6 +24,7 @@ from fmu_greybox.model.calibration import (
 )
 from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.project.config import parse_config
+from fmu_greybox.report.plots import zoom_range
 
 REFERENCE = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"
 
@@ -124,3 +125,10 @@ def test_a_chain_reports_the_known_noise_and_covers_95_percent_of_unseen_rows() 
         assert 0.62 <= coverage(residual[:, q], std[:, q], 1.0) <= 0.74
         # the propagated variance alone claims far more certainty than the data allow
         assert np.median(np.sqrt(run.latent_var[:, q])) < 0.5 * noise
+
+
+def test_a_zoom_holds_a_nearby_white_box_and_says_when_it_cuts_a_far_one() -> None:
+    low, high, cut = zoom_range(0.0, 1.0, np.array([-1.5, 2.0]))
+    assert low < -1.5 and high > 2.0 and cut == ""
+    low, high, cut = zoom_range(0.0, 1.0, np.array([0.5, 40.0]))
+    assert high < 40.0 and "off scale" in cut and "40" in cut

@@ -99,8 +99,10 @@ def trace_figure(
         right.plot(t, mean[window, q], **GB_STYLE)
         low = np.minimum(recorded[window, q], mean[window, q] - Z95 * std[window, q]).min()
         high = np.maximum(recorded[window, q], mean[window, q] + Z95 * std[window, q]).max()
-        pad = 0.1 * (high - low) or abs(high) * 1e-3 or 1.0
-        right.set_ylim(low - pad, high + pad)
+        low, high, clipped = zoom_range(low, high, whitebox[window, q])
+        right.set_ylim(low, high)
+        if clipped:
+            right.text(0.01, 0.02, clipped, transform=right.transAxes, fontsize="small")
         right.set_title(f"zoom: largest residual [{units[q]}]", fontsize="medium", loc="left")
         right.grid(alpha=0.3)
     for ax in axes[-1]:
@@ -114,6 +116,27 @@ def trace_figure(
     labels = ["grey-box ±1.96σ", "grey-box (left: recording − grey-box)", "white-box", "recording"]
     legend_above(fig, handles, labels)
     return fig
+
+
+#: How far beyond the recording and the band (in their spans) a zoom stretches to show the
+#: white-box whole; beyond it, the band would shrink to a line, so the white-box is cut and
+#: the cut is said on the panel.
+WHITEBOX_REACH = 3.0
+
+
+def zoom_range(low: float, high: float, whitebox: np.ndarray) -> tuple[float, float, str]:
+    """A zoom's y-limits: the recording and the band [``low``, ``high``], stretched to hold the
+    white-box (shape (w,)) unless that would squash them; then the third value says where the
+    white-box went (else it is empty)."""
+    span = high - low or abs(high) * 1e-3 or 1.0
+    wb_low, wb_high = float(np.min(whitebox)), float(np.max(whitebox))
+    clipped = ""
+    if wb_low >= low - WHITEBOX_REACH * span and wb_high <= high + WHITEBOX_REACH * span:
+        low, high = min(low, wb_low), max(high, wb_high)
+    else:
+        clipped = f"white-box off scale here ({wb_low:.3g} to {wb_high:.3g})"
+    pad = 0.1 * (high - low) or span * 0.1
+    return low - pad, high + pad, clipped
 
 
 def worst_window(residual: np.ndarray, width: int) -> slice:
