@@ -18,8 +18,10 @@ fi
 # the package as a user installs it: wheel, fresh venv, a short run away from the checkout
 bash scripts/wheel_check.sh
 status=0
-# one pytest worker per CPU (pytest-xdist); the tests share no files, ports or folders
-.venv/bin/python -m pytest -q -n auto "$@" || status=$?
+# one pytest worker per CPU (pytest-xdist); the tests share no files, ports or folders; a
+# module's tests stay on one worker, so that its module- and session-scoped fixtures (trained
+# models, exported FMUs, the demo's run) are built once
+.venv/bin/python -m pytest -q -n auto --dist loadfile "$@" || status=$?
 if [ "$status" -eq 5 ]; then
   echo "pytest collected no tests: that is a failure" >&2
   exit 1
