@@ -14,8 +14,9 @@ a machine with few cores each call waits for the other pool's spinning threads. 
 threads asleep at once, a fit of 4 000 samples and 60 inducing points took 0.20 s instead of
 0.75 s on two cores (25 000 and 400: 14.0 s instead of 19.0 s; docs/sgpr.md). OpenBLAS reads
 the variable when it loads, so it applies where this package is imported before numpy: the
-command line, the benchmarks, the test suite (``-p fmu_greybox`` in ``pyproject.toml``) and
-worker processes.
+command line, the test suite (``-p fmu_greybox`` in ``pyproject.toml``) and the processes they
+start; a program that imports numpy first sets the variable itself (as
+``benchmarks/bench_sgpr.py`` does) or in its environment.
 """
 
 from __future__ import annotations
