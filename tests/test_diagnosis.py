@@ -17,10 +17,8 @@ from fmu_greybox.diagnosis import SCHEMA_VERSION, Diagnosis
 from fmu_greybox.diagnosis.alternatives import nearly_as_good
 from fmu_greybox.diagnosis.findings import named_physics
 from fmu_greybox.fmi.archive import open_fmu
-from fmu_greybox.fmi.builtin import model_fmus
 from fmu_greybox.project.config import load_config, parse_config
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
-from fmu_greybox.synth.positioner import synthesise_positioner
 from fmu_greybox.workflow.parts import PARTS
 
 CONFIGS = Path(__file__).resolve().parents[1] / "bench_configs"
@@ -140,48 +138,6 @@ def test_diagnose_command_writes_json_and_report(whitebox_fmu, truth_fmu, tmp_pa
     html = (out / "report.html").read_text()
     assert html.index("Verdict") < html.index("<img")
     assert html.count("data:image/png;base64,") == 3
-
-
-def test_missing_friction_is_found_on_the_positioner() -> None:
-    paths = model_fmus("ElectroMechanicalPositioner")
-    with (
-        open_fmu(paths["ElectroMechanicalPositionerTruth"]) as truth,
-        open_fmu(paths["ElectroMechanicalPositioner"]) as whitebox,
-    ):
-        recording = synthesise_positioner(
-            truth, whitebox, {"coulomb_friction": 100.0}, seed=3, duration=8.0, noise=1.0
-        )
-    diagnosis = Diagnosis(load_config(CONFIGS / "positioner.toml"), greybox=None).fit(recording)
-    top = diagnosis.findings_[0]
-    assert top.effect == "coulomb_friction"
-    assert top.stage == diagnosis.origin_stage_
-    assert top.magnitude["value"] == pytest.approx(100.0, rel=0.1)
-    assert diagnosis.fit_["DRIVE"]["named_rmse"] < 0.5 * diagnosis.fit_["DRIVE"]["wb_rmse"]
-
-
-@pytest.mark.parametrize(
-    ("effects", "seed", "parameter", "relative_change"),
-    [
-        ({"gain_error": -0.1}, 7, "torque_constant", -0.1),  # torque (1 + g) k_t i
-        ({"viscous_friction_extra": 250.0}, 3, "viscous_friction", 250.0 / 500.0),  # of 500
-    ],
-)
-def test_mis_set_parameter_is_calibrated_through_the_positioner(
-    effects: dict, seed: int, parameter: str, relative_change: float
-) -> None:
-    paths = model_fmus("ElectroMechanicalPositioner")
-    with (
-        open_fmu(paths["ElectroMechanicalPositionerTruth"]) as truth,
-        open_fmu(paths["ElectroMechanicalPositioner"]) as whitebox,
-    ):
-        recording = synthesise_positioner(
-            truth, whitebox, effects, seed=seed, duration=8.0, noise=1.0
-        )
-    diagnosis = Diagnosis(load_config(CONFIGS / "positioner.toml"), greybox=None).fit(recording)
-    top = diagnosis.findings_[0].to_dict()
-    assert (top["effect"], top["parameter"]) == ("parameter_mismatch", parameter)
-    assert top["magnitude"]["value"] == pytest.approx(relative_change, rel=0.1)
-    assert diagnosis.fit_["DRIVE"]["named_rmse"] < 0.5 * diagnosis.fit_["DRIVE"]["wb_rmse"]
 
 
 def test_an_alternative_fits_nearly_as_well_by_either_measure() -> None:
