@@ -161,8 +161,7 @@ def main() -> None:
     low, high = exact["cpu_us_range"]
     print(
         f"exact: {exact['cpu_us']:.1f} us ({low:.1f}-{high:.1f}; {exact['wall_us']:.1f} wall), "
-        "streaming "
-        f"{factor_bytes / 1e6:.2f} MB of factors per step"
+        f"streaming {factor_bytes / 1e6:.2f} MB of factors per step"
     )
     print(f"streaming floor: {streaming_floor(plan, params):.1f} us to read those factors once")
     print(

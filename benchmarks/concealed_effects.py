@@ -509,6 +509,8 @@ def main() -> None:
         help="Begin at the suite's N-th case (1-based), to resume an interrupted run.",
     )
     args = parser.parse_args()
+    if args.start < 1:
+        parser.error(f"--start {args.start}: cases are numbered from 1")
     duration = args.duration or (12.0 if args.quick else 20.0)
     print(
         f"{'true effect':56s} {'noise':>5s} {'exp.':6s} {'origin':6s} {'top finding':34s} "
@@ -519,7 +521,7 @@ def main() -> None:
     chosen = [given_case(text, 301 + i) for i, text in enumerate(args.case)]
     with tempfile.TemporaryDirectory(prefix="concealed-") as folder:
         paths = fmu_paths(Path(folder))
-        for case in (chosen or cases(args.quick, suites))[max(args.start, 1) - 1 :]:
+        for case in (chosen or cases(args.quick, suites))[args.start - 1 :]:
             sizes = (args.inducing, args.max_iter) if args.coverage else None
             row = run_case(case, paths, args.workers, duration, sizes)
             rows.append(row)
