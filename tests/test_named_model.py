@@ -34,6 +34,7 @@ from fmu_greybox.model.store import load_model, save_model
 from fmu_greybox.model.terms import CoulombForce, InputDelay, InputGain, SensorDelay
 from fmu_greybox.model.whitebox import NamedModel, check_terms, read_terms
 from fmu_greybox.project.config import load_config
+from fmu_greybox.project.data import split_row
 from fmu_greybox.workflow.parts import PARTS
 from fmu_greybox.workflow.train import train_model, with_inducing
 
@@ -160,17 +161,23 @@ def termed(tmp_path_factory: pytest.TempPathFactory) -> dict:
     }
 
 
-def test_train_with_terms_compares_its_parts_on_held_out_rows(termed) -> None:
-    """Correctors alone, terms alone and both are free-run over the held-out rows; the
-    comparison is kept, ``best`` is the lowest score, and ``--ship terms`` writes the named
+def test_train_with_terms_compares_its_parts_forward_in_time(termed) -> None:
+    """Correctors trained on the first half of the training rows, terms alone and both are
+    free-run over every later row; the comparison is kept, ``best`` is the lowest score, the
+    shipped model is trained on all the training rows, and ``--ship terms`` writes the named
     white-box with every corrector passed through."""
     model, recording = termed["model"], termed["recording"]
     parts = model.training["parts"]
     assert parts["shipped"] == "terms+correctors"
     assert parts["best"] == min(PARTS, key=parts["score"].__getitem__)
     n = recording.n_samples
+    split = split_row(model.config, n)
+    config = model.config
+    half = split_row(dataclasses.replace(config, train_fraction=config.train_fraction / 2), n)
+    assert model.training["train_rows"] == split + 1
+    assert parts["trained_rows"] == [0, half]
     first = parts["held_out_rows"][0]
-    assert parts["held_out_rows"] == [first, n - 1]
+    assert parts["held_out_rows"] == [half + 1, n - 1] and first == half + 1
     with open_fmu(model.whitebox_fmu) as archive:
         named_run = simulate_with_terms(
             archive, INPUTS, input_rows(recording), DT, STAGE_OUTPUTS, terms(), stages=[0, 1, 2]

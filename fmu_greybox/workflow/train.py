@@ -20,7 +20,7 @@ from fmu_greybox.progress import Progress
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import prepare, split_row, whitebox_path
 from fmu_greybox.project.fingerprint import data_rows, row_digests
-from fmu_greybox.workflow.parts import FittedModel, check_ship, ship_part
+from fmu_greybox.workflow.parts import FittedModel, PartsComparison, check_ship, compare_fitted
 
 #: Fewest rows a model is trained on: fewer cannot pin down a corrector's hyperparameters, and
 #: the free-run checks of training need a tail of them.
@@ -47,10 +47,10 @@ def train_model(
     """Simulate the white-box over the recording and fit every stage's corrector.
 
     The leading ``config.train_fraction`` of the recording trains; the rest stays held out for
-    ``validate``. With named ``terms``, correctors are also trained on the plain white-box, and
-    the correctors alone, the terms alone and both are compared on the held-out rows
-    (:mod:`fmu_greybox.workflow.parts`); the model is the part ``ship`` names, by default the
-    best, and ``training["parts"]`` keeps the comparison.
+    ``validate``. With named ``terms``, the correctors alone, the terms alone and both are
+    first compared forward in time (:func:`compare_parts_forward`); the model is the part
+    ``ship`` names, by default the best, trained on all the training rows, and
+    ``training["parts"]`` keeps the comparison.
 
     Parameters
     ----------
@@ -78,11 +78,58 @@ def train_model(
         ``ship``.
     """
     check_ship(ship)
-    named = fit_model(config, recording, progress, target_mode, terms)
     if not terms:
-        return named.model
-    plain = fit_model(config, recording, progress, target_mode, ())
-    return ship_part(named, plain, ship)
+        return fit_model(config, recording, progress, target_mode, terms).model
+    comparison, seconds = compare_parts_forward(config, recording, progress, target_mode, terms)
+    shipped = ship if ship != "best" else (comparison.best or "terms+correctors")
+    comparison = dataclasses.replace(comparison, shipped=shipped)
+    model = fit_model(
+        config, recording, progress, target_mode, () if shipped == "correctors" else terms
+    ).model
+    if shipped == "terms":
+        model.chain.active_[:] = False
+    model.training["parts"] = comparison.to_dict()
+    model.training["seconds"] = round(model.training["seconds"] + seconds, 2)
+    return model
+
+
+def compare_parts_forward(
+    config: ProjectConfig,
+    recording: Recording,
+    progress: bool,
+    target_mode: str | None,
+    terms: Sequence[Term],
+) -> tuple[PartsComparison, float]:
+    """Correctors alone, ``terms`` alone and both, compared forward in time: correctors
+    trained on the first half of the training rows (:func:`comparison_config`), every part
+    free-run from the first row and scored on every later row
+    (:func:`~fmu_greybox.workflow.parts.compare_fitted`).
+
+    Returns
+    -------
+    PartsComparison
+        ``shipped`` is the best part (``terms+correctors`` when the data cannot decide).
+    float
+        Seconds the two comparison chains took to train.
+    """
+    early = comparison_config(config, GreyBoxChain(config, target_mode), recording.n_samples)
+    named = fit_model(early, recording, progress, target_mode, terms)
+    plain = fit_model(early, recording, progress, target_mode, ())
+    seconds = named.model.training["seconds"] + plain.model.training["seconds"]
+    return compare_fitted(named, plain, "best"), seconds
+
+
+def comparison_config(config: ProjectConfig, chain: GreyBoxChain, n: int) -> ProjectConfig:
+    """The project the parts are compared with: training on the first half of the training
+    rows, with no more inducing points than those rows hold per stage. When half of them is
+    fewer than :data:`MIN_TRAIN_ROWS`, the project itself (the parts are then compared on the
+    rows it holds out)."""
+    half = dataclasses.replace(config, train_fraction=config.train_fraction / 2)
+    rows = split_row(half, n) + 1
+    if rows < MIN_TRAIN_ROWS:
+        return config
+    per_stage = min(rows - chain.history, config.gp.max_train_samples)
+    return with_inducing(half, min(config.gp.inducing, per_stage))
 
 
 def fit_model(
