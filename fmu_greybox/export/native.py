@@ -27,6 +27,7 @@ import tempfile
 import time
 import warnings
 import zipfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -42,7 +43,7 @@ from fmu_greybox.export.slave import MODEL_FOLDER, STEP_RTOL
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.fmi.build import c_compiler, fmi2_headers, fmi2_platform
 from fmu_greybox.model.store import file_sha256
-from fmu_greybox.model.whitebox import part_layouts
+from fmu_greybox.model.whitebox import PartLayout, part_layouts
 
 if TYPE_CHECKING:
     from fmu_greybox.export.fmu import ExportPlan
@@ -125,13 +126,9 @@ def data_sections(plan: ExportPlan, archive: FmuArchive) -> dict[str, Any]:
     )
     for term in model.terms:
         kind_code(term)  # refuse a kind without native implementation before anything else
-    parts = _part_sections(layouts, archive, iface.input_names, model.dt)
-    sizes = [len(layouts), sum(len(layout.terms) for layout in layouts)]  # parts, terms
+    stages = [len(model.chain.stages), iface.exo_index.size]
     return {
-        "sizes": np.array(
-            [iface.n_inputs, len(outputs), len(model.chain.stages), iface.exo_index.size, *sizes],
-            dtype=np.int64,
-        ),
+        **whitebox_sections(archive, iface.input_names, layouts, model.dt, len(outputs), stages),
         "plan": chain_plan,
         "params": params,
         "stage_output": iface.stage_output.astype(np.int64),
@@ -141,11 +138,29 @@ def data_sections(plan: ExportPlan, archive: FmuArchive) -> dict[str, Any]:
         "input_low": plan.domain.low,
         "input_high": plan.domain.high,
         "settings": np.array([model.dt, plan.settings["ood_threshold"], STEP_RTOL]),
-        "wb_input_vr": _references(archive, iface.input_names),
+    }
+
+
+def whitebox_sections(
+    archive: FmuArchive,
+    inputs: Sequence[str],
+    layouts: Sequence[PartLayout],
+    dt: float,
+    n_outputs: int,
+    stages: Sequence[int] = (0, 0),
+) -> dict[str, Any]:
+    """The sections ``native/whitebox.c`` reads: ``sizes`` (inputs, outputs, ``stages``: the
+    chain's stages and exogenous inputs, parts, terms), the white-box's identity, its binaries'
+    hashes and input references, and its parts with their terms (shared by the native FMU and
+    the native simulation runner, :mod:`fmu_greybox.model.native_run`)."""
+    n_terms = sum(len(layout.terms) for layout in layouts)
+    return {
+        "sizes": np.array([len(inputs), n_outputs, *stages, len(layouts), n_terms], dtype=np.int64),
+        "wb_input_vr": _references(archive, list(inputs)),
         "wb_guid": archive.guid,
         "wb_identifier": archive.model_identifier,
         "wb_binaries": _binary_hashes(archive),
-        **parts,
+        **_part_sections(list(layouts), archive, list(inputs), dt),
     }
 
 

@@ -22,6 +22,7 @@ import numpy as np
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu, real_outputs
 from fmu_greybox.fmi.binding import InputBinding, bind_inputs, input_units
+from fmu_greybox.model.native_run import run_native, runs_natively
 from fmu_greybox.model.terms import Term
 from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS, NamedModel
 from fmu_greybox.progress import track
@@ -83,6 +84,9 @@ def simulate_with_terms(
 ) -> np.ndarray:
     """Run the white-box open-loop over recorded inputs with correction terms applied.
 
+    The run is stepped in C (:mod:`~fmu_greybox.model.native_run`, the same numbers without
+    Python between the steps) unless a progress bar is asked for or the runner cannot be built.
+
     Parameters
     ----------
     archive, inputs, dt, outputs, terms, parameters, stages, start_time, substeps
@@ -120,20 +124,26 @@ def simulate_with_terms(
         if cache is not None and key in cache:
             y[:, columns] = cache[key]
             continue
-        start = dict(zip(inputs, u[0], strict=True))
-        with NamedModel(
-            archive,
-            inputs,
-            names,
-            dt,
-            active,
-            [level] * len(names),
-            parameters,
-            start,
-            start_time,
-            substeps,
-        ) as model:
-            y[:, columns] = run_open_loop(model, u, progress)
+        levels_of = [level] * len(names)
+        if not progress and runs_natively(active):
+            y[:, columns] = run_native(
+                archive, inputs, u, dt, names, active, levels_of, parameters, start_time, substeps
+            )
+        else:
+            start = dict(zip(inputs, u[0], strict=True))
+            with NamedModel(
+                archive,
+                inputs,
+                names,
+                dt,
+                active,
+                levels_of,
+                parameters,
+                start,
+                start_time,
+                substeps,
+            ) as model:
+                y[:, columns] = run_open_loop(model, u, progress)
         if cache is not None:
             while len(cache) >= CACHE_SIZE:
                 cache.pop(next(iter(cache)))

@@ -364,7 +364,8 @@ class StribeckForce(_FeedbackInput):
     effect = "stribeck_friction"
 
     def value(self, x: float) -> float:
-        return self.force * math.exp(-((x / self.velocity) ** 2)) * math.tanh(x / self.smoothing)
+        r = x / self.velocity  # squared as r * r, which is what C compilers make of pow(r, 2)
+        return self.force * math.exp(-(r * r)) * math.tanh(x / self.smoothing)
 
 
 @dataclass

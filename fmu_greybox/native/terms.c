@@ -137,8 +137,10 @@ static double feedback_value(const Term *t, double x) {
         }
         case TERM_ViscousForce: /* coefficient */
             return p[0] * x;
-        case TERM_StribeckForce: /* force, velocity, smoothing */
-            return p[0] * exp(-pow(x / p[1], 2.0)) * tanh(x / p[2]);
+        case TERM_StribeckForce: { /* force, velocity, smoothing; r * r as terms.py squares */
+            const double r = x / p[1];
+            return p[0] * exp(-(r * r)) * tanh(x / p[2]);
+        }
         case TERM_SpringForce: /* coefficient, rest */
             return p[0] * (x - p[1]);
         default: /* TERM_FlowDroop: resistance */

@@ -1,0 +1,128 @@
+"""The white-box's open-loop runs in C (``model/native_run.py``, ``native/simulate.c``): bit for
+bit the Python stepping loop, for every term kind, several instances at once, and failures that
+name their cause."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from test_export import INPUTS, STAGE_OUTPUTS, input_rows, synth_recording
+from test_native_fmu import EXAMPLES
+
+from fmu_greybox.errors import FmuError
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.builtin import reference_fmus
+from fmu_greybox.model import terms as term_kinds
+from fmu_greybox.model.native_run import DISABLE_VARIABLE, run_native, runs_natively
+from fmu_greybox.model.simulate import run_open_loop, simulate_with_terms
+from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS, NamedModel
+
+DT = 1e-3
+#: Stage of every observed output: terms entering at a later stage run in their own instance.
+OUTPUTS = (*STAGE_OUTPUTS, "ram_velocity", "supply_flow")
+STAGES = (0, 1, 2, 1, 1)
+#: test_native_fmu's example of every kind, with limits this recording's current reaches.
+KINDS = {
+    **EXAMPLES,
+    "InputSaturation": term_kinds.InputSaturation(input="valve_current", lower=-0.1, upper=0.12),
+}
+
+
+@pytest.fixture(scope="module")
+def whitebox():
+    with open_fmu(reference_fmus()["HydraulicActuator"]) as archive:
+        yield archive
+
+
+@pytest.fixture(scope="module")
+def rows() -> np.ndarray:
+    return input_rows(synth_recording(1.5, seed=5))
+
+
+def in_python(archive, u: np.ndarray, terms, stages=STAGES, parameters=None) -> np.ndarray:
+    start = dict(zip(INPUTS, u[0], strict=True))
+    with NamedModel(
+        archive, INPUTS, OUTPUTS, DT, terms, stages, parameters, start, 0.0, DEFAULT_SUBSTEPS
+    ) as model:
+        return run_open_loop(model, u)
+
+
+def in_c(archive, u: np.ndarray, terms, stages=STAGES, parameters=None) -> np.ndarray:
+    return run_native(
+        archive, INPUTS, u, DT, OUTPUTS, terms, stages, parameters, 0.0, DEFAULT_SUBSTEPS
+    )
+
+
+def test_the_runner_is_built_here() -> None:
+    assert runs_natively(list(EXAMPLES.values()))
+
+
+@pytest.mark.parametrize("kind", sorted(KINDS))
+def test_every_term_kind_runs_in_c_bit_for_bit_as_in_python(whitebox, rows, kind) -> None:
+    term = KINDS[kind]
+    python, native = in_python(whitebox, rows, [term]), in_c(whitebox, rows, [term])
+    assert np.isfinite(native).all()
+    np.testing.assert_array_equal(native, python)
+    plain = in_c(whitebox, rows, [])
+    assert not np.array_equal(native, plain), f"{kind} changed nothing: the example is too weak"
+
+
+def test_several_terms_and_instances_with_project_parameters(whitebox, rows) -> None:
+    """Terms entering at stages 0, 1 and 2 (three FMU instances), a parameter of the project
+    and a term's own parameter: the same numbers in C and in Python."""
+    terms = [
+        EXAMPLES["InputDelay"],
+        EXAMPLES["CoulombForce"],
+        EXAMPLES["SpringForce"],
+        EXAMPLES["SensorOffset"],
+        term_kinds.ParameterChange(name="bulk_modulus", value=1.3e9),
+    ]
+    parameters = {"bulk_modulus": 1.2e9}
+    python = in_python(whitebox, rows, terms, parameters=parameters)
+    native = in_c(whitebox, rows, terms, parameters=parameters)
+    np.testing.assert_array_equal(native, python)
+
+
+def test_simulate_with_terms_uses_the_runner_and_matches_the_python_loop(whitebox, rows) -> None:
+    """``simulate_with_terms`` (the diagnosis' and training's simulation) gives the Python
+    loop's numbers, per stage level, as a program with the runner switched off computes them."""
+    terms = [EXAMPLES["StribeckForce"], EXAMPLES["SensorGain"]]
+    got = simulate_with_terms(whitebox, INPUTS, rows, DT, OUTPUTS, terms, stages=STAGES)
+    expected = np.empty_like(got)
+    for level in (0, 1, 2):
+        columns = [j for j, s in enumerate(STAGES) if s == level]
+        active = [t for t in terms if t.entry <= level]
+        expected[:, columns] = in_python(whitebox, rows, active, stages=[level] * len(OUTPUTS))[
+            :, columns
+        ]
+    np.testing.assert_array_equal(got, expected)
+
+
+def test_the_runner_can_be_switched_off() -> None:
+    code = (
+        "from fmu_greybox.model.native_run import native_runner, runs_natively;"
+        "print(native_runner() is None, runs_natively([]))"
+    )
+    env = {**os.environ, DISABLE_VARIABLE: "0"}
+    done = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+    )
+    assert done.stdout.split() == ["True", "False"]
+
+
+def test_a_failing_white_box_raises_with_its_own_reason(whitebox, rows) -> None:
+    """A hypothesis the white-box refuses (a negative bulk modulus): the runner stops and
+    raises FmuError with the FMU file, the call and the white-box's own reason, as the Python
+    loop does (the diagnosis drops such a candidate)."""
+    refused = term_kinds.ParameterChange(name="bulk_modulus", value=-1e9)
+    reason = r"bulk_modulus = -1e\+09 must be positive"
+    with pytest.raises(FmuError, match=reason):
+        in_python(whitebox, rows, [refused])
+    with pytest.raises(FmuError, match=reason) as native:
+        in_c(whitebox, rows, [refused])
+    message = str(native.value)
+    assert "HydraulicActuator.fmu" in message and "fmi2ExitInitializationMode" in message
