@@ -1,18 +1,25 @@
 """Correctors alone, named terms alone and both, on a recording of another excitation.
 
-The third-party-style DC servo (``tests/third_party.py``) is recorded with a Coulomb friction its
-white-box lacks, once to train (12 s, reference amplitude 2 rad) and once with another
-excitation (6 s, amplitude 0.7 rad, another seed). The diagnosis names terms on the first; the
-correctors are trained on the plain white-box and on the white-box with those terms
-(``train_model(..., ship=...)``), and both models are validated on the second recording. Printed:
-the comparison ``train --terms`` makes on its own held-out rows, then each part's RMSE on the
-other excitation, per stage.
+``--case servo`` (the default): the third-party-style DC servo (``tests/third_party.py``) is
+recorded with a Coulomb friction its white-box lacks, once to train (12 s, reference amplitude
+2 rad) and once with another excitation (6 s, amplitude 0.7 rad, another seed).
+``--case stiffness``: the reference actuator with a concealed spring of 30 000 N/m on its load
+(the concealed suite's case ``stiffness@load_force(ram_position)=30000``), its 20 s recording and
+the suite's independent 8 s recording of another seed; the grey-box with the suite's
+``--coverage`` settings (150 inducing points, 100 iterations).
 
-Usage: ``.venv/bin/python benchmarks/parts_other_excitation.py``
+The diagnosis names terms on the first recording; the correctors are trained on the plain
+white-box and on the white-box with those terms (``train_model(..., ship=...)``), and both models
+are validated on the second recording. Printed: the comparison ``train --terms`` makes on the
+training recording (the part it would ship is its ``best``), then each part's RMSE on the other
+excitation, per stage.
+
+Usage: ``.venv/bin/python benchmarks/parts_other_excitation.py [--case servo|stiffness]``
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import tempfile
@@ -21,31 +28,60 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
+import concealed_effects  # noqa: E402
 import third_party  # noqa: E402
 
 from fmu_greybox.diagnosis import Diagnosis  # noqa: E402
 from fmu_greybox.fmi.archive import open_fmu  # noqa: E402
 from fmu_greybox.model.terms import term_from_dict  # noqa: E402
-from fmu_greybox.workflow.train import train_model  # noqa: E402
+from fmu_greybox.workflow.train import train_model, with_inducing  # noqa: E402
 from fmu_greybox.workflow.validate import validate_model  # noqa: E402
+
+#: The concealed suite's case of ``--case stiffness``.
+STIFFNESS_CASE = "stiffness@load_force(ram_position)=30000"
+
+
+def servo(folder: Path) -> tuple:
+    """The servo's project, training recording and recording of another excitation."""
+    fmus = third_party.build_fmus(folder)
+    with open_fmu(fmus["DCServoTruth"]) as truth:
+        training = third_party.record(truth, {"fc": 0.02}, seed=13, duration=12.0)
+        other = third_party.record(truth, {"fc": 0.02}, seed=99, duration=6.0, amplitude=0.7)
+    config = third_party.project(fmus["DCServo"])
+    return config, config, training, other
+
+
+def stiffness(folder: Path) -> tuple:
+    """The actuator's project (and its grey-box settings), the case's training recording and
+    its independent recording, as ``concealed_effects.py --coverage`` makes them."""
+    ce = concealed_effects
+    case = next(c for c in ce.cases(False, ("actuator",)) if c.label.startswith(STIFFNESS_CASE))
+    paths = ce.fmu_paths(folder)
+    config, truth_path, _, _ = ce.case_setting(case, paths)
+    with open_fmu(truth_path) as truth, open_fmu(paths[case.whitebox]) as whitebox:
+        training = ce.record(case, truth, whitebox, case.seed, 20.0)
+        other = ce.record(
+            case, truth, whitebox, case.seed + ce.VALIDATION_SEED, ce.VALIDATION_DURATION
+        )
+    return config, with_inducing(config, 150, 100), training, other
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--case", choices=("servo", "stiffness"), default="servo")
+    args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="parts-") as folder:
-        fmus = third_party.build_fmus(Path(folder))
-        with open_fmu(fmus["DCServoTruth"]) as truth:
-            training = third_party.record(truth, {"fc": 0.02}, seed=13, duration=12.0)
-            other = third_party.record(truth, {"fc": 0.02}, seed=99, duration=6.0, amplitude=0.7)
-        config = third_party.project(fmus["DCServo"])
+        setting = servo if args.case == "servo" else stiffness
+        config, greybox, training, other = setting(Path(folder))
         diagnosis = Diagnosis(config, greybox=None).fit(training)
         findings = [f.to_dict() for f in diagnosis.findings_]
         terms = [term_from_dict(t) for f in findings for t in f.get("terms", [])]
         print("named:", ", ".join(f"{f['effect']} {f['magnitude']['value']:.4g}" for f in findings))
         tables = {}
         for ship in ("correctors", "terms+correctors"):
-            model = train_model(config, training, terms=terms, ship=ship)
+            model = train_model(greybox, training, terms=terms, ship=ship)
             tables[ship] = validate_model(model, other).table
-        print("held-out rows of the training recording:", json.dumps(model.training["parts"]))
+        print("comparison on the training recording:", json.dumps(model.training["parts"]))
         for stage, row in tables["terms+correctors"].items():
             print(
                 f"other excitation {stage}: white-box {row['wb_rmse']:.4g}, correctors "

@@ -126,3 +126,19 @@ def test_a_failing_white_box_raises_with_its_own_reason(whitebox, rows) -> None:
         in_c(whitebox, rows, [refused])
     message = str(native.value)
     assert "HydraulicActuator.fmu" in message and "fmi2ExitInitializationMode" in message
+
+
+def test_without_a_compiler_simulations_step_in_python_and_say_so(tmp_path) -> None:
+    """A fresh cache and no C compiler: the runner cannot be built, a warning says why, and
+    ``runs_natively`` is false (the caller steps the model in Python)."""
+    code = (
+        "import warnings; warnings.simplefilter('always');"
+        "from fmu_greybox.model.native_run import runs_natively; print(runs_natively([]))"
+    )
+    env = {**os.environ, "CC": "no-such-compiler", "FMU_GREYBOX_CACHE": str(tmp_path)}
+    done = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+    )
+    assert done.stdout.split() == ["False"]
+    assert "native runner is unavailable" in done.stderr
+    assert "C compiler 'no-such-compiler' not found" in done.stderr

@@ -23,6 +23,7 @@ import hashlib
 import os
 import subprocess
 import tempfile
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -79,8 +80,8 @@ def _build(library: Path) -> None:
 
 @functools.lru_cache(maxsize=1)
 def native_runner() -> ctypes.CDLL | None:
-    """The compiled runner (built on first use), or ``None`` where it cannot be built or
-    :data:`DISABLE_VARIABLE` is ``0``."""
+    """The compiled runner (built on first use), or ``None`` where :data:`DISABLE_VARIABLE` is
+    ``0`` or it cannot be built (then with a warning that says why, once per process)."""
     if os.environ.get(DISABLE_VARIABLE, "1") == "0":
         return None
     library = cache_dir().parent / "native-run" / _digest() / "libfgbsimulate.so"
@@ -88,7 +89,11 @@ def native_runner() -> ctypes.CDLL | None:
         if not library.exists():
             _build(library)
         runner = ctypes.CDLL(str(library))
-    except (FmuBuildError, OSError):
+    except (FmuBuildError, OSError) as exc:
+        warnings.warn(
+            f"simulations step in Python (slower): the native runner is unavailable: {exc}",
+            stacklevel=2,
+        )
         return None
     runner.fgb_simulate.restype = ctypes.c_int
     runner.fgb_simulate.argtypes = [
