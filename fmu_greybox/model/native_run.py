@@ -35,6 +35,7 @@ from fmu_greybox.export.native_terms import NATIVE_KINDS, kind_defines
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.fmi.build import c_compiler, fmi2_headers
 from fmu_greybox.fmi.builtin import cache_dir
+from fmu_greybox.fmi.instance import status_label
 from fmu_greybox.model.terms import Term
 from fmu_greybox.model.whitebox import part_layouts
 
@@ -107,6 +108,12 @@ def native_runner() -> ctypes.CDLL | None:
         ctypes.c_void_p,
         ctypes.c_char_p,
         ctypes.c_size_t,
+        ctypes.c_char_p,
+        ctypes.c_size_t,
+        ctypes.POINTER(ctypes.c_int),
+        ctypes.POINTER(ctypes.c_double),
+        ctypes.c_char_p,
+        ctypes.c_size_t,
     ]
     return runner
 
@@ -143,8 +150,9 @@ def run_native(
     Raises
     ------
     FmuError
-        The white-box failed (the message has its own reason when it logged one), or the
-        runner is not built (:func:`runs_natively` says so beforehand).
+        The white-box refused a call (the call, its status, the time and the white-box's last
+        messages, as the Python loop raises it), its data could not be loaded, or the runner
+        is not built (:func:`runs_natively` says so beforehand).
     """
     from fmu_greybox.export.native import whitebox_sections  # the export imports this package
 
@@ -155,7 +163,9 @@ def run_native(
     data = data_file_bytes(whitebox_sections(archive, inputs, layouts, dt, len(outputs)))
     rows = np.ascontiguousarray(u, dtype=np.float64)
     y = np.empty((rows.shape[0], len(outputs)))
-    message = ctypes.create_string_buffer(MESSAGE_SIZE)
+    message, log = (ctypes.create_string_buffer(MESSAGE_SIZE) for _ in range(2))
+    failure = ctypes.create_string_buffer(64)
+    fmi_status, at = ctypes.c_int(0), ctypes.c_double(0.0)
     with tempfile.TemporaryDirectory(prefix="fmu_greybox_run_") as tmp:
         (Path(tmp) / "whitebox").symlink_to(archive.unzip_dir, target_is_directory=True)
         path = Path(tmp) / "whitebox.dat"
@@ -171,8 +181,17 @@ def run_native(
             y.ctypes.data,
             message,
             MESSAGE_SIZE,
+            failure,
+            len(failure),
+            ctypes.byref(fmi_status),
+            ctypes.byref(at),
+            log,
+            MESSAGE_SIZE,
         )
-    if status != 0:
-        detail = f"{archive.path.name}: {message.value.decode(errors='replace')}"
-        raise FmuError("fgb_simulate", "an error", detail=detail)
-    return y
+    if status == 0:
+        return y
+    text = log.value.decode(errors="replace")
+    if failure.value:  # the white-box refused a call: the error the Python loop raises
+        raise FmuError(failure.value.decode(), status_label(fmi_status.value), at.value, text)
+    detail = f"{archive.path.name}: {message.value.decode(errors='replace')}"
+    raise FmuError("fgb_simulate", "an error", detail=f"{detail} {text}".strip())

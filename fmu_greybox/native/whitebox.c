@@ -333,8 +333,10 @@ int wb_open(Whitebox *w, const GreyboxData *data, const char *resources_dir,
 
 /* ------------------------------------------------------------------ running */
 
-static int failed(const WbPart *p, const char *call, fmi2Status status, char *message,
+static int failed(WbPart *p, const char *call, fmi2Status status, char *message,
                   size_t size) {
+    p->failed_call = call;
+    p->failed_status = (int)status;
     snprintf(message, size, "the embedded white-box instance '%s' answered %s with status %d "
              "at t = %.9g s (its own message is in the log)", p->name, call, (int)status, p->time);
     return -1;

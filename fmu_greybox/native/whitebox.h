@@ -50,6 +50,8 @@ typedef struct {
     double *start_values;         /* the parameters' values, then the inputs at the start */
     Term *terms;
     int substeps, plain;
+    const char *failed_call; /* the fmi2 call that failed last, and its status */
+    int failed_status;
     double time;
     double *current, *sensed; /* n_bound: outputs at the last (sub-)step, as the sensors see them */
     double *held, *row;       /* n_inputs: inputs after the terms of the step, of the sub-step */
