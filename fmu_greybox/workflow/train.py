@@ -80,9 +80,10 @@ def train_model(
     check_ship(ship)
     if not terms:
         return fit_model(config, recording, progress, target_mode, terms).model
-    comparison, seconds = compare_parts_forward(config, recording, progress, target_mode, terms)
-    shipped = ship if ship != "best" else (comparison.best or "terms+correctors")
-    comparison = dataclasses.replace(comparison, shipped=shipped)
+    comparison, seconds = compare_parts_forward(
+        config, recording, progress, target_mode, terms, ship
+    )
+    shipped = comparison.shipped
     model = fit_model(
         config, recording, progress, target_mode, () if shipped == "correctors" else terms
     ).model
@@ -99,6 +100,7 @@ def compare_parts_forward(
     progress: bool,
     target_mode: str | None,
     terms: Sequence[Term],
+    ship: str,
 ) -> tuple[PartsComparison, float]:
     """Correctors alone, ``terms`` alone and both, compared forward in time: correctors
     trained on the first half of the training rows (:func:`comparison_config`), every part
@@ -108,7 +110,9 @@ def compare_parts_forward(
     Returns
     -------
     PartsComparison
-        ``shipped`` is the best part (``terms+correctors`` when the data cannot decide).
+        ``shipped``: the part ``ship`` names (one of
+        :data:`~fmu_greybox.workflow.parts.SHIP_CHOICES`; for ``best``, ``terms+correctors``
+        when the data cannot decide).
     float
         Seconds the two comparison chains took to train.
     """
@@ -116,7 +120,7 @@ def compare_parts_forward(
     named = fit_model(early, recording, progress, target_mode, terms)
     plain = fit_model(early, recording, progress, target_mode, ())
     seconds = named.model.training["seconds"] + plain.model.training["seconds"]
-    return compare_fitted(named, plain, "best"), seconds
+    return compare_fitted(named, plain, ship), seconds
 
 
 def comparison_config(config: ProjectConfig, chain: GreyBoxChain, n: int) -> ProjectConfig:
