@@ -36,11 +36,12 @@ Scoring (this file knows the truth; the diagnosis does not):
 Usage::
 
     .venv/bin/python benchmarks/concealed_effects.py [--quick] [--json] [--workers N]
-        [--suite actuator|servo] [--case EFFECT=VALUE[+EFFECT=VALUE] ...] [--start N]
+        [--suite actuator|servo] [--case EFFECT=VALUE[+EFFECT=VALUE] ...] [--start N] [--stop N]
 
-``--start N`` skips the suite's first N-1 cases (each case's seed is its own, so the rest
-run exactly as in a whole run). ``--case`` replaces the suite by the cases given (actuator,
-noise scale 1, seeds 301, 302, ...), e.g. magnitudes outside the suite's.
+``--start N`` skips the suite's first N-1 cases and ``--stop N`` ends after its N-th (each
+case's seed is its own, so a part runs exactly as in a whole run). ``--case`` replaces the
+suite by the cases given (actuator, noise scale 1, seeds 301, 302, ...), e.g. magnitudes
+outside the suite's.
 
 ``--coverage`` also checks the calibrated uncertainty on each case, as the demo does: the
 named terms folded into the white-box, the grey-box trained on the recording (``--inducing``,
@@ -433,7 +434,8 @@ def print_row(row: dict) -> None:
     print(
         f"{row['case'][:56]:56s} {row['noise']:5.1f} {row['expected_origin']!s:6s} "
         f"{row['origin']!s:6s} {row['top_finding'][:34]:34s} "
-        f"{ok:4s} {est:>10s} {true:>10s} {imp:>7s} {row['seconds']:6.1f}",
+        f"{ok:4s} {est:>10s} {true:>10s} {imp:>7s} {row['harmful_kept']:5d} "
+        f"{row['seconds']:6.1f}",
         flush=True,
     )
 
@@ -508,20 +510,29 @@ def main() -> None:
         metavar="N",
         help="Begin at the suite's N-th case (1-based), to resume an interrupted run.",
     )
+    parser.add_argument(
+        "--stop",
+        type=int,
+        default=None,
+        metavar="N",
+        help="End after the suite's N-th case (1-based; default: its last), to run it in parts.",
+    )
     args = parser.parse_args()
     if args.start < 1:
         parser.error(f"--start {args.start}: cases are numbered from 1")
+    if args.stop is not None and args.stop < args.start:
+        parser.error(f"--stop {args.stop}: before --start {args.start}")
     duration = args.duration or (12.0 if args.quick else 20.0)
     print(
         f"{'true effect':56s} {'noise':>5s} {'exp.':6s} {'origin':6s} {'top finding':34s} "
-        f"{'ok':4s} {'estimate':>10s} {'true':>10s} {'impr.':>7s} {'time':>6s}"
+        f"{'ok':4s} {'estimate':>10s} {'true':>10s} {'impr.':>7s} {'harm':>5s} {'time':>6s}"
     )
     rows = []
     suites = tuple(args.suite or ("actuator", "servo"))
     chosen = [given_case(text, 301 + i) for i, text in enumerate(args.case)]
     with tempfile.TemporaryDirectory(prefix="concealed-") as folder:
         paths = fmu_paths(Path(folder))
-        for case in (chosen or cases(args.quick, suites))[args.start - 1 :]:
+        for case in (chosen or cases(args.quick, suites))[args.start - 1 : args.stop]:
             sizes = (args.inducing, args.max_iter) if args.coverage else None
             row = run_case(case, paths, args.workers, duration, sizes)
             rows.append(row)
