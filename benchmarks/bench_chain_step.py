@@ -11,6 +11,15 @@ code both runtimes run) is run over the recording's white-box outputs (a free ru
 - ``streaming floor``: the time of one pass of numpy's (vectorised) maximum over those bytes,
   the least of 500 (wall clock: the least pass is one the process was not preempted in): no
   step that reads every factor once can be much faster on this machine;
+- ``in C`` (``chain_floor.c``, compiled here with the chain core's options): the same step
+  timed in C, with no Python between the steps (CPU time per step of one run over the
+  recording, the median of ``--repeats`` runs), and two floors under it, each the least of 500
+  passes: one pass *reading* the factors (a vectorised sum: the bytes alone), and one pass of
+  *multiply-adds* over factors of the same size with no entry waiting for another (the explicit
+  inverses ``G = H^-1``, ``g = G k``: an exact form that has no serial dependency, unlike the
+  solve; its standard deviations are compared with the solve's over the recording). Each floor
+  also for one stage's factor three times in a row, which stays in the core's cache: what is
+  left then is arithmetic;
 - ``float32 factors``: the largest relative error of any stage's standard deviation, over the
   free run, when the factors are rounded to float32 (half the bytes; computed in float64);
 - ``low rank``: per stage, the singular values of the whitened kernel rows ``g = H^-1 k`` over
@@ -24,8 +33,10 @@ Usage: ``.venv/bin/python benchmarks/bench_chain_step.py [--inducing 400] [--rep
 from __future__ import annotations
 
 import argparse
+import ctypes
 import dataclasses
 import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -39,8 +50,11 @@ from bench_export import ROOT, chain_step, recording
 from spread import conditions, conditions_line
 
 from fmu_greybox import _chainstep
+from fmu_greybox.export.native import NATIVE_DIR, core_cflags
 from fmu_greybox.fmi.archive import open_fmu
-from fmu_greybox.gp.predictive import point_factor
+from fmu_greybox.fmi.build import c_compiler
+from fmu_greybox.gp.linalg import aligned_zeros
+from fmu_greybox.gp.predictive import packed_factor, point_factor
 from fmu_greybox.model.store import load_model, save_model
 from fmu_greybox.project.config import load_config
 from fmu_greybox.project.data import prepare
@@ -90,24 +104,31 @@ def float32_factors(plan: np.ndarray, params: np.ndarray) -> np.ndarray:
     return rounded
 
 
+def kernel_rows(chain, data, q: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """Stage ``q``'s kernel rows over the recording (teacher-forced inputs), shape (M, n), its
+    triangular factor H, shape (M, M), and its signal variance (standardised units)."""
+    posterior = chain.correctors_[q].posterior_
+    X, _ = chain.stages[q].teacher_forced(chain.layout, data.exo, data.y_wb, data.outputs)
+    xs = X * posterior._input_weight - posterior._input_offset
+    exponent = posterior._z_scaled @ xs.T + posterior._z_offset[:, None]
+    K = np.exp(exponent - 0.5 * np.einsum("nd,nd->n", xs, xs)[None, :])
+    H, _ = point_factor(posterior.chol_uu, posterior.chol_b, posterior.mean_weights)
+    return K, H, float(posterior.signal_variance)
+
+
 def low_rank(chain, data) -> list[dict[str, object]]:
     """Per stage the singular values of the whitened kernel rows and the least rank that keeps
     the latent standard deviations within STD_RTOL (see the module docstring)."""
     figures = []
     for q, stage in enumerate(chain.stages):
-        posterior = chain.correctors_[q].posterior_
-        X, _ = stage.teacher_forced(chain.layout, data.exo, data.y_wb, data.outputs)
-        xs = X * posterior._input_weight - posterior._input_offset
-        exponent = posterior._z_scaled @ xs.T + posterior._z_offset[:, None]
-        K = np.exp(exponent - 0.5 * np.einsum("nd,nd->n", xs, xs)[None, :])
-        H, _ = point_factor(posterior.chol_uu, posterior.chol_b, posterior.mean_weights)
+        K, H, signal_variance = kernel_rows(chain, data, q)
         G = solve_triangular(H, K, lower=True)
-        var = posterior.signal_variance - np.einsum("mn,mn->n", G, G)
+        var = signal_variance - np.einsum("mn,mn->n", G, G)
         U, s, _ = np.linalg.svd(G, full_matrices=False)
         rank = G.shape[0]
         for r in range(8, G.shape[0], 8):
             kept = U[:, :r].T @ G
-            approx = posterior.signal_variance - np.einsum("rn,rn->n", kept, kept)
+            approx = signal_variance - np.einsum("rn,rn->n", kept, kept)
             if np.all(np.abs(np.sqrt(np.maximum(approx, 0)) / np.sqrt(var) - 1) <= STD_RTOL):
                 rank = r
                 break
@@ -129,6 +150,100 @@ def streaming_floor(plan: np.ndarray, params: np.ndarray) -> float:
             np.maximum.reduce(block)
         best = min(best, time.perf_counter() - start)
     return best * 1e6
+
+
+def packed(factor: np.ndarray) -> np.ndarray:
+    """A lower-triangular (M, M) matrix in the chain core's packed layout, on a cache line."""
+    flat = packed_factor(np.tril(factor))
+    out = aligned_zeros(flat.size)
+    out[:] = flat
+    return out
+
+
+def floor_library(folder: Path) -> ctypes.CDLL:
+    """``chain_floor.c`` and the chain core, compiled into ``folder`` with the core's options."""
+    library = folder / "libchainfloor.so"
+    command = [c_compiler(), *core_cflags(), "-shared", "-fPIC", "-I", str(NATIVE_DIR)]
+    command += [str(Path(__file__).with_name("chain_floor.c")), str(NATIVE_DIR / "chain_core.c")]
+    subprocess.run([*command, "-o", str(library), "-lm"], check=True)
+    lib = ctypes.CDLL(str(library))
+    pointer, size = ctypes.c_void_p, ctypes.c_ssize_t
+    checksum = ctypes.POINTER(ctypes.c_double)
+    lib.floor_read.argtypes = [pointer, pointer, ctypes.c_int, ctypes.c_int, ctypes.c_int, checksum]
+    lib.floor_multiply.argtypes = [
+        pointer,
+        pointer,
+        size,
+        ctypes.c_int,
+        ctypes.c_int,
+        ctypes.c_int,
+        pointer,
+        checksum,
+    ]
+    lib.step_seconds.argtypes = [pointer, pointer, pointer, pointer, size, checksum]
+    for name in ("floor_read", "floor_multiply", "step_seconds"):
+        getattr(lib, name).restype = ctypes.c_double
+    return lib
+
+
+def c_figures(plan, params, chain, data, repeats: int) -> dict[str, float]:
+    """The step timed in C and the floors under it [us], and the largest relative difference
+    of the explicit-inverse form's latent standard deviations from the solve's (see the module
+    docstring)."""
+    checksum = ctypes.c_double(0.0)
+    total = ctypes.byref(checksum)
+    figures: dict[str, float] = {"inverse_std_error": 0.0}
+    inverses, rows, blocks, lengths = [], [], [], []
+    for q in range(int(plan[1])):
+        offset, m, active = (int(stage_record(plan, q)[k]) for k in (0, 1, 6))
+        if not active:
+            continue
+        blocks.append(params[offset : offset + factor_length(m)])
+        lengths.append(factor_length(m))
+        K, H, signal_variance = kernel_rows(chain, data, q)
+        inverse = solve_triangular(H, np.eye(m), lower=True)
+        solved, multiplied = solve_triangular(H, K, lower=True), inverse @ K
+        std = np.sqrt(signal_variance - np.einsum("mn,mn->n", solved, solved))
+        other = np.sqrt(signal_variance - np.einsum("mn,mn->n", multiplied, multiplied))
+        error = float(np.max(np.abs(other / std - 1.0)))
+        figures["inverse_std_error"] = max(figures["inverse_std_error"], error)
+        inverses.append(packed(inverse))
+        rows.append(K[:, K.shape[1] // 2])
+    m = int(stage_record(plan, 0)[1])
+    addresses = (ctypes.c_void_p * len(blocks))(*(b.ctypes.data for b in blocks))
+    sizes = np.array(lengths, dtype=np.intp)
+    factors = (ctypes.c_void_p * len(inverses))(*(g.ctypes.data for g in inverses))
+    k = np.ascontiguousarray(np.stack(rows))
+    g = np.zeros(-(-m // 8) * 8)
+    with tempfile.TemporaryDirectory() as tmp:
+        lib = floor_library(Path(tmp))
+        exo, y_wb = np.ascontiguousarray(data.exo), np.ascontiguousarray(data.y_wb)
+        steps = [
+            lib.step_seconds(
+                plan.ctypes.data,
+                params.ctypes.data,
+                exo.ctypes.data,
+                y_wb.ctypes.data,
+                exo.shape[0],
+                total,
+            )
+            for _ in range(repeats)
+        ]
+        figures["step"] = float(np.median(steps)) * 1e6
+        count = len(blocks)
+        read = lib.floor_read(addresses, sizes.ctypes.data, count, 1, 500, total)
+        cached = lib.floor_read(addresses, sizes.ctypes.data, 1, count, 500, total)
+        times = (m, count, 1, 500, g.ctypes.data, total)
+        multiply = lib.floor_multiply(factors, k.ctypes.data, *times)
+        times = (m, 1, count, 500, g.ctypes.data, total)
+        multiply_cached = lib.floor_multiply(factors, k.ctypes.data, *times)
+    figures.update(
+        read=read * 1e6,
+        read_cached=cached * 1e6,
+        multiply=multiply * 1e6,
+        multiply_cached=multiply_cached * 1e6,
+    )
+    return figures
 
 
 def main() -> None:
@@ -155,6 +270,7 @@ def main() -> None:
     )
     reference = free_run_std(plan, params, chain, data)
     rounded = free_run_std(plan, float32_factors(plan, params), chain, data)
+    in_c = c_figures(plan, params, chain, data, args.repeats)
     error = float(np.max(np.abs(rounded / reference - 1.0)))
     print(f"chain step of three stages at M = {args.inducing} per stage (CPU time per step)")
     print(conditions_line(conditions(load_before), args.repeats))
@@ -164,6 +280,13 @@ def main() -> None:
         f"streaming {factor_bytes / 1e6:.2f} MB of factors per step"
     )
     print(f"streaming floor: {streaming_floor(plan, params):.1f} us to read those factors once")
+    print(
+        f"in C: the step {in_c['step']:.1f} us; reading the factors once {in_c['read']:.1f} us "
+        f"(one stage's thrice, cached: {in_c['read_cached']:.1f}); multiply-adds over them with "
+        f"no serial dependency (explicit inverses, std within {in_c['inverse_std_error']:.0e} "
+        f"of the solve's) {in_c['multiply']:.1f} us (one stage's thrice, cached: "
+        f"{in_c['multiply_cached']:.1f})"
+    )
     print(
         f"float32 factors: {factor_bytes / 2e6:.2f} MB; largest relative std error {error:.1e} "
         f"({'within' if error <= STD_RTOL else 'beyond'} {STD_RTOL:g})"
