@@ -186,29 +186,40 @@ def floor_library(folder: Path) -> ctypes.CDLL:
     return lib
 
 
+def explicit_inverses(plan, chain, data) -> tuple[list, list, float]:
+    """Per active stage its explicit inverse ``G = H^-1`` (packed) and one kernel row (the
+    recording's middle), and the largest relative difference of ``sqrt(s2 - |G k|^2)`` from the
+    solve's latent standard deviation over the recording."""
+    inverses, rows, error = [], [], 0.0
+    for q in range(int(plan[1])):
+        m, active = (int(stage_record(plan, q)[k]) for k in (1, 6))
+        if not active:
+            continue
+        K, H, signal_variance = kernel_rows(chain, data, q)
+        inverse = solve_triangular(H, np.eye(m), lower=True)
+        solved, multiplied = solve_triangular(H, K, lower=True), inverse @ K
+        std = np.sqrt(signal_variance - np.einsum("mn,mn->n", solved, solved))
+        other = np.sqrt(signal_variance - np.einsum("mn,mn->n", multiplied, multiplied))
+        error = max(error, float(np.max(np.abs(other / std - 1.0))))
+        inverses.append(packed(inverse))
+        rows.append(K[:, K.shape[1] // 2])
+    return inverses, rows, error
+
+
 def c_figures(plan, params, chain, data, repeats: int) -> dict[str, float]:
     """The step timed in C and the floors under it [us], and the largest relative difference
     of the explicit-inverse form's latent standard deviations from the solve's (see the module
     docstring)."""
     checksum = ctypes.c_double(0.0)
     total = ctypes.byref(checksum)
-    figures: dict[str, float] = {"inverse_std_error": 0.0}
-    inverses, rows, blocks, lengths = [], [], [], []
+    blocks = []
     for q in range(int(plan[1])):
         offset, m, active = (int(stage_record(plan, q)[k]) for k in (0, 1, 6))
-        if not active:
-            continue
-        blocks.append(params[offset : offset + factor_length(m)])
-        lengths.append(factor_length(m))
-        K, H, signal_variance = kernel_rows(chain, data, q)
-        inverse = solve_triangular(H, np.eye(m), lower=True)
-        solved, multiplied = solve_triangular(H, K, lower=True), inverse @ K
-        std = np.sqrt(signal_variance - np.einsum("mn,mn->n", solved, solved))
-        other = np.sqrt(signal_variance - np.einsum("mn,mn->n", multiplied, multiplied))
-        error = float(np.max(np.abs(other / std - 1.0)))
-        figures["inverse_std_error"] = max(figures["inverse_std_error"], error)
-        inverses.append(packed(inverse))
-        rows.append(K[:, K.shape[1] // 2])
+        if active:
+            blocks.append(params[offset : offset + factor_length(m)])
+    inverses, rows, error = explicit_inverses(plan, chain, data)
+    figures: dict[str, float] = {"inverse_std_error": error}
+    lengths = [b.size for b in blocks]
     m = int(stage_record(plan, 0)[1])
     addresses = (ctypes.c_void_p * len(blocks))(*(b.ctypes.data for b in blocks))
     sizes = np.array(lengths, dtype=np.intp)

@@ -14,7 +14,13 @@ are validated on the second recording. Printed: the comparison ``train --terms``
 training recording (the part it would ship is its ``best``), then each part's RMSE on the other
 excitation, per stage.
 
-Usage: ``.venv/bin/python benchmarks/parts_other_excitation.py [--case servo|stiffness]``
+``--range-margin X`` widens the range the correctors' features are clipped to by X times their
+training span on each side (``fmu_greybox.model.chain.RANGE_MARGIN``, 0.05), to test whether
+the clipping is what holds terms + correctors back on the other excitation (``1e6``: no
+clipping in practice).
+
+Usage: ``.venv/bin/python benchmarks/parts_other_excitation.py [--case servo|stiffness]
+[--range-margin X]``
 """
 
 from __future__ import annotations
@@ -33,6 +39,7 @@ import third_party  # noqa: E402
 
 from fmu_greybox.diagnosis import Diagnosis  # noqa: E402
 from fmu_greybox.fmi.archive import open_fmu  # noqa: E402
+from fmu_greybox.model import chain  # noqa: E402
 from fmu_greybox.model.terms import term_from_dict  # noqa: E402
 from fmu_greybox.workflow.train import train_model, with_inducing  # noqa: E402
 from fmu_greybox.workflow.validate import validate_model  # noqa: E402
@@ -69,7 +76,14 @@ def stiffness(folder: Path) -> tuple:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--case", choices=("servo", "stiffness"), default="servo")
+    parser.add_argument(
+        "--range-margin",
+        type=float,
+        default=chain.RANGE_MARGIN,
+        help=f"Feature clipping margin, a share of the training span ({chain.RANGE_MARGIN}).",
+    )
     args = parser.parse_args()
+    chain.RANGE_MARGIN = args.range_margin
     with tempfile.TemporaryDirectory(prefix="parts-") as folder:
         setting = servo if args.case == "servo" else stiffness
         config, greybox, training, other = setting(Path(folder))
