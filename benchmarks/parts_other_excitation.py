@@ -6,7 +6,9 @@ recorded with a Coulomb friction its white-box lacks, once to train (12 s, refer
 ``--case stiffness``: the reference actuator with a concealed spring of 30 000 N/m on its load
 (the concealed suite's case ``stiffness@load_force(ram_position)=30000``), its 20 s recording and
 the suite's independent 8 s recording of another seed; the grey-box with the suite's
-``--coverage`` settings (150 inducing points, 100 iterations).
+``--coverage`` settings (150 inducing points, 100 iterations). ``--case LABEL``: the same for any
+case of the actuator suite, by its label as ``concealed_effects.py`` prints it (e.g.
+``deadband=2e-05``; the first case of that label).
 
 The diagnosis names terms on the first recording; the correctors are trained on the plain
 white-box and on the white-box with those terms (``train_model(..., ship=...)``), and both models
@@ -19,7 +21,7 @@ training span on each side (``fmu_greybox.model.chain.RANGE_MARGIN``, 0.05), to 
 the clipping is what holds terms + correctors back on the other excitation (``1e6``: no
 clipping in practice).
 
-Usage: ``.venv/bin/python benchmarks/parts_other_excitation.py [--case servo|stiffness]
+Usage: ``.venv/bin/python benchmarks/parts_other_excitation.py [--case servo|stiffness|LABEL]
 [--range-margin X]``
 """
 
@@ -58,11 +60,15 @@ def servo(folder: Path) -> tuple:
     return config, config, training, other
 
 
-def stiffness(folder: Path) -> tuple:
-    """The actuator's project (and its grey-box settings), the case's training recording and
-    its independent recording, as ``concealed_effects.py --coverage`` makes them."""
+def suite_case(label: str, folder: Path) -> tuple:
+    """The actuator's project (and its grey-box settings), the suite case's training recording
+    and its independent recording, as ``concealed_effects.py --coverage`` makes them."""
     ce = concealed_effects
-    case = next(c for c in ce.cases(False, ("actuator",)) if c.label.startswith(STIFFNESS_CASE))
+    chosen = [c for c in ce.cases(False, ("actuator",)) if c.label == label]
+    if not chosen:
+        labels = ", ".join(c.label for c in ce.cases(False, ("actuator",)))
+        raise SystemExit(f"--case {label!r} is not a case of the actuator suite; one of: {labels}")
+    case = chosen[0]
     paths = ce.fmu_paths(folder)
     config, truth_path, _, _ = ce.case_setting(case, paths)
     with open_fmu(truth_path) as truth, open_fmu(paths[case.whitebox]) as whitebox:
@@ -75,7 +81,11 @@ def stiffness(folder: Path) -> tuple:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--case", choices=("servo", "stiffness"), default="servo")
+    parser.add_argument(
+        "--case",
+        default="servo",
+        help="servo (default), stiffness, or the label of a case of the actuator suite.",
+    )
     parser.add_argument(
         "--range-margin",
         type=float,
@@ -85,8 +95,11 @@ def main() -> None:
     args = parser.parse_args()
     chain.RANGE_MARGIN = args.range_margin
     with tempfile.TemporaryDirectory(prefix="parts-") as folder:
-        setting = servo if args.case == "servo" else stiffness
-        config, greybox, training, other = setting(Path(folder))
+        if args.case == "servo":
+            config, greybox, training, other = servo(Path(folder))
+        else:
+            label = STIFFNESS_CASE if args.case == "stiffness" else args.case
+            config, greybox, training, other = suite_case(label, Path(folder))
         diagnosis = Diagnosis(config, greybox=None).fit(training)
         findings = [f.to_dict() for f in diagnosis.findings_]
         terms = [term_from_dict(t) for f in findings for t in f.get("terms", [])]
