@@ -25,7 +25,11 @@ code both runtimes run) is run over the recording's white-box outputs (a free ru
 - ``low rank``: per stage, the singular values of the whitened kernel rows ``g = H^-1 k`` over
   the run (relative to the largest), and the least rank r whose projection keeps every
   standard deviation of the run within 1e-6 (relative; in-sample, so optimistic): a low-rank
-  variance costs about r M per stage instead of M^2 / 2.
+  variance costs about r M per stage instead of M^2 / 2; with it, how dense the kernel rows
+  are (the entries above 1e-16 of their row's largest: a step could skip the others' columns of
+  ``H^-1`` exactly), and the cancellation: the prior variance over the least latent variance
+  of the run (the variance is the prior minus a quadratic form, so a relative error of the
+  form is multiplied by that ratio in the variance; why rounded factors fail).
 
 Usage: ``.venv/bin/python benchmarks/bench_chain_step.py [--inducing 400] [--repeats 5]``.
 """
@@ -133,7 +137,19 @@ def low_rank(chain, data) -> list[dict[str, object]]:
                 rank = r
                 break
         ratios = {r: float(s[r] / s[0]) for r in (50, 100, 200, 300) if r < s.size}
-        figures.append({"stage": stage.name, "M": G.shape[0], "rank": rank, "sv": ratios})
+        # entries a step could skip exactly: below 1e-16 of its row's largest
+        dense = np.sum(np.abs(K) > 1e-16 * np.abs(K).max(axis=0), axis=0)
+        figures.append(
+            {
+                "stage": stage.name,
+                "M": G.shape[0],
+                "rank": rank,
+                "sv": ratios,
+                "dense_min": int(dense.min()),
+                "dense_median": float(np.median(dense)),
+                "cancellation": float(signal_variance / var.min()),
+            }
+        )
     return figures
 
 
@@ -306,7 +322,10 @@ def main() -> None:
         sv = ", ".join(f"s{r}/s0 {v:.0e}" for r, v in figure["sv"].items())
         print(
             f"low rank, stage {figure['stage']}: rank {figure['rank']} of {figure['M']} keeps "
-            f"every std within {STD_RTOL:g} in-sample ({sv})"
+            f"every std within {STD_RTOL:g} in-sample ({sv}); kernel rows dense: "
+            f"{figure['dense_median']:.0f} (least {figure['dense_min']}) of {figure['M']} "
+            f"entries above 1e-16 of the row's largest; the latent variance down to 1/"
+            f"{figure['cancellation']:.0f} of the prior's (cancellation)"
         )
 
 
