@@ -191,6 +191,19 @@ def test_train_with_terms_compares_its_parts_forward_in_time(termed) -> None:
     alone = train_model(termed["config"], recording, terms=terms(), ship="terms")
     assert not alone.chain.active_.any() and alone.terms == terms()
     assert alone.training["parts"]["score"] == pytest.approx(parts["score"], rel=1e-9)
+    # its σ describes what it ships, the terms alone (calibrated with every stage passed
+    # through: σ = sqrt(b), 95 % of the training rows' white-box + terms residual inside
+    # ±1.96σ), not the correctors it no longer uses
+    trained = slice(alone.chain.history, split + 1)
+    for q, stage in enumerate(alone.chain.stage_names):
+        column = config.signals[alone.chain.target_signals[q]].column
+        residual = recording[column][trained] - named_run[trained, q]
+        sigma = np.sqrt(alone.chain.calibration_[q].residual_variance)
+        inside = np.mean(np.abs(residual) <= 1.959963984540054 * sigma)
+        assert inside == pytest.approx(0.95, abs=2e-3), stage
+        assert alone.training["calibration_check"][stage]["rmse"] == pytest.approx(
+            np.sqrt(np.mean(residual**2)), rel=1e-9
+        )
     plain = train_model(termed["config"], recording, terms=terms(), ship="correctors")
     assert plain.terms == [] and plain.training["parts"]["shipped"] == "correctors"
     with pytest.raises(ConfigError, match="'all' is not a part to ship"):

@@ -220,6 +220,38 @@ class GreyBoxChain:
             self._calibrate(exo, y_wb, outputs, progress)
         return self
 
+    def pass_through(
+        self,
+        exo: np.ndarray,
+        y_wb: np.ndarray,
+        outputs: np.ndarray,
+        progress: ProgressCallback | None = None,
+    ) -> GreyBoxChain:
+        """Pass every stage through (the chain then reports the model it corrects; the
+        correctors are kept, unused) and, with ``calibrate``, estimate :attr:`calibration_`
+        again for the chain as it now runs.
+
+        The calibration of :meth:`fit` describes the residual of the correctors; a chain that
+        no longer uses them reports the residual of what they corrected (``V = 0``, so each
+        stage's ``b`` alone, from both halves of the rows, as :meth:`fit` takes it).
+
+        Parameters
+        ----------
+        exo, y_wb, outputs : ndarray
+            The training rows, as given to :meth:`fit`.
+        progress : callable, optional
+            As for :meth:`fit`.
+
+        Returns
+        -------
+        GreyBoxChain
+            ``self``.
+        """
+        self.active_[:] = False
+        if self.calibrate:
+            self._calibrate(exo, y_wb, outputs, progress)
+        return self
+
     def _fit_stage(
         self,
         q: int,

@@ -171,6 +171,16 @@ class FittedModel:
     data: ProjectData
     split: int
 
+    def pass_through(self) -> None:
+        """Make the model the white-box with its terms: every stage passed through, and its
+        uncertainty calibrated again on the training rows for the chain as it now runs
+        (:meth:`~fmu_greybox.model.chain.GreyBoxChain.pass_through`; ``training``'s
+        ``calibration_check`` follows)."""
+        data, rows = self.data, slice(0, self.split + 1)
+        chain = self.model.chain
+        chain.pass_through(data.exo[rows], data.y_wb[rows], data.outputs[rows])
+        self.model.training["calibration_check"] = chain.calibration_check_
+
     def bench_run(self) -> np.ndarray:
         """The chain's free run over the held-out rows, started at the recording's first row
         (memory from its recorded outputs only), as a bench runs the model; shape

@@ -84,11 +84,12 @@ def train_model(
         config, recording, progress, target_mode, terms, ship
     )
     shipped = comparison.shipped
-    model = fit_model(
+    fitted = fit_model(
         config, recording, progress, target_mode, () if shipped == "correctors" else terms
-    ).model
+    )
     if shipped == "terms":
-        model.chain.active_[:] = False
+        fitted.pass_through()  # its σ then describes the terms alone, not the correctors
+    model = fitted.model
     model.training["parts"] = comparison.to_dict()
     model.training["seconds"] = round(model.training["seconds"] + seconds, 2)
     return model
