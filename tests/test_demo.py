@@ -22,6 +22,7 @@ from fmpy.validation import validate_fmu
 from PIL import Image
 
 from fmu_greybox.cli import main
+from fmu_greybox.report.main import SHIPPED_MODEL
 from fmu_greybox.synth.actuator import TYPICAL_MAGNITUDES
 from fmu_greybox.workflow.demo import choose_effect
 
@@ -85,6 +86,12 @@ def test_demo_model_carries_the_named_terms_and_improves_the_ram(demo: tuple[Pat
     metrics = json.loads((out / "metrics.json").read_text())["stages"]
     assert metrics["RAM"]["named_rmse"] < 0.5 * metrics["RAM"]["wb_rmse"]
     assert summary["validation"]["RAM"]["improvement"] < -0.5
+    # the verdict and the summary say which part the exported model is
+    parts = manifest["training"]["parts"]
+    assert summary["parts"] == parts
+    report = (out / "report.html").read_text()
+    assert f"{SHIPPED_MODEL[parts['shipped']]} (the exported FMU)" in report
+    assert f"shipped {parts['shipped']}" in report
 
 
 def test_demo_bench_runs_match_the_master(demo: tuple[Path, dict]) -> None:

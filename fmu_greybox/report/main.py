@@ -21,6 +21,7 @@ from fmu_greybox.report.plots import calibration_figure, frequency_figure, trace
 from fmu_greybox.workflow.acceptance import PASS, Acceptance
 from fmu_greybox.workflow.demo import DemoResult
 from fmu_greybox.workflow.metrics import improvement
+from fmu_greybox.workflow.parts import summary as parts_summary
 from fmu_greybox.workflow.validate import Validation, frequency_table
 
 #: Wall time per step of the exported FMU a 1 kHz bench can afford: a tenth of the 1 ms step,
@@ -43,6 +44,7 @@ def summary(result: DemoResult) -> dict[str, Any]:
         "origin_stage": result.payload["origin_stage"],
         "top_finding": result.payload["findings"][0] if result.payload["findings"] else None,
         "top_finding_correct": result.top_finding_correct(),
+        "parts": result.parts or None,
         "validation": {stage: {k: row[k] for k in keys} for stage, row in validation.table.items()},
         "frequency": frequency_table(validation),
         "bench": {
@@ -57,6 +59,19 @@ def summary(result: DemoResult) -> dict[str, Any]:
         "files": {label: str(path) for label, path in result.files.items()},
         "timings": result.timings,
     }
+
+
+#: What the exported model is, by the part shipped (:data:`fmu_greybox.workflow.parts.PARTS`).
+SHIPPED_MODEL = {
+    "terms+correctors": "White-box + named terms + correctors",
+    "terms": "White-box + named terms, every corrector passed through",
+    "correctors": "White-box + correctors (the named terms left out)",
+}
+
+
+def shipped_model(result: DemoResult) -> str:
+    """The exported model in words: the part shipped, or the grey-box without terms."""
+    return SHIPPED_MODEL.get(result.parts.get("shipped", ""), "Grey-box")
 
 
 def verdict_lines(result: DemoResult) -> list[str]:
@@ -74,9 +89,10 @@ def verdict_lines(result: DemoResult) -> list[str]:
     ]
     table_ = result.validation.table
     named = all("named_rmse" in row for row in table_.values())
-    what = "White-box + named terms + correctors" if named else "Grey-box"
+    if result.parts:
+        lines.append(f"Parts compared at training: {parts_summary(result.parts)}.")
     lines.append(
-        f"{what} (the exported FMU) against the white-box on an independent "
+        f"{shipped_model(result)} (the exported FMU) against the white-box on an independent "
         f"{result.settings.validation_duration:g} s recording (RMSE change, negative = better): "
         + ", ".join(f"{stage} {percent(row['improvement'])}" for stage, row in table_.items())
         + "."
@@ -210,12 +226,7 @@ def report_html(result: DemoResult) -> str:
         verdict(verdict_lines(result)),
         "<h2>Grey-box on an independent recording</h2>",
         f"<p>{escape(validation.held_out)}; free run, correctors fed their own outputs."
-        + (
-            " The grey-box is the white-box with the diagnosis' named terms folded in, plus the "
-            "correctors trained on what those leave."
-            if named
-            else ""
-        )
+        + (f" The exported model: {shipped_model(result)}." if result.parts else "")
         + " σ is the grey-box's calibrated standard deviation (docs/greybox.md, 'Calibrated "
         "uncertainty'), the exported FMU's _std.</p>",
         table(

@@ -133,6 +133,9 @@ class DemoResult:
         Seconds per step.
     command : str
         The command line.
+    parts : dict
+        With named terms, the training's comparison of its parts and the part shipped
+        (``model.json``'s ``training.parts``); empty without terms.
     """
 
     settings: DemoSettings
@@ -148,6 +151,7 @@ class DemoResult:
     files: dict[str, Path] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
     command: str = ""
+    parts: dict[str, Any] = field(default_factory=dict)
 
     def top_finding_correct(self) -> bool:
         """The diagnosis' top finding names one of the concealed effects."""
@@ -324,6 +328,7 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
         files=files,
         timings=timings,
         command=shlex.join(["fmu-greybox", *sys.argv[1:]]),
+        parts=model.training.get("parts", {}),
     )
 
 
