@@ -90,6 +90,7 @@ from fmu_greybox.synth.actuator import (  # noqa: E402
     synthesise,
 )
 from fmu_greybox.synth.loop import is_loop_effect, loop_terms, parse_loop_effects  # noqa: E402
+from fmu_greybox.workflow.demo import VALIDATION_SEED_OFFSET  # noqa: E402
 from fmu_greybox.workflow.train import train_model, with_inducing  # noqa: E402
 from fmu_greybox.workflow.validate import validate_model  # noqa: E402
 
@@ -338,7 +339,7 @@ def run_case(
         harmful = _harmful(diagnosis, whitebox)
         if coverage is not None:
             independent = record(
-                case, truth, whitebox, case.seed + VALIDATION_SEED, VALIDATION_DURATION
+                case, truth, whitebox, case.seed + VALIDATION_SEED_OFFSET, VALIDATION_DURATION
             )
     checked = (
         uncertainty_coverage(config, findings, recording, independent, coverage)
@@ -377,7 +378,7 @@ def run_case(
 
 
 #: The independent validation recording of a case: its seed offset and length [s] (the demo's).
-VALIDATION_SEED, VALIDATION_DURATION = 1_000_003, 8.0
+VALIDATION_DURATION = 8.0
 
 
 def uncertainty_coverage(

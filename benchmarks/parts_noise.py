@@ -13,12 +13,14 @@ If the noise-free training helps and the noisy one harms, the harm is errors in 
 noisy recorded outputs in the correctors' features); if both help, it is not.
 
 Usage: ``.venv/bin/python benchmarks/parts_noise.py [--diagnosis out/diagnosis.json]``; the
-diagnosis is the demo's (``fmu-greybox demo --out out``), whose terms are used.
+diagnosis is the demo's (``fmu-greybox demo --out out``), whose terms are used; the concealed
+effect and the seed are read from the ``summary.json`` beside it.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import tempfile
 from pathlib import Path
 
@@ -28,21 +30,16 @@ from fmu_greybox.model.store import load_model, save_model
 from fmu_greybox.model.whitebox import read_terms
 from fmu_greybox.project.config import load_config
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
-from fmu_greybox.workflow.demo import DemoSettings
+from fmu_greybox.workflow.demo import VALIDATION_SEED_OFFSET, DemoSettings
 from fmu_greybox.workflow.train import fit_model, with_inducing
 from fmu_greybox.workflow.validate import validate_model
 
-#: The demo's concealed effect on its default seed.
-EFFECTS = {"supply_pressure_droop": 1.5e10}
-#: Seed of the demo's independent recording (its own seed + 1 000 003).
-VALIDATION_SEED = 1_000_003
 
-
-def record(seed: int, duration: float, noise: float):
-    """The truth actuator with :data:`EFFECTS`, recorded in closed loop."""
+def record(effects: dict[str, float], seed: int, duration: float, noise: float):
+    """The truth actuator with the demo's concealed ``effects``, recorded in closed loop."""
     fmus = reference_fmus()
     request = SynthRequest(
-        effects=EFFECTS, seed=seed, noise=noise, profile=FlightTestProfile(duration=duration)
+        effects=effects, seed=seed, noise=noise, profile=FlightTestProfile(duration=duration)
     )
     with (
         open_fmu(fmus["HydraulicActuatorTruth"]) as truth,
@@ -56,12 +53,15 @@ def main() -> None:
     parser.add_argument("--diagnosis", type=Path, default=Path("out/diagnosis.json"))
     args = parser.parse_args()
     terms = read_terms(args.diagnosis)
-    settings = DemoSettings()
+    summary = json.loads((args.diagnosis.parent / "summary.json").read_text())
+    effects, seed = summary["concealed_effects"], summary["seed"]
+    settings = DemoSettings(out_dir=args.diagnosis.parent)
     config = with_inducing(load_config(reference_project()), settings.inducing, settings.max_iter)
-    validation = record(VALIDATION_SEED, settings.validation_duration, 1.0)
+    validation = record(effects, seed + VALIDATION_SEED_OFFSET, settings.validation_duration, 1.0)
     print(f"terms: {[t.to_dict() for t in terms]}")
     for noise in (1.0, 0.0):
-        model = fit_model(config, record(0, settings.duration, noise), False, None, terms).model
+        training = record(effects, seed, settings.duration, noise)
+        model = fit_model(config, training, False, None, terms).model
         with tempfile.TemporaryDirectory() as tmp:
             folder = save_model(model, Path(tmp) / "model")
             table = validate_model(load_model(folder), validation).table

@@ -43,6 +43,7 @@ from fmu_greybox.diagnosis import Diagnosis  # noqa: E402
 from fmu_greybox.fmi.archive import open_fmu  # noqa: E402
 from fmu_greybox.model import chain  # noqa: E402
 from fmu_greybox.model.terms import term_from_dict  # noqa: E402
+from fmu_greybox.workflow.demo import VALIDATION_SEED_OFFSET  # noqa: E402
 from fmu_greybox.workflow.train import train_model, with_inducing  # noqa: E402
 from fmu_greybox.workflow.validate import validate_model  # noqa: E402
 
@@ -74,7 +75,7 @@ def suite_case(label: str, folder: Path) -> tuple:
     with open_fmu(truth_path) as truth, open_fmu(paths[case.whitebox]) as whitebox:
         training = ce.record(case, truth, whitebox, case.seed, 20.0)
         other = ce.record(
-            case, truth, whitebox, case.seed + ce.VALIDATION_SEED, ce.VALIDATION_DURATION
+            case, truth, whitebox, case.seed + VALIDATION_SEED_OFFSET, ce.VALIDATION_DURATION
         )
     return config, with_inducing(config, 150, 100), training, other
 

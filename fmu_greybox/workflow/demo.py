@@ -73,6 +73,10 @@ FILE_ROLES = {
 BENCH_STEPS = 4096
 
 
+#: The independent validation recording's seed is the demo's seed plus this.
+VALIDATION_SEED_OFFSET = 1_000_003
+
+
 @dataclass(frozen=True)
 class DemoSettings:
     """What the demo does.
@@ -343,7 +347,7 @@ def _record(
     ):
         for seed, duration in (
             (settings.seed, settings.duration),
-            (settings.seed + 1_000_003, settings.validation_duration),
+            (settings.seed + VALIDATION_SEED_OFFSET, settings.validation_duration),
         ):
             request = SynthRequest(
                 effects=effects, seed=seed, profile=FlightTestProfile(duration=duration)
