@@ -337,118 +337,124 @@ fmi2Status fmi2Reset(fmi2Component c) {
 /* Getting and setting variable values                                                         */
 /* ------------------------------------------------------------------------------------------ */
 
-fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                       fmi2Real value[]) {
+/* One value copied from the instance into the master's array (at index i), or from the
+ * master's array into the instance; a write may refuse the value (it logs why). */
+typedef void (*ReadValue)(const Instance *inst, const FwVariable *v, size_t i, void *values);
+typedef fmi2Status (*WriteValue)(Instance *inst, const FwVariable *v, size_t i,
+                                 const void *values);
+
+static fmi2Status get_values(fmi2Component c, const char *call, const fmi2ValueReference vr[],
+                             size_t nvr, int type, void *values, ReadValue read) {
     Instance *inst = (Instance *)c;
-    if (!inst || !allowed(inst, "fmi2GetReal", MASK_GET)) return fmi2Error;
+    if (!inst || !allowed(inst, call, MASK_GET)) return fmi2Error;
     for (size_t i = 0; i < nvr; i++) {
-        const FwVariable *v = lookup(inst, "fmi2GetReal", vr[i], FW_REAL);
+        const FwVariable *v = lookup(inst, call, vr[i], type);
         if (!v) return fmi2Error;
         if (v->causality == FW_OUTPUT) refresh_outputs(&inst->data);
-        value[i] = inst->data.real[v->index];
+        read(inst, v, i, values);
     }
     return fmi2OK;
+}
+
+static fmi2Status set_values(fmi2Component c, const char *call, const fmi2ValueReference vr[],
+                             size_t nvr, int type, const void *values, WriteValue write) {
+    Instance *inst = (Instance *)c;
+    if (!inst) return fmi2Error;
+    for (size_t i = 0; i < nvr; i++) {
+        const FwVariable *v = lookup(inst, call, vr[i], type);
+        if (!v || !settable(inst, call, v)) return fmi2Error;
+        if (write(inst, v, i, values) != fmi2OK) return fmi2Error;
+        mark_set(&inst->data, v);
+    }
+    return fmi2OK;
+}
+
+static void read_real(const Instance *inst, const FwVariable *v, size_t i, void *values) {
+    ((fmi2Real *)values)[i] = inst->data.real[v->index];
+}
+
+static void read_integer(const Instance *inst, const FwVariable *v, size_t i, void *values) {
+    ((fmi2Integer *)values)[i] = inst->data.integer[v->index];
+}
+
+static void read_boolean(const Instance *inst, const FwVariable *v, size_t i, void *values) {
+    ((fmi2Boolean *)values)[i] = inst->data.boolean[v->index] ? fmi2True : fmi2False;
+}
+
+static void read_string(const Instance *inst, const FwVariable *v, size_t i, void *values) {
+    ((fmi2String *)values)[i] = inst->data.string[v->index];
+}
+
+static fmi2Status write_real(Instance *inst, const FwVariable *v, size_t i, const void *values) {
+    fmi2Real value = ((const fmi2Real *)values)[i];
+    if (!isfinite(value)) {
+        log_message(inst, fmi2Error, "fmi2SetReal: %s = %g is not a finite number.", v->name,
+                    value);
+        return fmi2Error;
+    }
+    inst->data.real[v->index] = value;
+    return fmi2OK;
+}
+
+static fmi2Status write_integer(Instance *inst, const FwVariable *v, size_t i, const void *values) {
+    inst->data.integer[v->index] = ((const fmi2Integer *)values)[i];
+    return fmi2OK;
+}
+
+static fmi2Status write_boolean(Instance *inst, const FwVariable *v, size_t i, const void *values) {
+    inst->data.boolean[v->index] = ((const fmi2Boolean *)values)[i] ? 1 : 0;
+    return fmi2OK;
+}
+
+static fmi2Status write_string(Instance *inst, const FwVariable *v, size_t i, const void *values) {
+    fmi2String value = ((const fmi2String *)values)[i];
+    if (!value || strlen(value) >= FW_STRING_SIZE) {
+        log_message(inst, fmi2Error, "fmi2SetString: %s must be a string of at most %d bytes.",
+                    v->name, FW_STRING_SIZE - 1);
+        return fmi2Error;
+    }
+    strcpy(inst->data.string[v->index], value);
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                       fmi2Real value[]) {
+    return get_values(c, "fmi2GetReal", vr, nvr, FW_REAL, value, read_real);
 }
 
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           fmi2Integer value[]) {
-    Instance *inst = (Instance *)c;
-    if (!inst || !allowed(inst, "fmi2GetInteger", MASK_GET)) return fmi2Error;
-    for (size_t i = 0; i < nvr; i++) {
-        const FwVariable *v = lookup(inst, "fmi2GetInteger", vr[i], FW_INTEGER);
-        if (!v) return fmi2Error;
-        if (v->causality == FW_OUTPUT) refresh_outputs(&inst->data);
-        value[i] = inst->data.integer[v->index];
-    }
-    return fmi2OK;
+    return get_values(c, "fmi2GetInteger", vr, nvr, FW_INTEGER, value, read_integer);
 }
 
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           fmi2Boolean value[]) {
-    Instance *inst = (Instance *)c;
-    if (!inst || !allowed(inst, "fmi2GetBoolean", MASK_GET)) return fmi2Error;
-    for (size_t i = 0; i < nvr; i++) {
-        const FwVariable *v = lookup(inst, "fmi2GetBoolean", vr[i], FW_BOOLEAN);
-        if (!v) return fmi2Error;
-        if (v->causality == FW_OUTPUT) refresh_outputs(&inst->data);
-        value[i] = inst->data.boolean[v->index] ? fmi2True : fmi2False;
-    }
-    return fmi2OK;
+    return get_values(c, "fmi2GetBoolean", vr, nvr, FW_BOOLEAN, value, read_boolean);
 }
 
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                          fmi2String value[]) {
-    Instance *inst = (Instance *)c;
-    if (!inst || !allowed(inst, "fmi2GetString", MASK_GET)) return fmi2Error;
-    for (size_t i = 0; i < nvr; i++) {
-        const FwVariable *v = lookup(inst, "fmi2GetString", vr[i], FW_STRING);
-        if (!v) return fmi2Error;
-        if (v->causality == FW_OUTPUT) refresh_outputs(&inst->data);
-        value[i] = inst->data.string[v->index];
-    }
-    return fmi2OK;
+    return get_values(c, "fmi2GetString", vr, nvr, FW_STRING, value, read_string);
 }
 
 fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                        const fmi2Real value[]) {
-    Instance *inst = (Instance *)c;
-    if (!inst) return fmi2Error;
-    for (size_t i = 0; i < nvr; i++) {
-        const FwVariable *v = lookup(inst, "fmi2SetReal", vr[i], FW_REAL);
-        if (!v || !settable(inst, "fmi2SetReal", v)) return fmi2Error;
-        if (!isfinite(value[i])) {
-            log_message(inst, fmi2Error, "fmi2SetReal: %s = %g is not a finite number.", v->name,
-                        value[i]);
-            return fmi2Error;
-        }
-        inst->data.real[v->index] = value[i];
-        mark_set(&inst->data, v);
-    }
-    return fmi2OK;
+    return set_values(c, "fmi2SetReal", vr, nvr, FW_REAL, value, write_real);
 }
 
 fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Integer value[]) {
-    Instance *inst = (Instance *)c;
-    if (!inst) return fmi2Error;
-    for (size_t i = 0; i < nvr; i++) {
-        const FwVariable *v = lookup(inst, "fmi2SetInteger", vr[i], FW_INTEGER);
-        if (!v || !settable(inst, "fmi2SetInteger", v)) return fmi2Error;
-        inst->data.integer[v->index] = value[i];
-        mark_set(&inst->data, v);
-    }
-    return fmi2OK;
+    return set_values(c, "fmi2SetInteger", vr, nvr, FW_INTEGER, value, write_integer);
 }
 
 fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Boolean value[]) {
-    Instance *inst = (Instance *)c;
-    if (!inst) return fmi2Error;
-    for (size_t i = 0; i < nvr; i++) {
-        const FwVariable *v = lookup(inst, "fmi2SetBoolean", vr[i], FW_BOOLEAN);
-        if (!v || !settable(inst, "fmi2SetBoolean", v)) return fmi2Error;
-        inst->data.boolean[v->index] = value[i] ? 1 : 0;
-        mark_set(&inst->data, v);
-    }
-    return fmi2OK;
+    return set_values(c, "fmi2SetBoolean", vr, nvr, FW_BOOLEAN, value, write_boolean);
 }
 
 fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                          const fmi2String value[]) {
-    Instance *inst = (Instance *)c;
-    if (!inst) return fmi2Error;
-    for (size_t i = 0; i < nvr; i++) {
-        const FwVariable *v = lookup(inst, "fmi2SetString", vr[i], FW_STRING);
-        if (!v || !settable(inst, "fmi2SetString", v)) return fmi2Error;
-        if (!value[i] || strlen(value[i]) >= FW_STRING_SIZE) {
-            log_message(inst, fmi2Error, "fmi2SetString: %s must be a string of at most %d bytes.",
-                        v->name, FW_STRING_SIZE - 1);
-            return fmi2Error;
-        }
-        strcpy(inst->data.string[v->index], value[i]);
-        mark_set(&inst->data, v);
-    }
-    return fmi2OK;
+    return set_values(c, "fmi2SetString", vr, nvr, FW_STRING, value, write_string);
 }
 
 /* ------------------------------------------------------------------------------------------ */
