@@ -35,7 +35,7 @@ from fmu_greybox.model.terms import CoulombForce, InputDelay, InputGain, SensorD
 from fmu_greybox.model.whitebox import NamedModel, check_terms, read_terms
 from fmu_greybox.project.config import load_config
 from fmu_greybox.project.data import split_row
-from fmu_greybox.workflow.parts import PARTS
+from fmu_greybox.workflow.parts import EQUAL_MARGIN, PARTS, compare_parts, summary
 from fmu_greybox.workflow.train import train_model, with_inducing
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -159,6 +159,32 @@ def termed(tmp_path_factory: pytest.TempPathFactory) -> dict:
         "config": config,
         "model": model,
     }
+
+
+@pytest.mark.parametrize(
+    ("factor", "equal"), [(1.0 + 0.8 * EQUAL_MARGIN, True), (1.0 + 1.2 * EQUAL_MARGIN, False)]
+)
+def test_parts_within_the_margin_are_equally_good(factor: float, equal: bool) -> None:
+    """A part whose score is within ``EQUAL_MARGIN`` of the best's is listed as equally good
+    and the printed line says so; one beyond it is not; the best still ships."""
+    rng = np.random.default_rng(3)
+    recorded = rng.normal(size=(400, 2))
+    error = rng.normal(size=(400, 2))
+    predictions = {
+        "terms": recorded + error,
+        "terms+correctors": recorded + factor * error,
+        "correctors": recorded + 3.0 * error,
+    }
+    scale = {"A": 1.0, "B": 1.0}
+    parts = compare_parts(["A", "B"], recorded, predictions, scale, first_row=100)
+    assert parts.best == "terms" and parts.shipped == "terms"
+    assert parts.score["terms+correctors"] == pytest.approx(factor * parts.score["terms"])
+    payload = parts.to_dict()
+    assert payload["equally_good"] == (["terms+correctors"] if equal else [])
+    assert payload["equal_margin"] == EQUAL_MARGIN
+    line = summary(payload)
+    assert (f"equally good within {100 * EQUAL_MARGIN:.0f} %: terms+correctors" in line) is equal
+    assert line.endswith("; shipped terms")
 
 
 def test_train_with_terms_compares_its_parts_forward_in_time(termed) -> None:
@@ -293,6 +319,8 @@ def test_train_command_folds_a_diagnosis_terms(termed, tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     model = load_model(tmp_path / "model")
     parts = model.training["parts"]
-    assert f"best {parts['best']}; shipped {parts['best']}" in result.output
+    assert f"best {parts['best']}" in result.output
+    assert f"; shipped {parts['best']}" in result.output
+    assert ("equally good within" in result.output) == bool(parts["equally_good"])
     assert model.terms == ([] if parts["best"] == "correctors" else [terms()[1]])
     assert ("named terms: coulomb_friction" in result.output) == bool(model.terms)

@@ -36,6 +36,10 @@ PARTS = ("correctors", "terms", "terms+correctors")
 SHIP_CHOICES = ("best", *PARTS)
 #: Fewest held-out rows a comparison is made on; with fewer the data cannot decide.
 MIN_COMPARED_ROWS = 50
+#: A part whose score is within this share of the best part's is reported as equally good: the
+#: held-out rows cannot tell them apart (a held-out mean square within about 10 %, the margin
+#: the diagnosis uses for competing explanations).
+EQUAL_MARGIN = 0.05
 
 
 @dataclass(frozen=True)
@@ -67,6 +71,15 @@ class PartsComparison:
     rows: list[int]
     trained_rows: list[int] | None = None
 
+    @property
+    def equally_good(self) -> list[str]:
+        """The other parts whose score is within :data:`EQUAL_MARGIN` of the best's (empty when
+        there is no best)."""
+        if self.best is None:
+            return []
+        bound = (1.0 + EQUAL_MARGIN) * self.score[self.best]
+        return [p for p in PARTS if p != self.best and self.score[p] <= bound]
+
     def to_dict(self) -> dict:
         """Plain data for ``model.json``, ``metrics.json`` and ``diagnosis.json``."""
         trained = {} if self.trained_rows is None else {"trained_rows": self.trained_rows}
@@ -76,6 +89,8 @@ class PartsComparison:
             "stages": self.stages,
             "score": self.score,
             "best": self.best,
+            "equally_good": self.equally_good,
+            "equal_margin": EQUAL_MARGIN,
             "shipped": self.shipped,
         }
 
@@ -88,6 +103,10 @@ def summary(parts: Mapping) -> str:
         best = f"too few held-out rows to compare (fewer than {MIN_COMPARED_ROWS})"
     else:
         best = f"best {parts['best']}"
+    equal = parts.get("equally_good")
+    if equal:
+        margin = 100 * parts["equal_margin"]
+        best += f", equally good within {margin:.0f} %: {' and '.join(equal)}"
     shipped = f"; shipped {parts['shipped']}" if "shipped" in parts else ""
     return f"held-out nRMSE {scores}: {best}{shipped}"
 
