@@ -377,7 +377,8 @@ def run_case(
     }
 
 
-#: The independent validation recording of a case: its seed offset and length [s] (the demo's).
+#: The independent validation recording of a case: its length [s] (the demo's); its seed is the
+#: case's plus the demo's VALIDATION_SEED_OFFSET.
 VALIDATION_DURATION = 8.0
 
 
