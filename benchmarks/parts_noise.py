@@ -61,7 +61,7 @@ def main() -> None:
     print(f"terms: {[t.to_dict() for t in terms]}")
     for noise in (1.0, 0.0):
         training = record(effects, seed, settings.duration, noise)
-        model = fit_model(config, training, False, None, terms).model
+        model = fit_model(config, training, False, None, terms, calibrate=False).model
         with tempfile.TemporaryDirectory() as tmp:
             folder = save_model(model, Path(tmp) / "model")
             table = validate_model(load_model(folder), validation).table

@@ -12,8 +12,8 @@ about the prediction. Per stage, two numbers make one from the other:
 ``b`` [unit²] is the stage's residual variance: observation noise plus the model error that
 ``V`` does not carry (alone when the corrector is off); ``a`` scales ``V``. Both are estimated
 on rows the correctors were not fitted to (:meth:`~fmu_greybox.model.chain.GreyBoxChain.fit`
-free-runs each half of the training rows with correctors trained on the other half), in two
-steps:
+free-runs each half of the training rows with correctors trained on the other half, and pairs
+each residual with the ``V`` the chain that ships reports at that row), in two steps:
 
 1. the shape, by maximum a posteriori: the residuals ``r`` as independent ``N(0, a V + b)`` and
    a log-normal prior on ``a`` centred on 1 (:data:`LATENT_SCALE_PRIOR`), so that ``a`` stays 1

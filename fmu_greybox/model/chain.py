@@ -76,8 +76,8 @@ class GreyBoxChain:
         variance; see :mod:`fmu_greybox.model.calibration` and :meth:`fit`);
         :data:`~fmu_greybox.model.calibration.UNCALIBRATED` until fitted.
     calibration_check_ : dict
-        Stage -> rows, RMSE and median propagated standard deviation on the rows the
-        calibration was estimated on (empty without it).
+        Stage -> rows, the held-out residual's RMSE and the shipped chain's median propagated
+        standard deviation on the rows the calibration was estimated on (empty without it).
     """
 
     def __init__(
@@ -177,11 +177,14 @@ class GreyBoxChain:
         stage's reported variance is estimated (:attr:`calibration_`) by two-fold
         cross-validation: each half of the rows is free-run by a chain whose correctors were
         trained (hyperparameters and all) on the other half only, so no corrector has seen
-        the rows it predicts. The residuals of both halves give ``a`` and ``b``
-        (:func:`~fmu_greybox.model.calibration.fit_calibration`), stage by stage in chain
-        order (a stage's propagated variance holds the calibrated variances of the stages
-        feeding it). The settings given to the
-        constructor are not changed: a refit chooses ``"auto"`` targets again.
+        the rows it predicts. Each of those residuals is paired with the propagated variance
+        that this chain, trained on all rows, reports at the same row (its own free run over
+        the half): that is the variance ``a`` will scale when the chain ships, and a corrector
+        trained on half the rows usually reports a larger one. The pairs of both halves give
+        ``a`` and ``b`` (:func:`~fmu_greybox.model.calibration.fit_calibration`), stage by
+        stage in chain order (a stage's propagated variance holds the calibrated variances of
+        the stages feeding it). The settings given to the constructor are not changed: a
+        refit chooses ``"auto"`` targets again.
 
         Parameters
         ----------
@@ -356,10 +359,13 @@ class GreyBoxChain:
         for q, name in enumerate(self.stage_names):
             residual, latent_var = [], []
             for chain, (first, stop) in zip(chains, halves, strict=True):
-                chain.calibration_ = calibration  # the stages before q already calibrated
-                run = chain.free_run_variances(exo[:stop], y_wb[:stop], outputs[:stop], first - 1)
-                residual.append(outputs[first:stop, q] - run.mean[:, q])
-                latent_var.append(run.latent_var[:, q])
+                known = first - 1
+                for run_by in (chain, self):  # the stages before q already calibrated
+                    run_by.calibration_ = calibration
+                held_out = chain.free_run_variances(exo[:stop], y_wb[:stop], outputs[:stop], known)
+                shipped = self.free_run_variances(exo[:stop], y_wb[:stop], outputs[:stop], known)
+                residual.append(outputs[first:stop, q] - held_out.mean[:, q])
+                latent_var.append(shipped.latent_var[:, q])
             residual, latent_var = np.concatenate(residual), np.concatenate(latent_var)
             calibration[q] = fit_calibration(residual, latent_var)
             self.calibration_check_[name] = {

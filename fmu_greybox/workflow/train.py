@@ -118,8 +118,9 @@ def compare_parts_forward(
         Seconds the two comparison chains took to train.
     """
     early = comparison_config(config, GreyBoxChain(config, target_mode), recording.n_samples)
-    named = fit_model(early, recording, progress, target_mode, terms)
-    plain = fit_model(early, recording, progress, target_mode, ())
+    # the parts are compared by their means: no σ to calibrate
+    named = fit_model(early, recording, progress, target_mode, terms, calibrate=False)
+    plain = fit_model(early, recording, progress, target_mode, (), calibrate=False)
     seconds = named.model.training["seconds"] + plain.model.training["seconds"]
     return compare_fitted(named, plain, ship), seconds
 
@@ -143,11 +144,13 @@ def fit_model(
     progress: bool,
     target_mode: str | None,
     terms: Sequence[Term],
+    calibrate: bool = True,
 ) -> FittedModel:
-    """One chain of correctors on the white-box with ``terms`` (see :func:`train_model`)."""
+    """One chain of correctors on the white-box with ``terms`` (see :func:`train_model`);
+    without ``calibrate``, its σ is the propagated variance (a chain used for its mean only)."""
     started = time.perf_counter()
     fmu_path = whitebox_path(config)
-    chain = GreyBoxChain(config, target_mode)
+    chain = GreyBoxChain(config, target_mode, calibrate=calibrate)
     check_training_size(config, chain, recording)
     with open_fmu(fmu_path) as archive:
         config.check_against_fmu(archive)
