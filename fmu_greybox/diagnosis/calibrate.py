@@ -291,22 +291,27 @@ class Calibrator:
         return True
 
     # ------------------------------------------------------------------ sensitivities
-    def _steps(self, c: Candidate) -> np.ndarray:
-        """Signed finite-difference steps, inside the admissible range."""
+    def _steps(self, c: Candidate, backward: bool = False) -> np.ndarray:
+        """Signed finite-difference steps, inside the admissible range: up (down with
+        ``backward``) unless that leaves the range."""
         scale = c.scale
         h = self.difference_step * scale * np.maximum(1.0, 0.1 * np.abs(c.theta / scale))
-        forward = c.theta + h <= c.upper
-        return np.where(forward, h, -h)
+        if backward:
+            return np.where(c.theta - h >= c.lower, -h, h)
+        return np.where(c.theta + h <= c.upper, h, -h)
 
-    def jacobians(self, candidates: Sequence[Candidate]) -> list[np.ndarray | None]:
-        """Forward-difference sensitivities ``d r / d theta`` of each candidate.
+    def jacobians(
+        self, candidates: Sequence[Candidate], backward: bool = False
+    ) -> list[np.ndarray | None]:
+        """One-sided difference sensitivities ``d r / d theta`` of each candidate (steps up,
+        or down with ``backward``; see :meth:`_steps`).
 
         Returns
         -------
         list of (ndarray, shape (N, p), or None when a perturbed run failed)
         """
         tasks, owners = [], []
-        steps = [self._steps(c) for c in candidates]
+        steps = [self._steps(c, backward) for c in candidates]
         for i, (c, h) in enumerate(zip(candidates, steps, strict=True)):
             for k in range(c.theta.size):
                 theta = c.theta.copy()
@@ -334,6 +339,7 @@ class Calibrator:
         max_iter: int = 6,
         tol: float = 1e-3,
         tries: int = 3,
+        both_sides: bool = False,
     ) -> None:
         """Damped Gauss-Newton on every candidate at once, in place.
 
@@ -342,6 +348,12 @@ class Calibrator:
         if it lowers the cost, otherwise the step length shrinks ninefold and the pair is tried
         again, at most ``tries`` times. A candidate stops when its cost falls by less than
         ``tol`` (relative), no step helps, or after ``max_iter`` iterations.
+
+        With ``both_sides`` the sensitivities are also taken with steps down, and the step of
+        each of the two is tried. From "no effect" the sign of an effect is not known, and a
+        secant taken on the wrong side of a response that saturates says little: a command
+        offset makes the simulated ram drift to an end stop, and a step that drifts it there
+        sooner barely changes the misfit, while a step the other way does.
         """
         active = [c for c in candidates if math.isfinite(c.cost)]
         for c in active:
@@ -350,13 +362,16 @@ class Calibrator:
             active = [c for c in active if not c._done]
             if not active:
                 return
-            jacs = self.jacobians(active)
+            sides = [self.jacobians(active)]
+            if both_sides:
+                sides.append(self.jacobians(active, backward=True))
             directions = []
-            for c, jac in zip(active, jacs, strict=True):
-                if jac is None:
+            for i, c in enumerate(active):
+                found = [self._direction(c, jacs[i]) for jacs in sides if jacs[i] is not None]
+                if not found:
                     c._done = True
                     continue
-                directions.append((c, self._direction(c, jac)))
+                directions.append((c, found))
             self._line_search(directions, tol, tries)
 
     def _direction(self, c: Candidate, jac: np.ndarray) -> np.ndarray:
@@ -374,21 +389,30 @@ class Calibrator:
         return step * scale
 
     def _line_search(
-        self, directions: list[tuple[Candidate, np.ndarray]], tol: float, tries: int
+        self, directions: list[tuple[Candidate, list[np.ndarray]]], tol: float, tries: int
     ) -> None:
-        pending = [(c, d) for c, d in directions if np.any(d != 0)]
-        for c, d in directions:
-            if not np.any(d != 0):
+        """Try each candidate's directions at two lengths and keep the best trial that lowers
+        its cost (see :meth:`fit`)."""
+        pending = []
+        for c, found in directions:
+            moving: list[np.ndarray] = []
+            for d in found:  # a bound can make both sides' steps the same
+                if np.any(d != 0) and not any(np.array_equal(d, m) for m in moving):
+                    moving.append(d)
+            if moving:
+                pending.append((c, moving))
+            else:
                 c._done = True
         for _ in range(tries):
             if not pending:
                 return
             tasks, trials = [], []
-            for c, d in pending:
-                for alpha in (c._step, c._step / 3.0):
-                    theta = c.clip(c.theta + alpha * d)
-                    tasks.append(c.terms(theta))
-                    trials.append((c, theta, alpha))
+            for c, found in pending:
+                for d in found:
+                    for alpha in (c._step, c._step / 3.0):
+                        theta = c.clip(c.theta + alpha * d)
+                        tasks.append(c.terms(theta))
+                        trials.append((c, theta, alpha))
             sims = self.simulator.run(tasks, self.rows)
             best: dict[int, tuple[float, np.ndarray, float, np.ndarray]] = {}
             for (c, theta, alpha), sim in zip(trials, sims, strict=True):
@@ -399,10 +423,10 @@ class Calibrator:
                 if cost < best.get(id(c), (math.inf,))[0]:
                     best[id(c)] = (cost, theta, alpha, sim)
             retry = []
-            for c, d in pending:
-                found = best.get(id(c))
-                if found is not None and found[0] < c.cost:
-                    cost, theta, alpha, sim = found
+            for c, ways in pending:
+                kept = best.get(id(c))
+                if kept is not None and kept[0] < c.cost:
+                    cost, theta, alpha, sim = kept
                     gain = (c.cost - cost) / max(c.cost, 1e-300)
                     self._store(c, theta, sim)
                     c._step = min(1.0, 3.0 * alpha) if alpha == c._step else alpha
@@ -412,7 +436,7 @@ class Calibrator:
                     if c._step < 1e-3:
                         c._done = True
                     else:
-                        retry.append((c, d))
+                        retry.append((c, ways))
             pending = retry
         for c, _ in pending:
             c._done = True

@@ -264,9 +264,26 @@ class Diagnosis:
                 sig = self.signals_.observed[j]
                 held = slice(experiment.train_rows, None)
                 rms = rmse(named[held, j], experiment.recorded[held, j])
-                found.append(unexplained_finding(stage, ratio, remaining, sig.unit, rms))
+                why = self._nothing_tested()
+                found.append(unexplained_finding(stage, ratio, remaining, sig.unit, rms, why))
                 break
         return found
+
+    def _nothing_tested(self) -> str:
+        """Why no hypothesis was fitted although a stage departs, when that is the reason the
+        verdict is "unexplained" (else empty): the rows fitted agree with the white-box within
+        noise, and the departure lies in the held-out rows only."""
+        if self.selection_ is None or self.selection_.rounds_:
+            return ""
+        experiment = self.experiment_
+        fitted = experiment.train_rows * experiment.dt
+        return (
+            f"No hypothesis could be tested: the first {fitted:.3g} s of the recording (the rows "
+            "hypotheses are fitted to) agree with the white-box within its noise, and the "
+            f"departure lies in the last {experiment.n_samples * experiment.dt - fitted:.3g} s, "
+            "held out to test what is found. Diagnose a recording that shows it over more of "
+            "its length."
+        )
 
     def _show(self, recording: Recording) -> None:
         """Grey-box on the named terms, and the held-out fit table."""

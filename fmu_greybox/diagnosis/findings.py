@@ -313,7 +313,12 @@ def none_finding(stages: list[StageResidual]) -> Finding:
 
 
 def unexplained_finding(
-    stage: StageResidual, noise_ratio: float, remaining: float, unit: str, rms: float
+    stage: StageResidual,
+    noise_ratio: float,
+    remaining: float,
+    unit: str,
+    rms: float,
+    why: str = "",
 ) -> Finding:
     """The verdict that structure remains in a stage that no hypothesis explains.
 
@@ -329,6 +334,8 @@ def unexplained_finding(
         Unit of the stage target.
     rms : float
         Held-out RMS of the stage target's residual after the named terms.
+    why : str
+        A sentence on why nothing explains it, when that is known (appended to the summary).
     """
     named = "the named terms" if remaining < 0.999 else "the white-box"
     return Finding(
@@ -338,6 +345,7 @@ def unexplained_finding(
             f"Structure remains in the {stage.name} residual that no hypothesis explains: after "
             f"{named} its RMS is {noise_ratio:.3g} times the sensor noise on held-out data "
             f"({100 * remaining:.0f} % of the white-box residual structure remains)."
+            + (f" {why}" if why else "")
         ),
         magnitude={"value": rms, "unit": unit, "ci95": None},
         explained_fraction=None if math.isnan(remaining) else max(0.0, 1.0 - remaining),
