@@ -349,11 +349,11 @@ class Calibrator:
         again, at most ``tries`` times. A candidate stops when its cost falls by less than
         ``tol`` (relative), no step helps, or after ``max_iter`` iterations.
 
-        With ``both_sides`` the sensitivities are also taken with steps down, and the step of
-        each of the two is tried. From "no effect" the sign of an effect is not known, and a
-        secant taken on the wrong side of a response that saturates says little: a command
-        offset makes the simulated ram drift to an end stop, and a step that drifts it there
-        sooner barely changes the misfit, while a step the other way does.
+        With ``both_sides`` the sensitivities are also taken with steps down, and the step
+        whose linear model predicts the lower cost is tried. From "no effect" the sign of an
+        effect is not known, and a secant taken on the wrong side of a response that saturates
+        says little: a command offset makes the simulated ram drift to an end stop, and a step
+        that drifts it there sooner barely changes the misfit, while a step the other way does.
         """
         active = [c for c in candidates if math.isfinite(c.cost)]
         for c in active:
@@ -362,20 +362,29 @@ class Calibrator:
             active = [c for c in active if not c._done]
             if not active:
                 return
-            sides = [self.jacobians(active)]
-            if both_sides:
-                sides.append(self.jacobians(active, backward=True))
+            sides = [(active, self.jacobians(active))]
+            if both_sides:  # where a bound does not turn the step down into the step up
+                two = [c for c in active if np.any(self._steps(c, True) != self._steps(c))]
+                sides.append((two, self.jacobians(two, backward=True)))
+            found: dict[int, tuple[float, np.ndarray]] = {}
+            for side, jacs in sides:
+                for c, jac in zip(side, jacs, strict=True):
+                    if jac is None:
+                        continue
+                    step, predicted = self._direction(c, jac)
+                    if predicted < found.get(id(c), (math.inf,))[0]:
+                        found[id(c)] = (predicted, step)
             directions = []
-            for i, c in enumerate(active):
-                found = [self._direction(c, jacs[i]) for jacs in sides if jacs[i] is not None]
-                if not found:
+            for c in active:
+                if id(c) in found:
+                    directions.append((c, found[id(c)][1]))
+                else:
                     c._done = True
-                    continue
-                directions.append((c, found))
             self._line_search(directions, tol, tries)
 
-    def _direction(self, c: Candidate, jac: np.ndarray) -> np.ndarray:
-        """The Gauss-Newton step (in magnitude units), lightly regularised."""
+    def _direction(self, c: Candidate, jac: np.ndarray) -> tuple[np.ndarray, float]:
+        """The Gauss-Newton step (in magnitude units), lightly regularised, and the cost its
+        linear model predicts."""
         r = self.residual(c.simulated)
         scale = c.scale
         js = jac * scale
@@ -386,33 +395,25 @@ class Calibrator:
             step = -np.linalg.solve(a + ridge * np.eye(a.shape[0]), g)
         except np.linalg.LinAlgError:
             step = np.zeros_like(g)
-        return step * scale
+        predicted = r + js @ step
+        return step * scale, float(np.dot(predicted, predicted))
 
     def _line_search(
-        self, directions: list[tuple[Candidate, list[np.ndarray]]], tol: float, tries: int
+        self, directions: list[tuple[Candidate, np.ndarray]], tol: float, tries: int
     ) -> None:
-        """Try each candidate's directions at two lengths and keep the best trial that lowers
-        its cost (see :meth:`fit`)."""
-        pending = []
-        for c, found in directions:
-            moving: list[np.ndarray] = []
-            for d in found:  # a bound can make both sides' steps the same
-                if np.any(d != 0) and not any(np.array_equal(d, m) for m in moving):
-                    moving.append(d)
-            if moving:
-                pending.append((c, moving))
-            else:
+        pending = [(c, d) for c, d in directions if np.any(d != 0)]
+        for c, d in directions:
+            if not np.any(d != 0):
                 c._done = True
         for _ in range(tries):
             if not pending:
                 return
             tasks, trials = [], []
-            for c, found in pending:
-                for d in found:
-                    for alpha in (c._step, c._step / 3.0):
-                        theta = c.clip(c.theta + alpha * d)
-                        tasks.append(c.terms(theta))
-                        trials.append((c, theta, alpha))
+            for c, d in pending:
+                for alpha in (c._step, c._step / 3.0):
+                    theta = c.clip(c.theta + alpha * d)
+                    tasks.append(c.terms(theta))
+                    trials.append((c, theta, alpha))
             sims = self.simulator.run(tasks, self.rows)
             best: dict[int, tuple[float, np.ndarray, float, np.ndarray]] = {}
             for (c, theta, alpha), sim in zip(trials, sims, strict=True):
@@ -423,10 +424,10 @@ class Calibrator:
                 if cost < best.get(id(c), (math.inf,))[0]:
                     best[id(c)] = (cost, theta, alpha, sim)
             retry = []
-            for c, ways in pending:
-                kept = best.get(id(c))
-                if kept is not None and kept[0] < c.cost:
-                    cost, theta, alpha, sim = kept
+            for c, d in pending:
+                found = best.get(id(c))
+                if found is not None and found[0] < c.cost:
+                    cost, theta, alpha, sim = found
                     gain = (c.cost - cost) / max(c.cost, 1e-300)
                     self._store(c, theta, sim)
                     c._step = min(1.0, 3.0 * alpha) if alpha == c._step else alpha
@@ -436,7 +437,7 @@ class Calibrator:
                     if c._step < 1e-3:
                         c._done = True
                     else:
-                        retry.append((c, ways))
+                        retry.append((c, d))
             pending = retry
         for c, _ in pending:
             c._done = True

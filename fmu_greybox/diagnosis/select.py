@@ -281,19 +281,20 @@ class ForwardSelection:
         remaining: list[Hypothesis],
         round_: Round,
     ) -> list[tuple[Candidate, bool]]:
-        """One linearised step of every remaining hypothesis on top of the kept ones (the better of
-        the steps from sensitivities taken up and down: the sign of an effect is not known yet,
-        :meth:`Calibrator.fit`), on each screening view (the low-passed residual, the raw one, the
-        spectrum, in that order); a hypothesis ranks by its best view. It is refined from its step
-        on the low-passed residual (the one the refinement fits: a step on the raw one can land in
-        another of its basins), unless the spectrum ranked it best: then from its step there, and
-        first on the spectrum. The best few of distinct physics go on (two variants of one effect
-        compete for one place, so that a near tie of duplicates does not crowd out other physics); a
-        variant with more magnitudes (``KEY+asymmetric``) brings its simpler form along, so that the
-        information criterion can choose between them. Variants of a chosen physics that the screen
-        cannot tell from it (:func:`_tied`: a viscous force on the motor's speed and a mis-set load
-        friction behind a rigid gear) come along too, up to :data:`TIED_VARIANTS` in all, outside
-        the count: the refinement decides between them or gives them as alternatives.
+        """One linearised step of every remaining hypothesis on top of the kept ones, on each
+        screening view (the low-passed residual, the raw one, the spectrum, in that order; on the
+        low-passed one the better of the steps from sensitivities taken up and down, since the sign
+        of an effect is not known yet and a drift shows there, :meth:`Calibrator.fit`; the
+        spectrum's probes try both signs); a hypothesis ranks by its best view. It is refined from
+        its step on the low-passed residual (the one the refinement fits: a step on the raw one can
+        land in another of its basins), unless the spectrum ranked it best: then from its step
+        there, and first on the spectrum. The best few of distinct physics go on (two variants of
+        one effect compete for one place, so that a near tie of duplicates does not crowd out other
+        physics); a variant with more magnitudes (``KEY+asymmetric``) brings its simpler form along,
+        so that the information criterion can choose between them. Variants of a chosen physics that
+        the screen cannot tell from it (:func:`_tied`: a viscous force on the motor's speed and a
+        mis-set load friction behind a rigid gear) come along too, up to :data:`TIED_VARIANTS` in
+        all, outside the count: the refinement decides between them or gives them as alternatives.
 
         Returns
         -------
@@ -309,8 +310,9 @@ class ForwardSelection:
             candidates = [Candidate([h], h.start(), fixed=current.terms()) for h in remaining]
             for c in candidates:
                 c.cost, c.simulated, c.heldout = start.cost, start.simulated, start.heldout
-            window.fit(candidates, max_iter=1, tries=1, both_sides=True)
             spectral = window.spectrum is not None
+            # both signs on the low-passed view, where a drift shows and refinement starts
+            window.fit(candidates, max_iter=1, tries=1, both_sides=window.smoothing > 0)
             if spectral:
                 _probe(window, candidates)
             for c in candidates:
