@@ -11,6 +11,7 @@ from fmu_greybox.diagnosis.calibrate import Calibrator, Candidate
 from fmu_greybox.diagnosis.diagnose import data_scales
 from fmu_greybox.diagnosis.hypotheses import (
     PARAMETER_RANGE,
+    Hypothesis,
     _parameter_hypotheses,
     _relative_range,
     generate_hypotheses,
@@ -28,18 +29,27 @@ CONFIGS = Path(__file__).resolve().parents[1] / "bench_configs"
 VALVE_GAIN = 4e-5  # m/mA of the reference white-box
 
 
-def calibrate(config_name: str, whitebox, recording, key: str) -> Candidate:
-    """Fit one hypothesis alone over the whole recording as the selection fits a kept one:
-    with the noise model the diagnosis sets (smoothed inputs, whitening), on the low-passed
-    residual, then finished on the raw one, with its covariance."""
+def experiment_and_hypothesis(
+    config_name: str, whitebox, recording, key: str, train: int | None = None
+) -> tuple[Experiment, Hypothesis]:
+    """The diagnosis' experiment (its noise model: smoothed inputs, whitening) over
+    ``train`` rows fitted (default: all), and its hypothesis ``key``."""
     config = load_config(CONFIGS / config_name)
     signals = SignalMap.from_project(config, whitebox, recording)
-    experiment = Experiment.from_project(config, whitebox, recording, signals, recording.n_samples)
+    train = recording.n_samples if train is None else train
+    experiment = Experiment.from_project(config, whitebox, recording, signals, train)
     signals.assign_stages(experiment.estimate_noise(), experiment.dt)
     experiment.stages = signals.observed_stages
     scales = data_scales(whitebox, signals, experiment, 4000)
     hypotheses = {h.key: h for h in generate_hypotheses(signals, whitebox, scales, {})}
-    hypothesis = hypotheses[key]
+    return experiment, hypotheses[key]
+
+
+def calibrate(config_name: str, whitebox, recording, key: str) -> Candidate:
+    """Fit one hypothesis alone over the whole recording as the selection fits a kept one:
+    with the noise model the diagnosis sets, on the low-passed residual, then finished on the
+    raw one, with its covariance."""
+    experiment, hypothesis = experiment_and_hypothesis(config_name, whitebox, recording, key)
     candidate = Candidate([hypothesis], hypothesis.start())
     with Simulator(experiment, workers=1) as simulator:
         smoothed = Calibrator(simulator, experiment.n_samples, smoothing=20.0)
@@ -174,16 +184,11 @@ def test_one_screening_step_finds_an_offset_of_either_sign(whitebox_fmu, truth_f
     with open_fmu(truth_fmu) as truth, open_fmu(whitebox_fmu) as whitebox:
         request = SynthRequest({"offset": 0.15 * sign}, seed=11, profile=profile)
         recording = synthesise(truth, whitebox, request)
-    config = load_config(CONFIGS / "hydraulic_actuator.toml")
+    train = int(0.8 * recording.n_samples)  # as the diagnosis holds out the last 20 %
     with open_fmu(whitebox_fmu) as whitebox:
-        signals = SignalMap.from_project(config, whitebox, recording)
-        train = int(0.8 * recording.n_samples)  # as the diagnosis holds out the last 20 %
-        experiment = Experiment.from_project(config, whitebox, recording, signals, train)
-        signals.assign_stages(experiment.estimate_noise(), experiment.dt)
-        experiment.stages = signals.observed_stages
-        scales = data_scales(whitebox, signals, experiment, 4000)
-        hypotheses = {h.key: h for h in generate_hypotheses(signals, whitebox, scales, {})}
-        offset = hypotheses["offset@valve_current"]
+        experiment, offset = experiment_and_hypothesis(
+            "hydraulic_actuator.toml", whitebox, recording, "offset@valve_current", train
+        )
         with Simulator(experiment, workers=1) as simulator:
             window = Calibrator(simulator, train, 20.0, difference_step=2.0)  # the screen's
             candidate = Candidate([offset], offset.start())
