@@ -125,3 +125,25 @@ def test_undecided_without_a_failure_is_not_a_pass() -> None:
     everything = parsed({})
     assert evaluate(everything, table, [noisy_response(n, 1.0) for n in table]).verdict == PASS
     assert evaluate(everything, table, []).verdict == UNDECIDED  # no input for a response
+
+
+@pytest.mark.parametrize(
+    ("interval", "verdict"),
+    [
+        ({"coverage95_low": 0.80, "coverage95_high": 1.0, "independent_rows": 16.0}, UNDECIDED),
+        ({"coverage95_low": 0.995, "coverage95_high": 1.0, "independent_rows": 700.0}, FAIL),
+        ({}, FAIL),  # a row without an interval (a table of an older validation)
+    ],
+)
+def test_a_share_outside_its_limits_fails_only_when_its_interval_does(
+    interval: dict, verdict: str
+) -> None:
+    criteria = parsed({"band": [600.0, 900.0], "max_nrmse": False})
+    row = {**ROW, "coverage95": 1.0, **interval}
+    result = evaluate(criteria, {"RAM": row}, [])
+    check = next(c for c in result.checks if c.criterion.startswith("share"))
+    assert check.verdict == verdict and check.value == 1.0
+    if verdict == UNDECIDED:
+        assert "16 independent" in check.note and "0.8-1" in check.note
+    inside = evaluate(criteria, {"RAM": {**row, "coverage95": 0.95}}, [])
+    assert next(c for c in inside.checks if c.criterion.startswith("share")).verdict == PASS

@@ -14,12 +14,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.signal import lfilter
 
 from fmu_greybox.model.calibration import (
     UNCALIBRATED,
     Z95,
+    autocorrelation_time,
     conformal_quantile,
     coverage,
+    coverage_interval,
     fit_calibration,
 )
 from fmu_greybox.model.chain import GreyBoxChain
@@ -132,3 +135,52 @@ def test_a_zoom_holds_a_nearby_white_box_and_says_when_it_cuts_a_far_one() -> No
     assert low < -1.5 and high > 2.0 and cut == ""
     low, high, cut = zoom_range(0.0, 1.0, np.array([0.5, 40.0]))
     assert high < 40.0 and "off scale" in cut and "40" in cut
+
+
+def ar1(rng: np.random.Generator, rows: int, phi: float) -> np.ndarray:
+    """A stationary AR(1) sequence of unit variance (autocorrelation time (1 + phi)/(1 - phi))."""
+    e = rng.standard_normal(rows + 2000) * np.sqrt(1.0 - phi**2)
+    return lfilter([1.0], [1.0, -phi], e)[2000:]
+
+
+def test_autocorrelation_time_counts_the_rows_a_sequence_is_worth() -> None:
+    rng = np.random.default_rng(3)
+    assert autocorrelation_time(rng.standard_normal(20_000)) == pytest.approx(1.0, abs=0.2)
+    assert autocorrelation_time(ar1(rng, 20_000, 0.9)) == pytest.approx(19.0, rel=0.15)
+    assert autocorrelation_time(np.ones(50)) == 50.0  # nothing tells its rows apart
+
+
+@pytest.mark.parametrize(("phi", "widest"), [(0.0, 0.035), (0.9, 0.25)])
+def test_the_coverage_interval_holds_the_share_of_a_longer_recording(
+    phi: float, widest: float
+) -> None:
+    """On 1 300-row windows of errors whose σ is known (the true share inside ±1.96σ is
+    0.95), the 95 % interval must hold 0.95 in at least 95 % of 200 windows, and not be wider
+    than it needs: white errors are worth their rows, correlated ones far fewer."""
+    rng = np.random.default_rng(5)
+    held, widths, worth = 0, [], []
+    for _ in range(200):
+        residual = ar1(rng, 1300, phi)
+        estimate = coverage_interval(residual, np.ones(1300), Z95)
+        assert estimate.share == coverage(residual, np.ones(1300), Z95)
+        held += estimate.low <= 0.95 <= estimate.high
+        widths.append(estimate.high - estimate.low)
+        worth.append(estimate.independent_rows)
+    assert held >= 190
+    assert np.median(widths) <= widest
+    # the error's size is less correlated than the error (for Gaussian errors no function of
+    # it is more), so the rows are worth at least m / tau of the signed error, and fewer than m
+    # when they are correlated
+    signed = 1300 * (1.0 - phi) / (1.0 + phi)
+    assert 0.9 * signed <= np.median(worth) <= (1300 if phi == 0 else 400)
+
+
+def test_the_coverage_interval_of_a_band_that_holds_every_row() -> None:
+    """All rows inside says little when they are few independent ones, much when many."""
+    rng = np.random.default_rng(8)
+    slow = coverage_interval(ar1(rng, 1300, 0.99), np.full(1300, 10.0), Z95)
+    fast = coverage_interval(rng.standard_normal(1300), np.full(1300, 10.0), Z95)
+    assert slow.share == fast.share == 1.0 and slow.high == fast.high == 1.0
+    assert slow.low < 0.9 < fast.low
+    zero = coverage_interval(np.array([0.0, 1.0, -1.0]), np.zeros(3), Z95)  # σ = 0: outside
+    assert zero.share == pytest.approx(1 / 3) and np.isfinite(zero.independent_rows)

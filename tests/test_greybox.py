@@ -250,12 +250,19 @@ def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
             "gb_nrmse",
             "improvement",
             "coverage68",
+            "coverage68_low",
+            "coverage68_high",
             "coverage95",
+            "coverage95_low",
+            "coverage95_high",
+            "independent_rows",
             "median_std",
             "median_latent_std",
         }
         row = metrics["stages"][stage]
         assert 0.0 <= row["coverage68"] <= row["coverage95"] <= 1.0
+        assert row["coverage95_low"] <= row["coverage95"] <= row["coverage95_high"]
+        assert 1.0 <= row["independent_rows"] <= 1000  # the validation's rows at most
         assert row["median_std"] > 0.0  # calibrated: never the certainty of a zero band
     for name in ("traces.png", "calibration.png", "frequency.png"):
         png = (tmp_path / "val" / name).read_bytes()

@@ -24,7 +24,10 @@ each residual with the ``V`` the chain that ships reports at that row), in two s
    every sample of a sine-like error inside ±1.96 σ (coverage 1, not 0.95). The quantile holds
    whatever the distribution, on rows like those it was taken from.
 
-:func:`coverage` measures the result on other rows.
+:func:`coverage` measures the result on other rows, and :func:`coverage_interval` says how much
+those rows can tell: a free run's errors come in slow waves and bursts, so a few thousand rows
+may hold only a handful of independent ones, and a share of 100 % over them is no evidence that
+the band is too wide.
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import minimize
+from scipy.stats import beta
 
 FloatArray = NDArray[np.float64]
 
@@ -46,6 +50,10 @@ Z95 = 1.959963984540054
 LATENT_SCALE_PRIOR = 1.0
 #: Range searched for log ``a`` and for log ``b`` (relative to the mean square residual).
 LOG_RANGE = (-30.0, 30.0)
+#: Confidence of :func:`coverage_interval`.
+INTERVAL_LEVEL = 0.95
+#: Sokal's window: autocorrelations are summed up to the first lag ``>= WINDOW_FACTOR · tau``.
+WINDOW_FACTOR = 5.0
 
 
 @dataclass(frozen=True)
@@ -153,3 +161,92 @@ def coverage(residual: FloatArray, std: FloatArray, width: float) -> float:
     r = np.abs(np.asarray(residual, dtype=np.float64))
     s = np.asarray(std, dtype=np.float64)
     return float(np.mean(r <= width * s)) if r.size else float("nan")
+
+
+@dataclass(frozen=True)
+class CoverageEstimate:
+    """The share of rows inside a band, and how well those rows determine it.
+
+    Attributes
+    ----------
+    share : float
+        Share of rows inside (NaN when there are none).
+    low, high : float
+        The :data:`INTERVAL_LEVEL` confidence interval of the share a longer recording of the
+        same kind would give.
+    independent_rows : float
+        The rows' count divided by the autocorrelation time of the normalised residual: how
+        many independent rows they are worth.
+    """
+
+    share: float
+    low: float
+    high: float
+    independent_rows: float
+
+
+def autocorrelation_time(series: FloatArray) -> float:
+    """Integrated autocorrelation time of a sequence, in rows (1 for independent rows).
+
+    ``tau = 1 + 2 sum rho_k`` over lags ``k = 1 .. W``, with Sokal's window ``W`` the first
+    lag at least :data:`WINDOW_FACTOR` times the sum so far (beyond it the sample
+    autocorrelations are mostly noise).
+
+    Parameters
+    ----------
+    series : ndarray, shape (m,)
+
+    Returns
+    -------
+    float
+        In ``[1, m]``; ``m`` when the series is constant (nothing tells its rows apart).
+    """
+    x = np.asarray(series, dtype=np.float64)
+    x = x - x.mean()
+    m = x.size
+    if m < 2 or not np.any(x):
+        return float(max(m, 1))
+    spectrum = np.fft.rfft(x, 2 * m)
+    rho = np.fft.irfft(spectrum * np.conj(spectrum))[:m]
+    rho = rho / rho[0]
+    tau = 1.0
+    for lag in range(1, m):
+        tau += 2.0 * rho[lag]
+        if lag >= WINDOW_FACTOR * tau:
+            break
+    return float(min(max(tau, 1.0), m))
+
+
+def coverage_interval(residual: FloatArray, std: FloatArray, width: float) -> CoverageEstimate:
+    """:func:`coverage` with its confidence interval.
+
+    The rows count as ``m / tau`` independent ones, ``tau`` the
+    :func:`autocorrelation_time` of the normalised residual's size ``|residual| / std``, of
+    which inside-or-outside is a function (the indicator's own correlation cannot be estimated
+    when every row is inside; its size, unlike its sign, stays correlated when an error rings).
+    The interval is Clopper-Pearson's for that many Bernoulli trials.
+
+    Parameters
+    ----------
+    residual, std : ndarray, shape (m,)
+        Recorded minus predicted, and the predictive standard deviation.
+    width : float
+        Half-width of the band in standard deviations.
+
+    Returns
+    -------
+    CoverageEstimate
+    """
+    r = np.asarray(residual, dtype=np.float64)
+    s = np.asarray(std, dtype=np.float64)
+    share = coverage(r, s, width)
+    if not r.size:
+        return CoverageEstimate(share, float("nan"), float("nan"), 0.0)
+    with np.errstate(over="ignore"):  # a row with std 0 is far outside: a large z stands in
+        size = np.minimum(np.abs(r) / np.maximum(s, np.finfo(np.float64).tiny), 1e3)
+    trials = r.size / autocorrelation_time(size)
+    hits = share * trials
+    tail = (1.0 - INTERVAL_LEVEL) / 2.0
+    low = float(beta.ppf(tail, hits, trials - hits + 1.0)) if hits > 0 else 0.0
+    high = float(beta.ppf(1.0 - tail, hits + 1.0, trials - hits)) if hits < trials else 1.0
+    return CoverageEstimate(share, low, high, float(trials))

@@ -2,7 +2,8 @@
 
 Each criterion of each stage gives one :class:`Check` with its measured value, its limit and a
 verdict: ``PASS``, ``FAIL``, or ``UNDECIDED`` when the data cannot decide (a frequency band
-where the recording's own estimate cannot be trusted, no rows to count). The whole verdict is
+where the recording's own estimate cannot be trusted, no rows to count, a share inside the
+uncertainty band outside its limits over too few independent rows to say so). The whole verdict is
 ``FAIL`` if any check fails, else ``UNDECIDED`` if any is undecided, else ``PASS``: an
 engineer signs a ``PASS`` only.
 """
@@ -11,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from fmu_greybox.project.config import AcceptanceConfig, Criteria
@@ -116,8 +117,26 @@ def evaluate(
         for key, width in (("coverage95", "±1.96σ"), ("coverage68", "±1σ")):
             bounds = getattr(limits, key)
             if bounds is not None:
-                checks.append(_within(stage, f"share of rows inside {width}", row[key], bounds))
+                checks.append(_share_inside(stage, width, row, key, bounds))
     return Acceptance(tuple(checks))
+
+
+def _share_inside(
+    stage: str, width: str, row: Mapping[str, float], key: str, bounds: tuple[float, float]
+) -> Check:
+    """A coverage check: ``FAIL`` only when the share's confidence interval (``key_low`` ..
+    ``key_high`` in ``row``, when it has them) lies wholly outside the limits; a share outside
+    them whose interval still reaches them is ``UNDECIDED`` (too few independent rows)."""
+    check = _within(stage, f"share of rows inside {width}", row[key], bounds)
+    low, high = row.get(f"{key}_low"), row.get(f"{key}_high")
+    if check.verdict != FAIL or low is None or high is None or low > bounds[1] or high < bounds[0]:
+        return check
+    note = (
+        f"the rows are worth about {row.get('independent_rows', float('nan')):.0f} independent "
+        f"ones, and the share's 95 % interval {low:.3g}-{high:.3g} reaches the limits: a longer "
+        "recording decides"
+    )
+    return replace(check, verdict=UNDECIDED, note=note)
 
 
 def _frequency_checks(

@@ -7,7 +7,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from fmu_greybox.model.calibration import Z95, coverage
+from fmu_greybox.model.calibration import Z95, coverage_interval
 
 
 def rmse(predicted: np.ndarray, recorded: np.ndarray) -> float:
@@ -93,19 +93,24 @@ def uncertainty_table(
     Returns
     -------
     dict
-        Stage -> ``coverage68`` and ``coverage95`` (share of rows inside ±1σ and ±1.96σ),
-        ``median_std`` and ``median_latent_std``.
+        Stage -> ``coverage68`` and ``coverage95`` (share of rows inside ±1σ and ±1.96σ), each
+        with its confidence interval (``coverage68_low``, ``coverage68_high``, ...) and
+        ``independent_rows``, what the rows are worth for it
+        (:func:`~fmu_greybox.model.calibration.coverage_interval`); ``median_std`` and
+        ``median_latent_std``.
     """
     residual = recorded - greybox
-    return {
-        name: {
-            "coverage68": coverage(residual[:, q], std[:, q], 1.0),
-            "coverage95": coverage(residual[:, q], std[:, q], Z95),
-            "median_std": float(np.median(std[:, q])),
-            "median_latent_std": float(np.median(latent_std[:, q])),
-        }
-        for q, name in enumerate(names)
-    }
+    table = {}
+    for q, name in enumerate(names):
+        row = {}
+        for key, width in (("coverage68", 1.0), ("coverage95", Z95)):
+            estimate = coverage_interval(residual[:, q], std[:, q], width)
+            row |= {key: estimate.share, f"{key}_low": estimate.low, f"{key}_high": estimate.high}
+        row["independent_rows"] = estimate.independent_rows
+        row["median_std"] = float(np.median(std[:, q]))
+        row["median_latent_std"] = float(np.median(latent_std[:, q]))
+        table[name] = row
+    return table
 
 
 def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, str]) -> str:
@@ -117,7 +122,7 @@ def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, s
         f"{'stage':8s} {'unit':6s} {'WB RMSE':>11s} "
         + (f"{'+terms RMSE':>11s} " if named else "")
         + f"{'GB RMSE':>11s} {'WB nRMSE':>9s} {'GB nRMSE':>9s} {'improvement':>11s}"
-        + (f" {'in ±1.96σ':>9s}" if covered else "")
+        + (f" {'in ±1.96σ (95 % interval)':>27s}" if covered else "")
     ]
     for name, row in table.items():
         lines.append(
@@ -125,6 +130,23 @@ def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, s
             + (f"{row['named_rmse']:11.3e} " if named else "")
             + f"{row['gb_rmse']:11.3e} {row['wb_nrmse']:9.3g} {row['gb_nrmse']:9.3g} "
             f"{100 * row['improvement']:10.1f}%"
-            + (f" {100 * row['coverage95']:8.1f}%" if covered else "")
+            + (f" {coverage_text(row, 'coverage95'):>27s}" if covered else "")
         )
     return "\n".join(lines)
+
+
+def coverage_text(row: Mapping[str, float], key: str) -> str:
+    """A share inside a band with its confidence interval, e.g. ``97.2 % (95.9-98.2 %)``.
+
+    Parameters
+    ----------
+    row : mapping
+        A row of :func:`uncertainty_table` (or one without the interval: the share alone).
+    key : str
+        ``"coverage95"`` or ``"coverage68"``.
+    """
+    share = f"{100 * row[key]:.1f} %"
+    low, high = row.get(f"{key}_low"), row.get(f"{key}_high")
+    if low is None or high is None or low != low:
+        return share
+    return f"{share} ({100 * low:.1f}-{100 * high:.1f} %)"
