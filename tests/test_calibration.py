@@ -19,7 +19,6 @@ from scipy.signal import lfilter
 from fmu_greybox.model.calibration import (
     UNCALIBRATED,
     Z95,
-    autocorrelation_time,
     conformal_quantile,
     coverage,
     coverage_interval,
@@ -141,13 +140,6 @@ def ar1(rng: np.random.Generator, rows: int, phi: float) -> np.ndarray:
     """A stationary AR(1) sequence of unit variance (autocorrelation time (1 + phi)/(1 - phi))."""
     e = rng.standard_normal(rows + 2000) * np.sqrt(1.0 - phi**2)
     return lfilter([1.0], [1.0, -phi], e)[2000:]
-
-
-def test_autocorrelation_time_counts_the_rows_a_sequence_is_worth() -> None:
-    rng = np.random.default_rng(3)
-    assert autocorrelation_time(rng.standard_normal(20_000)) == pytest.approx(1.0, abs=0.2)
-    assert autocorrelation_time(ar1(rng, 20_000, 0.9)) == pytest.approx(19.0, rel=0.15)
-    assert autocorrelation_time(np.ones(50)) == 50.0  # nothing tells its rows apart
 
 
 @pytest.mark.parametrize(("phi", "widest"), [(0.0, 0.035), (0.9, 0.25)])

@@ -34,47 +34,8 @@ from scipy.signal import filtfilt, welch
 from fmu_greybox.diagnosis.hypotheses import Hypothesis
 from fmu_greybox.diagnosis.noise import Bands
 from fmu_greybox.diagnosis.runner import Experiment, Simulator
+from fmu_greybox.model.calibration import autocorrelation_time
 from fmu_greybox.model.terms import Term
-
-
-def autocorrelation_time(residual: np.ndarray, max_lag: int | None = None) -> float:
-    """Integrated autocorrelation time of a residual, averaged over its columns by energy.
-
-    ``tau = 1 + 2 sum_k rho_k``, summed while the autocorrelation stays above 0.05 (a white
-    residual gives 1; a slowly drifting one gives hundreds).
-
-    Parameters
-    ----------
-    residual : ndarray, shape (n,) or (n, m)
-    max_lag : int, optional
-        Largest lag considered (default ``n // 4``).
-
-    Returns
-    -------
-    float
-        ``tau >= 1``.
-    """
-    r = np.atleast_2d(np.asarray(residual, dtype=np.float64).T).T
-    n = r.shape[0]
-    if n < 8:
-        return 1.0
-    max_lag = max_lag or n // 4
-    size = 1 << math.ceil(math.log2(2 * n))
-    taus, weights = [], []
-    for x in r.T:
-        x = x - x.mean()
-        energy = float(np.dot(x, x))
-        if energy <= 0:
-            continue
-        spectrum = np.fft.rfft(x, size)
-        acf = np.fft.irfft(spectrum * np.conj(spectrum), size)[: max_lag + 1] / energy
-        below = np.flatnonzero(acf[1:] < 0.05)
-        stop = int(below[0]) if below.size else max_lag
-        taus.append(1.0 + 2.0 * float(np.sum(acf[1 : stop + 1])))
-        weights.append(energy)
-    if not taus:
-        return 1.0
-    return max(1.0, float(np.average(taus, weights=weights)))
 
 
 class SpectrumView:

@@ -62,10 +62,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fmu_greybox.diagnosis.alternatives import is_alternative, nearly_as_good, physics_of
-from fmu_greybox.diagnosis.calibrate import Calibrator, Candidate, HeldOut, autocorrelation_time
+from fmu_greybox.diagnosis.calibrate import Calibrator, Candidate, HeldOut
 from fmu_greybox.diagnosis.hypotheses import Hypothesis, ParameterMismatch
 from fmu_greybox.diagnosis.noise import SIGNIFICANT_RATIO, significance, structure_left
 from fmu_greybox.diagnosis.runner import Simulator
+from fmu_greybox.model.calibration import autocorrelation_time
 
 
 @dataclass

@@ -52,8 +52,8 @@ LATENT_SCALE_PRIOR = 1.0
 LOG_RANGE = (-30.0, 30.0)
 #: Confidence of :func:`coverage_interval`.
 INTERVAL_LEVEL = 0.95
-#: Sokal's window: autocorrelations are summed up to the first lag ``>= WINDOW_FACTOR · tau``.
-WINDOW_FACTOR = 5.0
+#: Autocorrelations are summed up to the first lag where they fall below this.
+CORRELATION_FLOOR = 0.05
 
 
 @dataclass(frozen=True)
@@ -185,36 +185,46 @@ class CoverageEstimate:
     independent_rows: float
 
 
-def autocorrelation_time(series: FloatArray) -> float:
-    """Integrated autocorrelation time of a sequence, in rows (1 for independent rows).
+def autocorrelation_time(residual: np.ndarray, max_lag: int | None = None) -> float:
+    """Integrated autocorrelation time of a residual, averaged over its columns by energy.
 
-    ``tau = 1 + 2 sum rho_k`` over lags ``k = 1 .. W``, with Sokal's window ``W`` the first
-    lag at least :data:`WINDOW_FACTOR` times the sum so far (beyond it the sample
-    autocorrelations are mostly noise).
+    ``tau = 1 + 2 sum_k rho_k``, summed while the autocorrelation stays above
+    :data:`CORRELATION_FLOOR` (a white residual gives 1; a slowly drifting one gives hundreds).
+    The rows of a residual count as ``n / tau`` independent ones: for the diagnosis' tests of
+    its hypotheses and for :func:`coverage_interval`.
 
     Parameters
     ----------
-    series : ndarray, shape (m,)
+    residual : ndarray, shape (n,) or (n, m)
+    max_lag : int, optional
+        Largest lag considered (default ``n // 4``).
 
     Returns
     -------
     float
-        In ``[1, m]``; ``m`` when the series is constant (nothing tells its rows apart).
+        ``tau >= 1``.
     """
-    x = np.asarray(series, dtype=np.float64)
-    x = x - x.mean()
-    m = x.size
-    if m < 2 or not np.any(x):
-        return float(max(m, 1))
-    spectrum = np.fft.rfft(x, 2 * m)
-    rho = np.fft.irfft(spectrum * np.conj(spectrum))[:m]
-    rho = rho / rho[0]
-    tau = 1.0
-    for lag in range(1, m):
-        tau += 2.0 * rho[lag]
-        if lag >= WINDOW_FACTOR * tau:
-            break
-    return float(min(max(tau, 1.0), m))
+    r = np.atleast_2d(np.asarray(residual, dtype=np.float64).T).T
+    n = r.shape[0]
+    if n < 8:
+        return 1.0
+    max_lag = max_lag or n // 4
+    size = 1 << math.ceil(math.log2(2 * n))
+    taus, weights = [], []
+    for x in r.T:
+        x = x - x.mean()
+        energy = float(np.dot(x, x))
+        if energy <= 0:
+            continue
+        spectrum = np.fft.rfft(x, size)
+        acf = np.fft.irfft(spectrum * np.conj(spectrum), size)[: max_lag + 1] / energy
+        below = np.flatnonzero(acf[1:] < CORRELATION_FLOOR)
+        stop = int(below[0]) if below.size else max_lag
+        taus.append(1.0 + 2.0 * float(np.sum(acf[1 : stop + 1])))
+        weights.append(energy)
+    if not taus:
+        return 1.0
+    return max(1.0, float(np.average(taus, weights=weights)))
 
 
 def coverage_interval(residual: FloatArray, std: FloatArray, width: float) -> CoverageEstimate:
@@ -223,7 +233,7 @@ def coverage_interval(residual: FloatArray, std: FloatArray, width: float) -> Co
     The rows count as ``m / tau`` independent ones, ``tau`` the
     :func:`autocorrelation_time` of the normalised residual's size ``|residual| / std``, of
     which inside-or-outside is a function (the indicator's own correlation cannot be estimated
-    when every row is inside; its size, unlike its sign, stays correlated when an error rings).
+    when every row is inside; the size, unlike the sign, stays correlated when an error rings).
     The interval is Clopper-Pearson's for that many Bernoulli trials.
 
     Parameters
