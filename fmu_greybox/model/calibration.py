@@ -227,14 +227,38 @@ def autocorrelation_time(residual: np.ndarray, max_lag: int | None = None) -> fl
     return max(1.0, float(np.average(taus, weights=weights)))
 
 
-def coverage_interval(residual: FloatArray, std: FloatArray, width: float) -> CoverageEstimate:
-    """:func:`coverage` with its confidence interval.
+def independent_rows(residual: FloatArray, std: FloatArray) -> float:
+    """How many independent rows a free run's residual is worth for a share inside its band.
 
-    The rows count as ``m / tau`` independent ones, ``tau`` the
-    :func:`autocorrelation_time` of the normalised residual's size ``|residual| / std``, of
-    which inside-or-outside is a function (the indicator's own correlation cannot be estimated
-    when every row is inside; the size, unlike the sign, stays correlated when an error rings).
-    The interval is Clopper-Pearson's for that many Bernoulli trials.
+    ``m / tau``, ``tau`` the :func:`autocorrelation_time` of the normalised residual's size
+    ``|residual| / std``, of which inside-or-outside is a function (the indicator's own
+    correlation cannot be estimated when every row is inside; the size, unlike the sign, stays
+    correlated when an error rings). A row with ``std`` 0 is far outside: a large size stands in.
+
+    Parameters
+    ----------
+    residual, std : ndarray, shape (m,)
+        Recorded minus predicted, and the predictive standard deviation.
+
+    Returns
+    -------
+    float
+        In ``(0, m]``; 0 for no rows.
+    """
+    r = np.abs(np.asarray(residual, dtype=np.float64))
+    if not r.size:
+        return 0.0
+    s = np.asarray(std, dtype=np.float64)
+    with np.errstate(over="ignore"):
+        size = np.minimum(r / np.maximum(s, np.finfo(np.float64).tiny), 1e3)
+    return r.size / autocorrelation_time(size)
+
+
+def coverage_interval(
+    residual: FloatArray, std: FloatArray, width: float, trials: float | None = None
+) -> CoverageEstimate:
+    """:func:`coverage` with its confidence interval: Clopper-Pearson's for ``trials``
+    Bernoulli trials (default :func:`independent_rows`).
 
     Parameters
     ----------
@@ -242,19 +266,17 @@ def coverage_interval(residual: FloatArray, std: FloatArray, width: float) -> Co
         Recorded minus predicted, and the predictive standard deviation.
     width : float
         Half-width of the band in standard deviations.
+    trials : float, optional
+        The rows' worth, when already known (it does not depend on ``width``).
 
     Returns
     -------
     CoverageEstimate
     """
-    r = np.asarray(residual, dtype=np.float64)
-    s = np.asarray(std, dtype=np.float64)
-    share = coverage(r, s, width)
-    if not r.size:
+    share = coverage(residual, std, width)
+    trials = independent_rows(residual, std) if trials is None else trials
+    if not trials:
         return CoverageEstimate(share, float("nan"), float("nan"), 0.0)
-    with np.errstate(over="ignore"):  # a row with std 0 is far outside: a large z stands in
-        size = np.minimum(np.abs(r) / np.maximum(s, np.finfo(np.float64).tiny), 1e3)
-    trials = r.size / autocorrelation_time(size)
     hits = share * trials
     tail = (1.0 - INTERVAL_LEVEL) / 2.0
     low = float(beta.ppf(tail, hits, trials - hits + 1.0)) if hits > 0 else 0.0

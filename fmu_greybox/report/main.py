@@ -20,7 +20,7 @@ from fmu_greybox.report.html import escape, figure, fmt, page, percent, table, v
 from fmu_greybox.report.plots import calibration_figure, frequency_figure, trace_figure
 from fmu_greybox.workflow.acceptance import PASS, Acceptance
 from fmu_greybox.workflow.demo import DemoResult
-from fmu_greybox.workflow.metrics import coverage_text, improvement
+from fmu_greybox.workflow.metrics import INTERVAL_NOTE, coverage_text, improvement
 from fmu_greybox.workflow.parts import summary as parts_summary
 from fmu_greybox.workflow.validate import Validation, frequency_table
 
@@ -118,8 +118,7 @@ def verdict_lines(result: DemoResult) -> list[str]:
     lines.append(
         "Share of the independent recording inside the grey-box's ±1.96σ: "
         + ", ".join(f"{stage} {coverage_text(row, 'coverage95')}" for stage, row in table_.items())
-        + " (in brackets: the 95 % interval of the share a longer recording would give; its "
-        "errors come in waves, so the rows count for fewer independent ones)."
+        + f" ({INTERVAL_NOTE})."
     )
     engines = ", ".join(f"{a.engine} {a.worst:.1e}" for a in result.bench)
     lines.append(
@@ -229,9 +228,7 @@ def report_html(result: DemoResult) -> str:
         f"<p>{escape(validation.held_out)}; free run, correctors fed their own outputs."
         + (f" The exported model: {shipped_model(result)}." if result.parts else "")
         + " σ is the grey-box's calibrated standard deviation (docs/greybox.md, 'Calibrated "
-        "uncertainty'), the exported FMU's _std. In brackets: the 95 % interval of the share "
-        "inside a band that a longer recording would give (a free run's errors come in waves, "
-        "so its rows count for fewer independent ones).</p>",
+        f"uncertainty'), the exported FMU's _std; {INTERVAL_NOTE}.</p>",
         table(
             (
                 "stage",

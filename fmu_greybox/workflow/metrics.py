@@ -7,7 +7,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from fmu_greybox.model.calibration import Z95, coverage_interval
+from fmu_greybox.model.calibration import Z95, coverage_interval, independent_rows
 
 
 def rmse(predicted: np.ndarray, recorded: np.ndarray) -> float:
@@ -102,11 +102,10 @@ def uncertainty_table(
     residual = recorded - greybox
     table = {}
     for q, name in enumerate(names):
-        row = {}
+        row = {"independent_rows": independent_rows(residual[:, q], std[:, q])}
         for key, width in (("coverage68", 1.0), ("coverage95", Z95)):
-            estimate = coverage_interval(residual[:, q], std[:, q], width)
+            estimate = coverage_interval(residual[:, q], std[:, q], width, row["independent_rows"])
             row |= {key: estimate.share, f"{key}_low": estimate.low, f"{key}_high": estimate.high}
-        row["independent_rows"] = estimate.independent_rows
         row["median_std"] = float(np.median(std[:, q]))
         row["median_latent_std"] = float(np.median(latent_std[:, q]))
         table[name] = row
@@ -133,6 +132,13 @@ def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, s
             + (f" {coverage_text(row, 'coverage95'):>27s}" if covered else "")
         )
     return "\n".join(lines)
+
+
+#: What the brackets of :func:`coverage_text` mean, for a reader of the report.
+INTERVAL_NOTE = (
+    "in brackets: the 95 % interval of the share inside a band that a longer recording would "
+    "give (a free run's errors come in waves, so its rows count for fewer independent ones)"
+)
 
 
 def coverage_text(row: Mapping[str, float], key: str) -> str:
