@@ -129,6 +129,29 @@ def test_a_chain_reports_the_known_noise_and_covers_95_percent_of_unseen_rows() 
         assert np.median(np.sqrt(run.latent_var[:, q])) < 0.5 * noise
 
 
+def test_a_free_run_says_where_the_correctors_leave_their_domain() -> None:
+    """``FreeRun.in_domain`` (and with it ``validate``'s ``rows_out_of_domain``) is the exported
+    FMU's ``out_of_domain`` rule: a regime seen in training (one input at three times its usual
+    amplitude, in the first half of the training rows only) is inside; the same input at twelve
+    times, beyond every training row, is outside on those rows and nowhere else."""
+    raw = tomllib.loads(REFERENCE.read_text())
+    raw["gp"].update(inducing=30, max_iter=30, target="residual", feeds="recorded")
+    for stage in raw["stages"]:
+        stage.update(lags=1, differences=0)
+    chain = GreyBoxChain(parse_config(raw, REFERENCE))
+    exo, wb, out = noisy_signals(6000, seed=4)
+    regime = np.zeros(6000, dtype=bool)
+    regime[300:800] = regime[3300:3800] = True  # in the first half and in the unseen rows
+    exo[regime, 1] *= 3.0
+    out[:, 1] = wb[:, 1] + 0.1 * exo[:, 1] + np.random.default_rng(9).normal(0, NOISE[1], 6000)
+    chain.fit(exo[:3000], wb[:3000], out[:3000])
+    assert chain.free_run_variances(exo, wb, out, 2999).in_domain.all()
+    far = exo.copy()
+    far[3300:3800, 1] *= 4.0  # twelve times the usual amplitude: beyond every training row
+    outside = np.flatnonzero(~chain.free_run_variances(far, wb, out, 2999).in_domain)
+    assert 250 <= outside.size and 300 <= outside.min() and outside.max() <= 802  # row 3000 + i
+
+
 def test_a_zoom_holds_a_nearby_white_box_and_says_when_it_cuts_a_far_one() -> None:
     low, high, cut = zoom_range(0.0, 1.0, np.array([-1.5, 2.0]))
     assert low < -1.5 and high > 2.0 and cut == ""

@@ -264,6 +264,8 @@ def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
         assert row["coverage95_low"] <= row["coverage95"] <= row["coverage95_high"]
         assert 1.0 <= row["independent_rows"] <= 1000  # the validation's rows at most
         assert row["median_std"] > 0.0  # calibrated: never the certainty of a zero band
+    # the rows where σ is not calibrated are counted (the correctors' domain, as the FMU's flag)
+    assert 0 <= metrics["rows_out_of_domain"] <= metrics["n_rows"]
     for name in ("traces.png", "calibration.png", "frequency.png"):
         png = (tmp_path / "val" / name).read_bytes()
         assert png.startswith(b"\x89PNG") and len(png) > 10_000, name

@@ -39,7 +39,6 @@ from fmu_greybox.atomic import atomic_write
 from fmu_greybox.errors import ExportError
 from fmu_greybox.export.domain import InputDomain
 from fmu_greybox.export.slave import (
-    DEFAULT_OOD_THRESHOLD,
     MODEL_FOLDER,
     RUNTIME_FILE,
     GreyBoxInterface,
@@ -47,6 +46,7 @@ from fmu_greybox.export.slave import (
     greybox_interface,
 )
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu
+from fmu_greybox.model.chain_step import DEFAULT_OOD_THRESHOLD
 from fmu_greybox.model.store import (
     MANIFEST,
     GreyBoxModel,

@@ -57,7 +57,7 @@ from fmu_greybox.errors import ExportError, ModelFormatError
 from fmu_greybox.export.domain import InputDomain
 from fmu_greybox.export.runtime import RUNTIME_FILE, attach_logger, guarded, refuse_step, report
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu
-from fmu_greybox.model.chain_step import ChainState
+from fmu_greybox.model.chain_step import DEFAULT_OOD_THRESHOLD, ChainState
 from fmu_greybox.model.store import MANIFEST, GreyBoxModel, file_sha256, load_model
 from fmu_greybox.model.whitebox import NamedModel
 
@@ -65,9 +65,6 @@ from fmu_greybox.model.whitebox import NamedModel
 MODEL_FOLDER = "greybox_model"
 #: Version of the serialised FMU state.
 STATE_VERSION = 3
-#: Default ``ood_threshold``: out of domain when the features are farther than about 2.1
-#: length-scales from every inducing point of some stage (kernel correlation below 0.1).
-DEFAULT_OOD_THRESHOLD = 0.1
 #: Relative tolerance on the communication step against the training step.
 STEP_RTOL = 1e-6
 

@@ -19,7 +19,7 @@ import numpy as np
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.gp import SparseGPR
 from fmu_greybox.model.calibration import UNCALIBRATED, VarianceCalibration, fit_calibration
-from fmu_greybox.model.chain_step import ChainPlan, ChainState
+from fmu_greybox.model.chain_step import DEFAULT_OOD_THRESHOLD, ChainPlan, ChainState
 from fmu_greybox.model.stage import TARGET_MODES, SourceLayout, StageLayout
 from fmu_greybox.project.config import AUTO, ProjectConfig
 
@@ -524,13 +524,15 @@ class GreyBoxChain:
         mean = np.empty((n - start - 1, len(self.stages)))
         var = np.empty_like(mean)
         latent_var = np.empty_like(mean)
+        in_domain = np.empty(mean.shape[0], dtype=bool)
         plan = self.plan()
         for i, j in enumerate(range(start + 1, n)):
-            plan.step(state, exo[j - 1], y_wb[j])
+            score = plan.step(state, exo[j - 1], y_wb[j])
             mean[i] = state.out_mean
             var[i] = state.out_var
             latent_var[i] = state.latent_var
-        return FreeRun(mean=mean, var=var, latent_var=latent_var)
+            in_domain[i] = score >= DEFAULT_OOD_THRESHOLD and not state.outside.any()
+        return FreeRun(mean=mean, var=var, latent_var=latent_var, in_domain=in_domain)
 
 
 @dataclass(frozen=True)
@@ -544,11 +546,16 @@ class FreeRun:
         Calibrated variances (what the exported FMU's ``_std`` squares to).
     latent_var : ndarray, shape (m, Q)
         Propagated variances before calibration.
+    in_domain : ndarray of bool, shape (m,)
+        The rows the exported FMU would not flag ``out_of_domain`` at its default threshold:
+        no corrector feature clipped to its widened training range, and the domain score at
+        least :data:`~fmu_greybox.model.chain_step.DEFAULT_OOD_THRESHOLD`.
     """
 
     mean: np.ndarray
     var: np.ndarray
     latent_var: np.ndarray
+    in_domain: np.ndarray
 
 
 def _widened_range(X: np.ndarray) -> np.ndarray:

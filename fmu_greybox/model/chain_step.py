@@ -53,6 +53,10 @@ class FittedChain(Protocol):
     calibration_: list[VarianceCalibration]
 
 
+#: Default ``ood_threshold`` of the exported FMU: a step is out of its corrector's domain when
+#: the features lie farther than about 2.1 length-scales from every inducing point of some stage
+#: (domain score below 0.1), or when some feature had to be clipped to its widened range.
+DEFAULT_OOD_THRESHOLD = 0.1
 #: Target mode codes of the compiled step (``MODE_*`` in chain_core.c).
 MODE_CODES = {"residual": 0, "increment": 1, "output": 2}
 

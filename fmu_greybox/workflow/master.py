@@ -46,6 +46,10 @@ class MasterRun:
         exported FMU's ``_std`` outputs).
     latent_std : ndarray, shape (m, Q)
         The standard deviations propagated through the chain before calibration.
+    in_domain : ndarray of bool, shape (m,), or None
+        The rows where the correctors stayed inside their domain (the exported FMU's
+        ``out_of_domain`` false at its default threshold); ``None`` when the master that made
+        the run does not say.
     """
 
     rows: np.ndarray
@@ -54,6 +58,7 @@ class MasterRun:
     mean: np.ndarray
     std: np.ndarray
     latent_std: np.ndarray
+    in_domain: np.ndarray | None = None
 
 
 def run_master(
@@ -111,4 +116,5 @@ def run_master(
         mean=run.mean,
         std=np.sqrt(run.var),
         latent_std=np.sqrt(run.latent_var),
+        in_domain=run.in_domain,
     )

@@ -58,6 +58,8 @@ class Validation:
         run of consecutive scored rows.
     criteria : AcceptanceConfig
         The acceptance criteria.
+    rows_out_of_domain : int or None
+        Scored rows on which the correctors left their domain (``None``: not known).
     acceptance : Acceptance or None
         Those criteria checked (:mod:`fmu_greybox.workflow.acceptance`).
     """
@@ -69,6 +71,7 @@ class Validation:
     scored: np.ndarray
     responses: list[FrequencyResponse] = field(default_factory=list)
     criteria: AcceptanceConfig = field(default_factory=AcceptanceConfig)
+    rows_out_of_domain: int | None = None
     acceptance: Acceptance | None = None
 
     @property
@@ -156,6 +159,12 @@ def validate_model(
     scored = run.rows[keep]
     skipped = int(trained[run.rows].sum())
     held_out = f"{scored.size} rows not used in training ({_ranges_text(scored)})"
+    outside = None if run.in_domain is None else int((~run.in_domain[keep]).sum())
+    if outside:
+        held_out += (
+            f"; on {outside} of them the correctors were outside their domain (where the "
+            "exported FMU sets out_of_domain at its default threshold)"
+        )
     if skipped:
         held_out += f"; {skipped} training rows in the run not scored"
     names, recorded = model.chain.stage_names, data.outputs[run.rows][keep]
@@ -172,6 +181,7 @@ def validate_model(
         table=table,
         held_out=held_out,
         scored=scored,
+        rows_out_of_domain=outside,
         responses=responses,
         criteria=criteria,
         acceptance=evaluate(criteria, table, responses),
@@ -246,6 +256,7 @@ def write_metrics(validation: Validation, model: GreyBoxModel, path: Path) -> di
     payload = {
         "held_out": validation.held_out,
         "n_rows": int(validation.scored.size),
+        "rows_out_of_domain": validation.rows_out_of_domain,
         "scored_rows": _ranges(validation.scored),
         "units": model.training.get("target_unit", {}),
         "stages": validation.table,
