@@ -106,12 +106,18 @@ def noisy_signals(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return exo, wb, truth + rng.standard_normal(truth.shape) * np.array(NOISE)
 
 
-def test_a_chain_reports_the_known_noise_and_covers_95_percent_of_unseen_rows() -> None:
+def small_chain() -> GreyBoxChain:
+    """The reference chain made small: 30 inducing points, 30 iterations, one lag, residual
+    targets fed the recorded outputs."""
     raw = tomllib.loads(REFERENCE.read_text())
     raw["gp"].update(inducing=30, max_iter=30, target="residual", feeds="recorded")
     for stage in raw["stages"]:
         stage.update(lags=1, differences=0)
-    chain = GreyBoxChain(parse_config(raw, REFERENCE))
+    return GreyBoxChain(parse_config(raw, REFERENCE))
+
+
+def test_a_chain_reports_the_known_noise_and_covers_95_percent_of_unseen_rows() -> None:
+    chain = small_chain()
     exo, wb, out = noisy_signals(6000, seed=4)
     chain.fit(exo[:3000], wb[:3000], out[:3000])
     assert set(chain.calibration_check_) == {"EHV", "RAM", "ITFV"}
@@ -134,11 +140,7 @@ def test_a_free_run_says_where_the_correctors_leave_their_domain() -> None:
     FMU's ``out_of_domain`` rule: a regime seen in training (one input at three times its usual
     amplitude, in the first half of the training rows only) is inside; the same input at twelve
     times, beyond every training row, is outside on those rows and nowhere else."""
-    raw = tomllib.loads(REFERENCE.read_text())
-    raw["gp"].update(inducing=30, max_iter=30, target="residual", feeds="recorded")
-    for stage in raw["stages"]:
-        stage.update(lags=1, differences=0)
-    chain = GreyBoxChain(parse_config(raw, REFERENCE))
+    chain = small_chain()
     exo, wb, out = noisy_signals(6000, seed=4)
     regime = np.zeros(6000, dtype=bool)
     regime[300:800] = regime[3300:3800] = True  # in the first half and in the unseen rows
