@@ -57,7 +57,7 @@ from fmu_greybox.errors import ExportError, ModelFormatError
 from fmu_greybox.export.domain import InputDomain
 from fmu_greybox.export.runtime import RUNTIME_FILE, attach_logger, guarded, refuse_step, report
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu
-from fmu_greybox.model.chain_step import DEFAULT_OOD_THRESHOLD, ChainState
+from fmu_greybox.model.chain_step import DEFAULT_OOD_THRESHOLD, ChainState, out_of_domain
 from fmu_greybox.model.store import MANIFEST, GreyBoxModel, file_sha256, load_model
 from fmu_greybox.model.whitebox import NamedModel
 
@@ -445,8 +445,8 @@ class GreyBoxSlave(Fmi2Slave):
         enabled = self._bools[self._enabled]
         state = run.state
         score = self._plan.step(state, exo, y_wb, enabled)
-        outside = 1.0 in state.outside.tolist()
-        self._publish(wb, y_wb, state, score, outside)
+        flag = out_of_domain(score, state, self._reals[self._threshold_vr])
+        self._publish(wb, y_wb, state, score, flag)
         self._time = current_time + step_size
         return True
 
@@ -546,7 +546,7 @@ class GreyBoxSlave(Fmi2Slave):
         return self._run
 
     def _publish(
-        self, wb: np.ndarray, y_wb: np.ndarray, state: ChainState, score: float, outside: bool
+        self, wb: np.ndarray, y_wb: np.ndarray, state: ChainState, score: float, flag: bool
     ) -> None:
         # white-box outputs with the stage outputs corrected, standard deviations, raw
         # white-box stage outputs, score: built as Python floats, the form _reals holds
@@ -557,7 +557,7 @@ class GreyBoxSlave(Fmi2Slave):
         values += y_wb.tolist()
         values.append(score)
         self._reals[self._out_slice] = values
-        self._bools[self._flag] = outside or score < self._reals[self._threshold_vr]
+        self._bools[self._flag] = flag
 
     # ------------------------------------------------------------------ state
     @guarded("fmi2GetFMUstate")

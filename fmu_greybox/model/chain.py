@@ -19,7 +19,7 @@ import numpy as np
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.gp import SparseGPR
 from fmu_greybox.model.calibration import UNCALIBRATED, VarianceCalibration, fit_calibration
-from fmu_greybox.model.chain_step import DEFAULT_OOD_THRESHOLD, ChainPlan, ChainState
+from fmu_greybox.model.chain_step import ChainPlan, ChainState, out_of_domain
 from fmu_greybox.model.stage import TARGET_MODES, SourceLayout, StageLayout
 from fmu_greybox.project.config import AUTO, ProjectConfig
 
@@ -531,7 +531,7 @@ class GreyBoxChain:
             mean[i] = state.out_mean
             var[i] = state.out_var
             latent_var[i] = state.latent_var
-            in_domain[i] = score >= DEFAULT_OOD_THRESHOLD and not state.outside.any()
+            in_domain[i] = not out_of_domain(score, state)
         return FreeRun(mean=mean, var=var, latent_var=latent_var, in_domain=in_domain)
 
 

@@ -287,3 +287,12 @@ class ChainPlan:
         return _chainstep.step(
             self._plan, self._params, self._work, state.values, exo_prev, y_wb, enabled
         )
+
+
+def out_of_domain(
+    score: float, state: ChainState, threshold: float = DEFAULT_OOD_THRESHOLD
+) -> bool:
+    """The exported FMU's ``out_of_domain`` flag for the step that returned ``score``: some
+    stage's features were clipped to their widened training range, or ``score`` is below
+    ``threshold``."""
+    return score < threshold or 1.0 in state.outside.tolist()
