@@ -147,3 +147,8 @@ def test_a_share_outside_its_limits_fails_only_when_its_interval_does(
         assert "16 independent" in check.note and "0.8-1" in check.note
     inside = evaluate(criteria, {"RAM": {**row, "coverage95": 0.95}}, [])
     assert next(c for c in inside.checks if c.criterion.startswith("share")).verdict == PASS
+    # rows out of the correctors' domain are named in the note; the verdict does not move
+    noted = evaluate(criteria, {"RAM": row}, [], outside_share=0.995)
+    check = next(c for c in noted.checks if c.criterion.startswith("share"))
+    assert check.verdict == verdict and "99.5 % of the rows" in check.note
+    assert check.note.startswith("the rows are worth" if verdict == UNDECIDED else "on 99.5 %")

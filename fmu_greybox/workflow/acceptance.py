@@ -90,6 +90,7 @@ def evaluate(
     criteria: AcceptanceConfig,
     table: Mapping[str, Mapping[str, float]],
     responses: Sequence[FrequencyResponse],
+    outside_share: float = 0.0,
 ) -> Acceptance:
     """Check every stage of a validation table against its criteria.
 
@@ -102,6 +103,9 @@ def evaluate(
     responses : sequence of FrequencyResponse
         Per stage (matched by :attr:`~FrequencyResponse.stage`); a stage without one has its
         frequency-domain checks undecided.
+    outside_share : float
+        Share of the scored rows on which the correctors were outside their domain; a coverage
+        check that does not pass says so in its note.
 
     Returns
     -------
@@ -117,26 +121,40 @@ def evaluate(
         for key, width in (("coverage95", "±1.96σ"), ("coverage68", "±1σ")):
             bounds = getattr(limits, key)
             if bounds is not None:
-                checks.append(_share_inside(stage, width, row, key, bounds))
+                checks.append(_share_inside(stage, width, row, key, bounds, outside_share))
     return Acceptance(tuple(checks))
 
 
 def _share_inside(
-    stage: str, width: str, row: Mapping[str, float], key: str, bounds: tuple[float, float]
+    stage: str,
+    width: str,
+    row: Mapping[str, float],
+    key: str,
+    bounds: tuple[float, float],
+    outside_share: float,
 ) -> Check:
     """A coverage check: ``FAIL`` only when the share's confidence interval (``key_low`` ..
     ``key_high`` in ``row``, when it has them) lies wholly outside the limits; a share outside
-    them whose interval still reaches them is ``UNDECIDED`` (too few independent rows)."""
+    them whose interval still reaches them is ``UNDECIDED`` (too few independent rows). Either
+    notes ``outside_share``, the rows no calibration vouches for, when there are any."""
     check = _within(stage, f"share of rows inside {width}", row[key], bounds)
-    low, high = row.get(f"{key}_low"), row.get(f"{key}_high")
-    if check.verdict != FAIL or low is None or high is None or low > bounds[1] or high < bounds[0]:
+    if check.verdict != FAIL:
         return check
-    note = (
-        f"the rows are worth about {row.get('independent_rows', float('nan')):.0f} independent "
-        f"ones, and the share's 95 % interval {low:.3g}-{high:.3g} reaches the limits: a longer "
-        "recording decides"
-    )
-    return replace(check, verdict=UNDECIDED, note=note)
+    notes = []
+    low, high = row.get(f"{key}_low"), row.get(f"{key}_high")
+    undecided = low is not None and high is not None and low <= bounds[1] and high >= bounds[0]
+    if undecided:
+        notes.append(
+            f"the rows are worth about {row.get('independent_rows', float('nan')):.0f} "
+            f"independent ones, and the share's 95 % interval {low:.3g}-{high:.3g} reaches the "
+            "limits: a longer recording decides"
+        )
+    if outside_share > 0.0:
+        notes.append(
+            f"on {100 * outside_share:.3g} % of the rows the correctors were outside their "
+            "domain (out_of_domain), where no calibration vouches for the band"
+        )
+    return replace(check, verdict=UNDECIDED if undecided else FAIL, note="; ".join(notes))
 
 
 def _frequency_checks(

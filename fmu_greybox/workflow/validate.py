@@ -184,7 +184,7 @@ def validate_model(
         rows_out_of_domain=outside,
         responses=responses,
         criteria=criteria,
-        acceptance=evaluate(criteria, table, responses),
+        acceptance=evaluate(criteria, table, responses, (outside or 0) / scored.size),
     )
 
 
