@@ -135,8 +135,8 @@ def _share_inside(
 ) -> Check:
     """A coverage check: ``FAIL`` only when the share's confidence interval (``key_low`` ..
     ``key_high`` in ``row``, when it has them) lies wholly outside the limits; a share outside
-    them whose interval still reaches them is ``UNDECIDED`` (too few independent rows). Either
-    notes ``outside_share``, the rows no calibration vouches for, when there are any."""
+    them whose interval still reaches them is ``UNDECIDED`` (too few independent rows). A check
+    that does not pass names ``outside_share``, the rows no calibration vouches for, if any."""
     check = _within(stage, f"share of rows inside {width}", row[key], bounds)
     if check.verdict != FAIL:
         return check
