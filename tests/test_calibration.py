@@ -26,7 +26,7 @@ from fmu_greybox.model.calibration import (
 )
 from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.project.config import parse_config
-from fmu_greybox.report.plots import zoom_range
+from fmu_greybox.report.plots import OUTSIDE_STYLE, trace_figure, zoom_range
 
 REFERENCE = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"
 
@@ -152,6 +152,30 @@ def test_a_free_run_says_where_the_correctors_leave_their_domain() -> None:
     far[3300:3800, 1] *= 4.0  # twelve times the usual amplitude: beyond every training row
     outside = np.flatnonzero(~chain.free_run_variances(far, wb, out, 2999).in_domain)
     assert 250 <= outside.size and 300 <= outside.min() and outside.max() <= 802  # row 3000 + i
+
+
+def test_the_residual_panels_shade_the_rows_outside_the_domain_and_only_those() -> None:
+    time = np.arange(1000) * 1e-3
+    rng = np.random.default_rng(3)
+    recorded, mean = rng.standard_normal((1000, 2)), np.zeros((1000, 2))
+    std, names, units = np.ones((1000, 2)), ["A", "B"], ["m", "Pa"]
+    outside = (time >= 0.4) & (time < 0.6)
+
+    def shaded_spans(fig) -> list[tuple[float, float]]:
+        grey = [c for c in fig.axes[0].collections if c.get_alpha() == OUTSIDE_STYLE["alpha"]]
+        return [
+            (p.vertices[:, 0].min(), p.vertices[:, 0].max()) for c in grey for p in c.get_paths()
+        ]
+
+    fig = trace_figure(time, recorded, mean, mean, std, names, units, outside=outside)
+    assert [(round(a, 3), round(b, 3)) for a, b in shaded_spans(fig)] == [(0.4, 0.599)]
+    texts = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert "correctors outside their domain" in texts
+    plain = trace_figure(time, recorded, mean, mean, std, names, units)
+    assert shaded_spans(plain) == []
+    assert "correctors outside their domain" not in [
+        t.get_text() for t in plain.legends[0].get_texts()
+    ]
 
 
 def test_a_zoom_holds_a_nearby_white_box_and_says_when_it_cuts_a_far_one() -> None:

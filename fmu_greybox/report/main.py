@@ -246,10 +246,20 @@ def report_html(result: DemoResult) -> str:
         ),
         figure(
             "Residuals with the grey-box's ±1.96σ band",
-            trace_figure(run.time, recorded, validation.whitebox, run.mean, run.std, labels, units),
+            trace_figure(
+                run.time,
+                recorded,
+                validation.whitebox,
+                run.mean,
+                run.std,
+                labels,
+                units,
+                outside=run.outside,
+            ),
             "Left: recording minus grey-box inside its ±1.96σ band (the white-box's residual, "
-            "often far larger, would hide it: its RMSE is in each title). Right: the recording, "
-            "both models and the band over the 0.2 s where the grey-box's residual is largest.",
+            "often far larger, would hide it: its RMSE is in each title), grey where the "
+            "correctors were outside their domain. Right: the recording, both models and the "
+            "band over the 0.2 s where the grey-box's residual is largest.",
         ),
         figure(
             "Calibration of the uncertainty",

@@ -28,6 +28,8 @@ WB_STYLE = {"color": "tab:red", "lw": 1.0, "label": "white-box"}
 REC_STYLE = {"color": "tab:blue", "lw": 1.2, "ls": ":", "label": "recording"}
 GB_STYLE = {"color": "tab:green", "lw": 1.0, "label": "grey-box"}
 BAND_STYLE = {"color": "tab:green", "alpha": 0.25, "lw": 0, "label": "grey-box ±1.96σ"}
+#: Shading of the times the correctors were outside their domain (``out_of_domain``).
+OUTSIDE_STYLE = {"color": "0.6", "alpha": 0.3, "lw": 0}
 #: Share of the residual panel's height the band and the grey-box residual fill at most.
 PANEL_MARGIN = 1.3
 
@@ -41,6 +43,7 @@ def trace_figure(
     names: Sequence[str],
     units: Sequence[str],
     zoom_seconds: float = 0.2,
+    outside: np.ndarray | None = None,
 ) -> plt.Figure:
     """Per stage, the residual with the grey-box's ±1.96σ band, and a zoom on its worst window.
 
@@ -56,11 +59,15 @@ def trace_figure(
     names, units : sequence of str, length Q
     zoom_seconds : float
         Length of each zoomed window [s].
+    outside : ndarray of bool, shape (m,), optional
+        The rows where the correctors were outside their domain: shaded grey behind each
+        residual (no calibration vouches for the band there).
 
     Returns
     -------
     matplotlib.figure.Figure
     """
+    shaded = outside is not None and bool(np.any(outside))
     q_count = len(names)
     fig, axes = plt.subplots(
         q_count,
@@ -73,6 +80,10 @@ def trace_figure(
     width = max(2, min(time.size, round(zoom_seconds / dt)))
     for q, (left, right) in enumerate(axes):
         residual = recorded[:, q] - mean[:, q]
+        if shaded:
+            left.fill_between(
+                time, 0, 1, where=outside, transform=left.get_xaxis_transform(), **OUTSIDE_STYLE
+            )
         left.fill_between(time, -Z95 * std[:, q], Z95 * std[:, q], **BAND_STYLE)
         left.plot(time, residual, color="tab:green", lw=0.6)
         reach = np.percentile(np.maximum(np.abs(residual), Z95 * std[:, q]), 99.5)
@@ -114,6 +125,9 @@ def trace_figure(
         plt.Line2D([], [], **{k: v for k, v in REC_STYLE.items() if k != "label"}),
     ]
     labels = ["grey-box ±1.96σ", "grey-box (left: recording − grey-box)", "white-box", "recording"]
+    if shaded:
+        handles.append(plt.Rectangle((0, 0), 1, 1, **OUTSIDE_STYLE))
+        labels.append("correctors outside their domain")
     legend_above(fig, handles, labels)
     return fig
 

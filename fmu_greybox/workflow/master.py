@@ -60,6 +60,11 @@ class MasterRun:
     latent_std: np.ndarray
     in_domain: np.ndarray | None = None
 
+    @property
+    def outside(self) -> np.ndarray | None:
+        """The rows where the correctors were outside their domain, shape (m,), or ``None``."""
+        return None if self.in_domain is None else ~self.in_domain
+
 
 def run_master(
     model: GreyBoxModel,

@@ -159,7 +159,7 @@ def validate_model(
     scored = run.rows[keep]
     skipped = int(trained[run.rows].sum())
     held_out = f"{scored.size} rows not used in training ({_ranges_text(scored)})"
-    outside = None if run.in_domain is None else int((~run.in_domain[keep]).sum())
+    outside = None if run.outside is None else int(run.outside[keep].sum())
     if outside:
         held_out += (
             f"; on {outside} of them the correctors were outside their domain (where the "
@@ -279,7 +279,14 @@ def write_plots(validation: Validation, model: GreyBoxModel, out_dir: Path) -> l
     keep = validation.scored - run.rows[0]
     figures = {
         "traces.png": trace_figure(
-            run.time, recorded, validation.whitebox, run.mean, run.std, names, units
+            run.time,
+            recorded,
+            validation.whitebox,
+            run.mean,
+            run.std,
+            names,
+            units,
+            outside=run.outside,
         ),
         "calibration.png": calibration_figure(
             recorded[keep], run.mean[keep], run.std[keep], run.latent_std[keep], names
