@@ -58,8 +58,6 @@ class Validation:
         run of consecutive scored rows.
     criteria : AcceptanceConfig
         The acceptance criteria.
-    rows_out_of_domain : int or None
-        Scored rows on which the correctors left their domain (``None``: not known).
     acceptance : Acceptance or None
         Those criteria checked (:mod:`fmu_greybox.workflow.acceptance`).
     """
@@ -71,13 +69,24 @@ class Validation:
     scored: np.ndarray
     responses: list[FrequencyResponse] = field(default_factory=list)
     criteria: AcceptanceConfig = field(default_factory=AcceptanceConfig)
-    rows_out_of_domain: int | None = None
     acceptance: Acceptance | None = None
 
     @property
     def whitebox(self) -> np.ndarray:
         """The plain white-box's stage outputs over the master's rows, shape (m, Q)."""
         return self.data.y_wb[self.run.rows]
+
+    @property
+    def rows_out_of_domain(self) -> int | None:
+        """Scored rows on which the correctors were outside their domain (``None``: the
+        master that made the run does not say)."""
+        return rows_outside(self.run, self.scored)
+
+
+def rows_outside(run: MasterRun, scored: np.ndarray) -> int | None:
+    """How many of the ``scored`` rows (recording rows, shape (k,)) the run was outside its
+    correctors' domain on; ``None`` when the run does not say."""
+    return None if run.outside is None else int(run.outside[scored - run.rows[0]].sum())
 
 
 def check_project(config: ProjectConfig, model: GreyBoxModel, model_dir: str | Path) -> None:
@@ -159,7 +168,7 @@ def validate_model(
     scored = run.rows[keep]
     skipped = int(trained[run.rows].sum())
     held_out = f"{scored.size} rows not used in training ({_ranges_text(scored)})"
-    outside = None if run.outside is None else int(run.outside[keep].sum())
+    outside = rows_outside(run, scored)
     if outside:
         held_out += (
             f"; on {outside} of them the correctors were outside their domain (where the "
@@ -181,7 +190,6 @@ def validate_model(
         table=table,
         held_out=held_out,
         scored=scored,
-        rows_out_of_domain=outside,
         responses=responses,
         criteria=criteria,
         acceptance=evaluate(criteria, table, responses, (outside or 0) / scored.size),
