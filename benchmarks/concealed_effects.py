@@ -51,9 +51,17 @@ recording of the same truth model (seed + 1 000 003); per stage the share of its
 the share whose ±1.96σ coverage lies in the target 0.90 .. 0.99, and the share whose interval
 reaches it (the recording cannot tell those from calibrated).
 
-With ``--json`` the last line is one JSON object: the summary figures (with ``--coverage`` also
-``coverage95_in_target``, ``coverage95_consistent``, ``coverage95_median`` and
-``coverage95_range``) and the cases.
+Per stage name (EHV, RAM, ...) the shares are also pooled over the cases
+(:func:`~fmu_greybox.model.calibration.pooled_coverage`: each weighted by its independent rows,
+with the interval of their sum): a drifting position stage's recording is worth a handful of
+independent rows, too few to decide alone whether its band is wide or narrow; the cases
+together can.
+
+With ``--json`` each case is also printed as one JSON line when it is done, and the last line
+is one JSON object: the summary figures (with ``--coverage`` also ``coverage95_in_target``,
+``coverage95_consistent``, ``coverage95_median``, ``coverage95_range`` and
+``coverage95_pooled``) and the cases. ``--summarise LOG [LOG ...]`` runs nothing: it reads the
+cases such runs printed (a suite run in parts, or stopped part way) and prints their summary.
 """
 
 from __future__ import annotations
@@ -93,7 +101,7 @@ from fmu_greybox.synth.actuator import (  # noqa: E402
 )
 from fmu_greybox.synth.loop import is_loop_effect, loop_terms, parse_loop_effects  # noqa: E402
 from fmu_greybox.workflow.demo import VALIDATION_SEED_OFFSET  # noqa: E402
-from fmu_greybox.workflow.metrics import coverage_text  # noqa: E402
+from fmu_greybox.workflow.metrics import coverage_text, pooled_row  # noqa: E402
 from fmu_greybox.workflow.train import train_model, with_inducing  # noqa: E402
 from fmu_greybox.workflow.validate import validate_model  # noqa: E402
 
@@ -452,6 +460,15 @@ def _reaches_target(stage: dict) -> bool:
     return stage["coverage95_low"] <= 0.99 and stage["coverage95_high"] >= 0.90
 
 
+def pooled_by_stage(rows: list[dict]) -> dict[str, dict[str, float]]:
+    """Per stage name, its ±1.96σ shares over the cases pooled by their independent rows."""
+    by_stage: dict[str, list[dict]] = {}
+    for row in rows:
+        for stage, c in row.get("coverage", {}).items():
+            by_stage.setdefault(stage, []).append(c)
+    return {stage: pooled_row(found) for stage, found in by_stage.items()}
+
+
 def summary(rows: list[dict]) -> dict:
     effect_rows = [r for r in rows if not r["control"]]
     controls = [r for r in rows if r["control"]]
@@ -464,6 +481,7 @@ def summary(rows: list[dict]) -> dict:
             "coverage95_consistent": float(np.mean([_reaches_target(c) for c in stages])),
             "coverage95_median": statistics.median(covered),
             "coverage95_range": [min(covered), max(covered)],
+            "coverage95_pooled": pooled_by_stage(rows),
         }
         if covered
         else {}
@@ -481,6 +499,7 @@ def summary(rows: list[dict]) -> dict:
         "n_cases": len(rows),
         "n_controls": len(controls),
         "median_seconds": statistics.median(r["seconds"] for r in rows),
+        "cases": rows,
     }
 
 
@@ -531,7 +550,16 @@ def main() -> None:
         metavar="N",
         help="End after the suite's N-th case (1-based; default: its last), to run it in parts.",
     )
+    parser.add_argument(
+        "--summarise",
+        nargs="+",
+        metavar="LOG",
+        help="Run nothing: summarise the cases earlier --json runs printed to these logs.",
+    )
     args = parser.parse_args()
+    if args.summarise:
+        print_summary(summary(logged_cases(args.summarise)), args.json)
+        return
     if args.start < 1:
         parser.error(f"--start {args.start}: cases are numbered from 1")
     if args.stop is not None and args.stop < args.start:
@@ -553,7 +581,33 @@ def main() -> None:
             print_row(row)
             if args.coverage:
                 print_coverage(row)
-    result = summary(rows)
+            if args.json:
+                print(json.dumps(row), flush=True)
+    print_summary({**summary(rows), "duration": duration}, args.json)
+
+
+def logged_cases(paths: list[str]) -> list[dict]:
+    """The cases ``--json`` runs printed to these logs, in order; a case printed twice (a
+    resumed run, the final line repeating them) counts once, as printed last."""
+    found: dict[tuple, dict] = {}
+    for path in paths:
+        try:
+            lines = Path(path).read_text(encoding="utf-8").splitlines()
+        except OSError as exc:
+            raise SystemExit(f"--summarise {path}: unreadable ({exc})") from exc
+        for line in lines:
+            if not line.startswith("{"):
+                continue
+            payload = json.loads(line)
+            for row in payload.get("cases", [payload] if "case" in payload else []):
+                found[(row["suite"], row["case"], row["seed"])] = row
+    if not found:
+        raise SystemExit(f"--summarise: no case in {', '.join(paths)}; run with --json")
+    return list(found.values())
+
+
+def print_summary(result: dict, as_json: bool) -> None:
+    """The summary lines (and with ``as_json`` the final JSON line)."""
     print(
         f"origin accuracy {100 * result['origin_accuracy']:.0f} %, effect accuracy "
         f"{100 * result['effect_accuracy']:.0f} % (named or equally consistent "
@@ -570,8 +624,13 @@ def main() -> None:
             f"reaches it for {100 * result['coverage95_consistent']:.0f} %), median "
             f"{result['coverage95_median']:.3f} (range {low:.3f}-{high:.3f})"
         )
-    if args.json:
-        print(json.dumps({**result, "duration": duration, "cases": rows}))
+        for stage, c in result["coverage95_pooled"].items():
+            print(
+                f"  {stage} pooled over {c['recordings']} cases: {coverage_text(c, 'coverage95')} "
+                f"of {c['independent_rows']:.0f} independent rows inside ±1.96σ"
+            )
+    if as_json:
+        print(json.dumps(result))
 
 
 if __name__ == "__main__":

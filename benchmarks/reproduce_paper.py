@@ -26,7 +26,9 @@ uncertainty, with the 95 % interval of that share) beside the errors.
 truth model and length as the experiment's (seeds ``seed + 100 k``), none of whose rows it saw:
 1 300 validation rows of a free run whose errors come in slow waves are worth few independent
 ones, and these say whether a share outside 0.90-0.99 is the band or the rows. Their tables
-go under ``"<experiment>/seed <s>"`` in the JSON.
+go under ``"<experiment>/seed <s>"`` in the JSON, and the shares of all K + 1 recordings pooled
+by their independent rows (:func:`~fmu_greybox.workflow.metrics.pooled_row`) under
+``"<experiment>/pooled"``.
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ from fmu_greybox.fmi.builtin import reference_fmus
 from fmu_greybox.model.whitebox import terms_from_findings
 from fmu_greybox.project.config import ProjectConfig, parse_config
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
-from fmu_greybox.workflow.metrics import format_table
+from fmu_greybox.workflow.metrics import coverage_text, format_table, pooled_row
 from fmu_greybox.workflow.train import train_model
 from fmu_greybox.workflow.validate import validate_model
 
@@ -170,6 +172,11 @@ def run_experiment(
             print(f"{name}, independent recording (seed {seed}): {checked.held_out}")
             print(format_table(checked.table, model.training["target_unit"]), flush=True)
         tables[f"{name}/seed {seed}"] = stage_rows(checked.table)
+    pooled = {stage: pooled_row([t[stage] for t in tables.values()]) for stage in tables[name]}
+    if not quiet:
+        shares = ", ".join(f"{s} {coverage_text(row, 'coverage95')}" for s, row in pooled.items())
+        print(f"{name}, the {independent + 1} recordings pooled: inside ±1.96σ {shares}")
+    tables[f"{name}/pooled"] = pooled
     return tables
 
 

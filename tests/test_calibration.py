@@ -9,6 +9,7 @@ of rows the chain never saw, in training or in calibration.
 
 from __future__ import annotations
 
+import json
 import tomllib
 from pathlib import Path
 
@@ -23,6 +24,7 @@ from fmu_greybox.model.calibration import (
     coverage,
     coverage_interval,
     fit_calibration,
+    pooled_coverage,
 )
 from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.project.config import parse_config
@@ -216,6 +218,29 @@ def test_the_coverage_interval_holds_the_share_of_a_longer_recording(
     assert 0.9 * signed <= np.median(worth) <= (1300 if phi == 0 else 400)
 
 
+def test_pooled_coverage_decides_what_no_single_drifting_recording_can() -> None:
+    """Forty slowly drifting recordings (AR(1), φ = 0.99, 1 300 rows each): the pooled
+    interval of a calibrated band holds 0.95 and is far narrower than a single one; that of
+    a band 25 % too wide lies wholly above 0.95, though most single intervals still reach it.
+    Pooling white rows gives what the concatenated rows give."""
+    rng = np.random.default_rng(11)
+    windows = [ar1(rng, 1300, 0.99) for _ in range(40)]
+    calibrated = [coverage_interval(w, np.ones(1300), Z95) for w in windows]
+    wide = [coverage_interval(w, np.full(1300, 1.25), Z95) for w in windows]
+    pooled, pooled_wide = pooled_coverage(calibrated), pooled_coverage(wide)
+    assert pooled.low <= 0.95 <= pooled.high
+    assert pooled.high - pooled.low < 0.3 * np.median([e.high - e.low for e in calibrated])
+    assert pooled.independent_rows == pytest.approx(sum(e.independent_rows for e in calibrated))
+    assert pooled_wide.low > 0.95
+    assert np.mean([e.low <= 0.95 for e in wide]) > 0.5
+    white = [rng.standard_normal(700), rng.standard_normal(600)]
+    parts = [coverage_interval(w, np.ones(w.size), Z95, w.size) for w in white]
+    whole = coverage_interval(np.concatenate(white), np.ones(1300), Z95, 1300)
+    assert pooled_coverage(parts) == pytest.approx(whole)
+    nothing = pooled_coverage([coverage_interval(np.array([]), np.array([]), Z95)])
+    assert nothing.independent_rows == 0 and nothing.share != nothing.share
+
+
 def test_the_coverage_interval_of_a_band_that_holds_every_row() -> None:
     """All rows inside says little when they are few independent ones, much when many."""
     rng = np.random.default_rng(8)
@@ -225,3 +250,56 @@ def test_the_coverage_interval_of_a_band_that_holds_every_row() -> None:
     assert slow.low < 0.9 < fast.low
     zero = coverage_interval(np.array([0.0, 1.0, -1.0]), np.zeros(3), Z95)  # σ = 0: outside
     assert zero.share == pytest.approx(1 / 3) and np.isfinite(zero.independent_rows)
+
+
+def _suite_case(label: str, seed: int, ram: tuple[float, float]) -> dict:
+    """A case as ``concealed_effects.py --json`` prints it, with a RAM share and its rows (the
+    share's own interval is not pooled: any will do)."""
+    share, rows = ram
+    stage = {"coverage68": share, "coverage95": share, "independent_rows": rows}
+    stage |= {"coverage95_low": 0.0, "coverage95_high": 1.0}
+    return {
+        "case": label,
+        "suite": "actuator",
+        "seed": seed,
+        "control": False,
+        "origin_correct": True,
+        "effect_correct": True,
+        "consistent": True,
+        "findings": ["offset"],
+        "harmful_kept": 0,
+        "improvement": -0.9,
+        "seconds": 1.0,
+        "coverage": {"RAM": stage},
+    }
+
+
+def test_the_suite_pools_its_parts_logs(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """``concealed_effects.py --summarise`` reads the cases of a suite run in parts (one part
+    stopped before its last line, one case run twice: the later counts) and pools each stage's
+    shares by their independent rows."""
+    from concealed_effects import logged_cases, main, summary
+
+    first, again, other = (
+        _suite_case("offset=0.3", 104, (0.8, 10.0)),
+        _suite_case("offset=0.3", 104, (1.0, 6.0)),
+        _suite_case("deadband=2e-05", 106, (0.9, 30.0)),
+    )
+    stopped, resumed = tmp_path / "part1.log", tmp_path / "part2.log"
+    stopped.write_text(f"true effect ...\n{json.dumps(first)}\n", encoding="utf-8")
+    resumed.write_text(
+        f"{json.dumps(again)}\n{json.dumps(other)}\n{json.dumps({'cases': [again, other]})}\n",
+        encoding="utf-8",
+    )
+    cases = logged_cases([str(stopped), str(resumed)])
+    assert [c["case"] for c in cases] == ["offset=0.3", "deadband=2e-05"]
+    pooled = summary(cases)["coverage95_pooled"]["RAM"]
+    assert pooled["independent_rows"] == pytest.approx(36.0)
+    assert pooled["coverage95"] == pytest.approx((1.0 * 6 + 0.9 * 30) / 36)
+    assert pooled["recordings"] == 2
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(
+            "sys.argv", ["concealed_effects.py", "--summarise", str(stopped), str(resumed)]
+        )
+        main()
+    assert "RAM pooled over 2 cases: 91.7 %" in capsys.readouterr().out

@@ -309,8 +309,20 @@ def test_paper_experiment2_band_claims_no_more_certainty_than_its_rows(fmu_dir) 
     training, every stage's ±1.96σ holds at least 90 % of them. The calibration pairs each
     held-out residual with the variance the shipped chain reports at that row; paired with the
     variance of the correctors trained on half the rows (larger than the shipped one's), it
-    put 77 % (EHV) and 63 % (RAM) of these rows inside the band."""
+    put 77 % (EHV) and 63 % (RAM) of these rows inside the band. With one independent recording
+    the script also pools each stage's two shares by what their rows are worth."""
     from reproduce_paper import EXPERIMENTS, run_experiment
 
-    table = run_experiment("experiment2", EXPERIMENTS["experiment2"], scale=0.25, quiet=True)
+    tables = run_experiment(
+        "experiment2", EXPERIMENTS["experiment2"], scale=0.25, quiet=True, independent=1
+    )
+    table, pooled = tables["experiment2"], tables["experiment2/pooled"]
     assert all(row["coverage95"] >= 0.90 for row in table.values()), table
+    other = tables[f"experiment2/seed {EXPERIMENTS['experiment2']['seed'] + 100}"]
+    for stage, row in pooled.items():
+        parts = (table[stage], other[stage])
+        rows = sum(p["independent_rows"] for p in parts)
+        share = sum(p["coverage95"] * p["independent_rows"] for p in parts) / rows
+        assert row["independent_rows"] == pytest.approx(rows)
+        assert row["coverage95"] == pytest.approx(share)
+        assert row["coverage95_low"] <= share <= row["coverage95_high"]

@@ -33,6 +33,7 @@ the band is too wide.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -275,10 +276,42 @@ def coverage_interval(
     """
     share = coverage(residual, std, width)
     trials = independent_rows(residual, std) if trials is None else trials
+    return _share_interval(share, float(trials))
+
+
+def pooled_coverage(estimates: Sequence[CoverageEstimate]) -> CoverageEstimate:
+    """One share over several recordings' bands: each share weighted by its independent rows,
+    with the interval of their sum.
+
+    A drifting stage's recording is worth a handful of independent rows, too few for its share
+    alone to tell a calibrated band from a wide or narrow one; over many recordings of the same
+    kind of stage (different seeds, so independent of each other) the rows add up.
+
+    Parameters
+    ----------
+    estimates : sequence of CoverageEstimate
+        One per recording and stage; those without independent rows are left out.
+
+    Returns
+    -------
+    CoverageEstimate
+        NaN share and interval when no estimate has rows.
+    """
+    kept = [e for e in estimates if e.independent_rows > 0 and e.share == e.share]
+    trials = sum(e.independent_rows for e in kept)
+    if not trials:
+        return CoverageEstimate(float("nan"), float("nan"), float("nan"), 0.0)
+    share = sum(e.share * e.independent_rows for e in kept) / trials
+    return _share_interval(share, trials)
+
+
+def _share_interval(share: float, trials: float) -> CoverageEstimate:
+    """``share`` with the Clopper-Pearson :data:`INTERVAL_LEVEL` interval of ``trials``
+    Bernoulli trials (a fractional count of hits and trials, as the beta quantiles allow)."""
     if not trials:
         return CoverageEstimate(share, float("nan"), float("nan"), 0.0)
     hits = share * trials
     tail = (1.0 - INTERVAL_LEVEL) / 2.0
     low = float(beta.ppf(tail, hits, trials - hits + 1.0)) if hits > 0 else 0.0
     high = float(beta.ppf(1.0 - tail, hits + 1.0, trials - hits)) if hits < trials else 1.0
-    return CoverageEstimate(share, low, high, float(trials))
+    return CoverageEstimate(share, low, high, trials)

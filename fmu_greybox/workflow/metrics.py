@@ -7,7 +7,13 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from fmu_greybox.model.calibration import Z95, coverage_interval, independent_rows
+from fmu_greybox.model.calibration import (
+    Z95,
+    CoverageEstimate,
+    coverage_interval,
+    independent_rows,
+    pooled_coverage,
+)
 
 
 def rmse(predicted: np.ndarray, recorded: np.ndarray) -> float:
@@ -110,6 +116,38 @@ def uncertainty_table(
         row["median_latent_std"] = float(np.median(latent_std[:, q]))
         table[name] = row
     return table
+
+
+def pooled_row(rows: Sequence[Mapping[str, float]]) -> dict[str, float]:
+    """The ±1.96σ shares of several recordings' rows of one stage, pooled by what their rows
+    are worth (:func:`~fmu_greybox.model.calibration.pooled_coverage`).
+
+    Parameters
+    ----------
+    rows : sequence of mapping
+        Rows of :func:`uncertainty_table` (``coverage95``, ``coverage95_low``,
+        ``coverage95_high``, ``independent_rows``), one per recording.
+
+    Returns
+    -------
+    dict
+        The same four keys over all of them, and ``recordings``: how many were pooled.
+    """
+    total = pooled_coverage(
+        [
+            CoverageEstimate(
+                r["coverage95"], r["coverage95_low"], r["coverage95_high"], r["independent_rows"]
+            )
+            for r in rows
+        ]
+    )
+    return {
+        "coverage95": total.share,
+        "coverage95_low": total.low,
+        "coverage95_high": total.high,
+        "independent_rows": total.independent_rows,
+        "recordings": len(rows),
+    }
 
 
 def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, str]) -> str:
