@@ -56,6 +56,7 @@ _API = {
     # the workflow
     "train_model": "fmu_greybox.workflow.train",
     "validate_model": "fmu_greybox.workflow.validate",
+    "validate_recordings": "fmu_greybox.workflow.validate",
     "run_master": "fmu_greybox.workflow.master",
     # diagnosis
     "Diagnosis": "fmu_greybox.diagnosis",

@@ -16,12 +16,18 @@ import logging
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from fmu_greybox import __version__
 from fmu_greybox.errors import FmuGreyboxError
+
+if TYPE_CHECKING:  # the commands import what they use when they run (a fast --help)
+    from fmu_greybox.data.recording import Recording
+    from fmu_greybox.model.store import GreyBoxModel
+    from fmu_greybox.project.config import ProjectConfig
+    from fmu_greybox.workflow.validate import Validation
 
 #: ``train --ship`` (fmu_greybox.workflow.parts.SHIP_CHOICES, not imported: it needs numpy).
 SHIP_CHOICES = ("best", "correctors", "terms", "terms+correctors")
@@ -121,13 +127,15 @@ def max_iter_option(default: int | None) -> Decorator:
     )
 
 
-def recording_option(what: str) -> Decorator:
-    """``--recording`` of a command that reads a project's recording."""
+def recording_option(what: str, several: str = "") -> Decorator:
+    """``--recording`` of a command that reads a project's recording (``several``: repeatable,
+    with that sentence in its help, into ``recording_paths``)."""
     return click.option(
         "--recording",
-        "recording_path",
+        "recording_paths" if several else "recording_path",
         type=click.Path(dir_okay=False, path_type=Path),
-        help=f"Recording to {what} (default: the project's [recording] path).",
+        multiple=bool(several),
+        help=f"Recording to {what} (default: the project's [recording] path).{several}",
     )
 
 
@@ -412,7 +420,11 @@ def train(
     required=True,
     help="Model folder written by 'train'.",
 )
-@recording_option("validate on")
+@recording_option(
+    "validate on",
+    " Repeatable: each recording's results go to a numbered subfolder, and the coverage "
+    "criteria are checked on the shares pooled over all of them.",
+)
 @out_option("validation", "Folder for metrics.json and the plots", folder=True)
 @click.option("--json", "as_json", is_flag=True, help="Print metrics as one JSON line.")
 @click.option(
@@ -425,7 +437,7 @@ def validate(
     ctx: click.Context,
     config_path: Path,
     model_dir: Path,
-    recording_path: Path | None,
+    recording_paths: tuple[Path, ...],
     out_dir: Path,
     as_json: bool,
     strict: bool,
@@ -440,6 +452,10 @@ def validate(
     recognised by their values, in any recording, and are not scored; metrics.json lists the
     rows scored (scored_rows).
 
+    Several --recording: a drifting stage's recording is worth few independent rows, too few
+    to decide whether its band holds; the coverage criteria are checked on the shares of all
+    the recordings pooled, every other criterion on each recording.
+
     \b
     Example:
       fmu-greybox validate bench_configs/hydraulic_actuator.toml --model model/ \\
@@ -448,41 +464,103 @@ def validate(
     from fmu_greybox.model.store import load_model
     from fmu_greybox.project.config import load_config
     from fmu_greybox.project.data import load_project_recording
-    from fmu_greybox.workflow.metrics import format_table
-    from fmu_greybox.workflow.validate import (
-        check_project,
-        validate_model,
-        write_metrics,
-        write_plots,
-    )
+    from fmu_greybox.workflow.validate import check_project
 
     config = load_config(config_path)
     model = load_model(model_dir)
     check_project(config, model, model_dir)
-    recording = load_project_recording(config, recording_path)
-    result = validate_model(
-        model, recording, progress=not (ctx.obj["quiet"] or as_json), acceptance=config.acceptance
-    )
+    recordings = [load_project_recording(config, p) for p in recording_paths or (None,)]
+    progress = not (ctx.obj["quiet"] or as_json)
+    if len(recordings) == 1:
+        verdict = _validate_one(ctx, model, config, recordings[0], out_dir, as_json, progress)
+    else:
+        folders = [f"{i}-{Path(r.source or 'recording').stem}" for i, r in enumerate(recordings, 1)]
+        verdict = _validate_several(
+            ctx, model, config, dict(zip(folders, recordings, strict=True)), out_dir, as_json
+        )
+    if strict and verdict != "PASS":
+        ctx.exit(EXIT_NOT_ACCEPTED)
+
+
+def _validate_one(
+    ctx: click.Context,
+    model: GreyBoxModel,
+    config: ProjectConfig,
+    recording: Recording,
+    out_dir: Path,
+    as_json: bool,
+    progress: bool,
+) -> str | None:
+    """Validate on one recording, write its outputs into ``out_dir``; the verdict."""
+    from fmu_greybox.workflow.validate import validate_model, write_metrics, write_plots
+
+    result = validate_model(model, recording, progress=progress, acceptance=config.acceptance)
     out_dir.mkdir(parents=True, exist_ok=True)
     metrics = write_metrics(result, model, out_dir / "metrics.json")
     plots = write_plots(result, model, out_dir)
-    accepted = result.acceptance is not None and result.acceptance.verdict == "PASS"
     if as_json:
         click.echo(json.dumps(metrics))
     else:
-        _info(ctx, f"held out: {result.held_out}")
-        click.echo(format_table(result.table, model.training["target_unit"]))
-        passed = [
-            n for n, a in zip(model.chain.stage_names, model.chain.active_, strict=True) if not a
-        ]
-        if passed:
-            _info(ctx, f"passed through (corrector lost to the white-box in training): {passed}")
-        if result.acceptance is not None:
-            click.echo(result.acceptance.summary())
+        _print_validation(ctx, model, result)
         written = ", ".join(str(out_dir / name) for name in ("metrics.json", *plots))
         _info(ctx, f"wrote {written}")
-    if strict and not accepted:
-        ctx.exit(EXIT_NOT_ACCEPTED)
+    return result.acceptance.verdict if result.acceptance is not None else None
+
+
+def _validate_several(
+    ctx: click.Context,
+    model: GreyBoxModel,
+    config: ProjectConfig,
+    recordings: dict[str, Recording],
+    out_dir: Path,
+    as_json: bool,
+) -> str:
+    """Validate on each recording (its outputs in ``out_dir/<name>``), pool the coverage and
+    write ``out_dir/metrics.json``; the verdict over all."""
+    from fmu_greybox.workflow.metrics import coverage_text
+    from fmu_greybox.workflow.validate import (
+        validate_recordings,
+        write_metrics,
+        write_plots,
+        write_pooled_metrics,
+    )
+
+    result = validate_recordings(
+        model, recordings, progress=not (ctx.obj["quiet"] or as_json), acceptance=config.acceptance
+    )
+    for name, validation in result.validations.items():
+        (out_dir / name).mkdir(parents=True, exist_ok=True)
+        write_metrics(validation, model, out_dir / name / "metrics.json")
+        write_plots(validation, model, out_dir / name)
+    metrics = write_pooled_metrics(result, list(recordings), out_dir / "metrics.json")
+    if as_json:
+        click.echo(json.dumps(metrics))
+        return result.acceptance.verdict
+    for name, validation in result.validations.items():
+        click.echo(f"{name} ({recordings[name].source}):")
+        _print_validation(ctx, model, validation)
+    click.echo(f"pooled over the {len(recordings)} recordings:")
+    for stage, row in result.pooled.items():
+        click.echo(
+            f"  {stage} inside ±1σ / ±1.96σ: {coverage_text(row, 'coverage68')} / "
+            f"{coverage_text(row, 'coverage95')} ({row['independent_rows']:.0f} independent rows)"
+        )
+    click.echo(result.acceptance.summary())
+    _info(ctx, f"wrote {out_dir / 'metrics.json'} and a folder per recording in {out_dir}")
+    return result.acceptance.verdict
+
+
+def _print_validation(ctx: click.Context, model: GreyBoxModel, result: Validation) -> None:
+    """A validation's held-out rows, table, passed-through stages and acceptance, as text."""
+    from fmu_greybox.workflow.metrics import format_table
+
+    _info(ctx, f"held out: {result.held_out}")
+    click.echo(format_table(result.table, model.training["target_unit"]))
+    passed = [n for n, a in zip(model.chain.stage_names, model.chain.active_, strict=True) if not a]
+    if passed:
+        _info(ctx, f"passed through (corrector lost to the white-box in training): {passed}")
+    if result.acceptance is not None:
+        click.echo(result.acceptance.summary())
 
 
 @main.command()

@@ -14,7 +14,15 @@ from scipy import signal
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.project.config import AcceptanceConfig, Criteria, parse_config
 from fmu_greybox.report.spectra import frequency_response
-from fmu_greybox.workflow.acceptance import FAIL, PASS, UNDECIDED, evaluate
+from fmu_greybox.workflow.acceptance import (
+    FAIL,
+    PASS,
+    SHARE_INSIDE,
+    UNDECIDED,
+    across_recordings,
+    evaluate,
+)
+from fmu_greybox.workflow.metrics import pooled_row
 
 REFERENCE = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"
 RAW = tomllib.loads(REFERENCE.read_text(encoding="utf-8"))
@@ -152,3 +160,35 @@ def test_a_share_outside_its_limits_fails_only_when_its_interval_does(
     check = next(c for c in noted.checks if c.criterion.startswith("share"))
     assert check.verdict == verdict and "99.5 % of the rows" in check.note
     assert check.note.startswith("the rows are worth" if verdict == UNDECIDED else "on 99.5 %")
+
+
+def test_several_recordings_decide_a_coverage_no_single_one_can() -> None:
+    """Three recordings whose RAM band held every row, each worth 150 independent rows: each
+    alone is UNDECIDED (its interval reaches 0.99); pooled (450 rows) the band is decidedly too
+    wide, a FAIL. The nRMSE is
+    checked on each recording: the combined check is the worst one, naming its recording."""
+    criteria = parsed({"band": [600.0, 900.0], "coverage68": False})
+    rows = [
+        {**ROW, "gb_nrmse": nrmse, "coverage95": 1.0, "coverage95_low": 0.976}
+        | {"coverage95_high": 1.0, "independent_rows": 150.0}
+        for nrmse in (0.05, 0.08, 0.06)
+    ]
+    alone = {f"rec{i}": evaluate(criteria, {"RAM": r}, []) for i, r in enumerate(rows)}
+    for acceptance in alone.values():
+        share = next(c for c in acceptance.checks if c.criterion.startswith(SHARE_INSIDE))
+        assert share.verdict == UNDECIDED
+    pooled = {"RAM": pooled_row(rows)}
+    assert pooled["RAM"]["independent_rows"] == 450.0 and pooled["RAM"]["coverage95_low"] > 0.99
+    both = across_recordings(criteria, alone, pooled)
+    share = [c for c in both.checks if c.criterion.startswith(SHARE_INSIDE)]
+    assert [(c.verdict, c.value) for c in share] == [(FAIL, 1.0)]
+    nrmse = next(c for c in both.checks if c.criterion == "nRMSE")
+    assert (nrmse.verdict, nrmse.value, nrmse.note) == (PASS, 0.08, "worst on rec1")
+    assert len(both.checks) == len(alone["rec0"].checks) and both.verdict == FAIL
+    # a criterion failed on one recording fails the whole, however the others did
+    tight = parsed({"band": [600.0, 900.0], "coverage68": False, "max_nrmse": 0.07})
+    alone = {f"rec{i}": evaluate(tight, {"RAM": r}, []) for i, r in enumerate(rows)}
+    nrmse = next(
+        c for c in across_recordings(tight, alone, pooled).checks if c.criterion == "nRMSE"
+    )
+    assert (nrmse.verdict, nrmse.value, nrmse.note) == (FAIL, 0.08, "worst on rec1")

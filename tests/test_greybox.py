@@ -293,6 +293,43 @@ def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
     assert json.loads(lenient.stdout)["acceptance"]["verdict"] == "FAIL"
 
 
+def test_validate_pools_the_coverage_of_several_recordings(
+    model, recording, whitebox_fmu: Path, truth_fmu: Path, tmp_path: Path
+) -> None:
+    """``validate`` given two recordings: each one's outputs in its numbered folder, and in
+    ``metrics.json`` the shares pooled by their independent rows, the coverage criteria
+    checked on those, the nRMSE on each recording (the worst one shown)."""
+    save_model(model, tmp_path / "model")
+    with open_fmu(truth_fmu) as truth, open_fmu(whitebox_fmu) as whitebox:
+        request = SynthRequest({"gain_error": 0.1}, 4, 0.0, FlightTestProfile(duration=4.0))
+        other = synthesise(truth, whitebox, request)
+    paths = [save_recording(recording, tmp_path / "rec.csv")]
+    paths.append(save_recording(other, tmp_path / "other.csv"))
+    out = tmp_path / "val"
+    args = ["validate", str(REFERENCE), "--model", str(tmp_path / "model"), "--out", str(out)]
+    result = CliRunner().invoke(
+        main, [*args, "--recording", str(paths[0]), "--recording", str(paths[1])]
+    )
+    assert result.exit_code == 0, result.output
+    assert "pooled over the 2 recordings" in result.output
+    metrics = json.loads((out / "metrics.json").read_text())
+    folders = [r["folder"] for r in metrics["recordings"]]
+    assert folders == ["1-rec", "2-other"]
+    parts = [json.loads((out / f / "metrics.json").read_text()) for f in folders]
+    assert all((out / f / "traces.png").read_bytes().startswith(b"\x89PNG") for f in folders)
+    checks = {(c["stage"], c["criterion"]): c for c in metrics["acceptance"]["checks"]}
+    for stage, pooled in metrics["pooled"].items():
+        rows = [part["stages"][stage] for part in parts]
+        worth = sum(r["independent_rows"] for r in rows)
+        share = sum(r["coverage95"] * r["independent_rows"] for r in rows) / worth
+        assert pooled["independent_rows"] == pytest.approx(worth)
+        assert pooled["coverage95"] == pytest.approx(share)
+        assert checks[(stage, "share of rows inside ±1.96σ")]["value"] == pytest.approx(share)
+        worst = max(range(2), key=lambda i: rows[i]["gb_nrmse"])
+        assert checks[(stage, "nRMSE")]["value"] == rows[worst]["gb_nrmse"]
+        assert checks[(stage, "nRMSE")]["note"] == f"worst on {folders[worst]}"
+
+
 @pytest.mark.parametrize("experiment", ["experiment1", "experiment2"])
 def test_small_paper_experiment_improves_every_stage(experiment: str, fmu_dir) -> None:
     """A reduced version of each paper experiment: EHV much better, no stage worse."""

@@ -118,11 +118,82 @@ def evaluate(
         if limits.max_nrmse is not None:
             checks.append(_at_most(stage, "nRMSE", row["gb_nrmse"], limits.max_nrmse))
         checks += _frequency_checks(stage, limits, by_stage.get(stage))
-        for key, width in (("coverage95", "±1.96σ"), ("coverage68", "±1σ")):
-            bounds = getattr(limits, key)
-            if bounds is not None:
-                checks.append(_share_inside(stage, width, row, key, bounds, outside_share))
+        checks += _coverage_checks(stage, limits, row, outside_share)
     return Acceptance(tuple(checks))
+
+
+def across_recordings(
+    criteria: AcceptanceConfig,
+    acceptances: Mapping[str, Acceptance],
+    pooled: Mapping[str, Mapping[str, float]],
+    outside_share: float = 0.0,
+) -> Acceptance:
+    """Several recordings' acceptance as one.
+
+    A coverage criterion is checked once, against the shares pooled over the recordings
+    (:func:`~fmu_greybox.workflow.metrics.pooled_row`): a drifting stage's recording is worth a
+    handful of independent rows, and several recordings can decide what one cannot. Every other
+    criterion must hold on each recording: its check is the worst of the recordings' (``FAIL``,
+    then ``UNDECIDED``, then ``PASS``; among equal verdicts the value farthest on the wrong side
+    of its limit), its note naming that recording.
+
+    Parameters
+    ----------
+    criteria : AcceptanceConfig
+    acceptances : mapping
+        Recording name -> its :func:`evaluate` (in the recordings' order).
+    pooled : mapping
+        Stage -> its shares pooled over the recordings (``coverage95``, ``coverage68`` with
+        their ``_low``, ``_high``, and ``independent_rows``).
+    outside_share : float
+        Share of all the scored rows on which the correctors were outside their domain.
+
+    Returns
+    -------
+    Acceptance
+    """
+    worst: dict[tuple[str, str], tuple[str, Check]] = {}
+    for name, acceptance in acceptances.items():
+        for check in acceptance.checks:
+            key = (check.stage, check.criterion)
+            if key not in worst or _badness(check) > _badness(worst[key][1]):
+                worst[key] = (name, check)
+    checks: list[Check] = []
+    for stage in dict.fromkeys(stage for stage, _ in worst):
+        for (of, criterion), (name, check) in worst.items():
+            if of == stage and not criterion.startswith(SHARE_INSIDE):
+                note = f"worst on {name}" + (f"; {check.note}" if check.note else "")
+                checks.append(replace(check, note=note))
+        if stage in pooled:
+            limits = criteria.for_stage(stage)
+            checks += _coverage_checks(stage, limits, pooled[stage], outside_share)
+    return Acceptance(tuple(checks))
+
+
+def _badness(check: Check) -> tuple[int, float]:
+    """Orders checks from best to worst: by verdict, then by how far the value lies toward the
+    wrong side of an ``<=`` or ``>=`` limit."""
+    rank = {PASS: 0, UNDECIDED: 1, FAIL: 2}[check.verdict]
+    if math.isnan(check.value):
+        return rank, -math.inf
+    sign = 1.0 if check.limit.startswith("<=") else -1.0 if check.limit.startswith(">=") else 0.0
+    return rank, sign * check.value
+
+
+#: How a coverage check's criterion begins (the band follows).
+SHARE_INSIDE = "share of rows inside"
+
+
+def _coverage_checks(
+    stage: str, limits: Criteria, row: Mapping[str, float], outside_share: float
+) -> list[Check]:
+    """The stage's coverage criteria checked against the shares of ``row``."""
+    checks = []
+    for key, width in (("coverage95", "±1.96σ"), ("coverage68", "±1σ")):
+        bounds = getattr(limits, key)
+        if bounds is not None:
+            checks.append(_share_inside(stage, width, row, key, bounds, outside_share))
+    return checks
 
 
 def _share_inside(
@@ -137,7 +208,7 @@ def _share_inside(
     ``key_high`` in ``row``, when it has them) lies wholly outside the limits; a share outside
     them whose interval still reaches them is ``UNDECIDED`` (too few independent rows). A check
     that does not pass names ``outside_share``, the rows no calibration vouches for, if any."""
-    check = _within(stage, f"share of rows inside {width}", row[key], bounds)
+    check = _within(stage, f"{SHARE_INSIDE} {width}", row[key], bounds)
     if check.verdict != FAIL:
         return check
     notes = []
@@ -147,7 +218,7 @@ def _share_inside(
         notes.append(
             f"the rows are worth about {row.get('independent_rows', float('nan')):.0f} "
             f"independent ones, and the share's 95 % interval {low:.3g}-{high:.3g} reaches the "
-            "limits: a longer recording decides"
+            "limits: a longer recording, or more of them validated together, decides"
         )
     if outside_share > 0.0:
         notes.append(

@@ -119,35 +119,34 @@ def uncertainty_table(
 
 
 def pooled_row(rows: Sequence[Mapping[str, float]]) -> dict[str, float]:
-    """The ±1.96σ shares of several recordings' rows of one stage, pooled by what their rows
-    are worth (:func:`~fmu_greybox.model.calibration.pooled_coverage`).
+    """The shares inside a band of several recordings' rows of one stage, pooled by what their
+    rows are worth (:func:`~fmu_greybox.model.calibration.pooled_coverage`).
 
     Parameters
     ----------
     rows : sequence of mapping
-        Rows of :func:`uncertainty_table` (``coverage95``, ``coverage95_low``,
-        ``coverage95_high``, ``independent_rows``), one per recording.
+        Rows of :func:`uncertainty_table`, one per recording: ``independent_rows`` and
+        ``coverage95`` with its ``_low`` and ``_high`` (and ``coverage68``, when every row
+        has it with its interval).
 
     Returns
     -------
     dict
-        The same four keys over all of them, and ``recordings``: how many were pooled.
+        The same keys over all of them, and ``recordings``: how many were pooled.
     """
-    total = pooled_coverage(
-        [
-            CoverageEstimate(
-                r["coverage95"], r["coverage95_low"], r["coverage95_high"], r["independent_rows"]
-            )
-            for r in rows
-        ]
-    )
-    return {
-        "coverage95": total.share,
-        "coverage95_low": total.low,
-        "coverage95_high": total.high,
-        "independent_rows": total.independent_rows,
-        "recordings": len(rows),
-    }
+    pooled: dict[str, float] = {"recordings": len(rows)}
+    for key in ("coverage95", "coverage68"):
+        if not all(f"{key}_low" in r and f"{key}_high" in r for r in rows):
+            continue
+        total = pooled_coverage(
+            [
+                CoverageEstimate(r[key], r[f"{key}_low"], r[f"{key}_high"], r["independent_rows"])
+                for r in rows
+            ]
+        )
+        pooled |= {key: total.share, f"{key}_low": total.low, f"{key}_high": total.high}
+        pooled["independent_rows"] = total.independent_rows
+    return pooled
 
 
 def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, str]) -> str:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,9 +20,9 @@ from fmu_greybox.project.data import ProjectData, check_sample_time, prepare, sp
 from fmu_greybox.project.fingerprint import data_rows, trained_mask
 from fmu_greybox.report.plots import calibration_figure, frequency_figure, save_png, trace_figure
 from fmu_greybox.report.spectra import FrequencyResponse, frequency_response
-from fmu_greybox.workflow.acceptance import Acceptance, evaluate
+from fmu_greybox.workflow.acceptance import Acceptance, across_recordings, evaluate
 from fmu_greybox.workflow.master import MasterRun, run_master
-from fmu_greybox.workflow.metrics import stage_table, uncertainty_table
+from fmu_greybox.workflow.metrics import pooled_row, stage_table, uncertainty_table
 
 #: Fewest rows ``validate`` scores: an error measure over fewer says little.
 MIN_SCORED_ROWS = 50
@@ -194,6 +194,88 @@ def validate_model(
         criteria=criteria,
         acceptance=evaluate(criteria, table, responses, (outside or 0) / scored.size),
     )
+
+
+@dataclass
+class PooledValidation:
+    """Several held-out recordings validated together (``validate`` given more than one).
+
+    Attributes
+    ----------
+    validations : dict
+        Recording name -> its :class:`Validation`, in the order given.
+    pooled : dict
+        Stage -> its shares inside ±1σ and ±1.96σ pooled over the recordings by what their rows
+        are worth (:func:`~fmu_greybox.workflow.metrics.pooled_row`).
+    acceptance : Acceptance
+        The criteria over all of them (:func:`~fmu_greybox.workflow.acceptance.across_recordings`:
+        coverage on the pooled shares, every other criterion on each recording).
+    """
+
+    validations: dict[str, Validation]
+    pooled: dict[str, dict[str, float]]
+    acceptance: Acceptance
+
+
+def validate_recordings(
+    model: GreyBoxModel,
+    recordings: Mapping[str, Recording],
+    progress: bool = False,
+    acceptance: AcceptanceConfig | None = None,
+) -> PooledValidation:
+    """:func:`validate_model` on each recording, and the acceptance over all of them.
+
+    Parameters
+    ----------
+    model : GreyBoxModel
+    recordings : mapping
+        Name (as the outputs will show it) -> recording; at least one.
+    progress : bool
+    acceptance : AcceptanceConfig, optional
+        By default those stored with the model's project.
+
+    Returns
+    -------
+    PooledValidation
+    """
+    criteria = acceptance if acceptance is not None else model.config.acceptance
+    validations = {
+        name: validate_model(model, recording, progress, criteria)
+        for name, recording in recordings.items()
+    }
+    stages = model.chain.stage_names
+    pooled = {s: pooled_row([v.table[s] for v in validations.values()]) for s in stages}
+    scored = sum(v.scored.size for v in validations.values())
+    outside = sum(v.rows_out_of_domain or 0 for v in validations.values()) / scored
+    checked = {name: v.acceptance for name, v in validations.items() if v.acceptance}
+    return PooledValidation(
+        validations, pooled, across_recordings(criteria, checked, pooled, outside)
+    )
+
+
+def write_pooled_metrics(result: PooledValidation, folders: Sequence[str], path: Path) -> dict:
+    """Write the ``metrics.json`` of several recordings atomically: per recording its held-out
+    rows, verdict and the folder holding its own ``metrics.json``; the pooled shares; the
+    acceptance over all. Returns its content."""
+    recordings = [
+        {
+            "recording": name,
+            "folder": folder,
+            "held_out": v.held_out,
+            "n_rows": int(v.scored.size),
+            "rows_out_of_domain": v.rows_out_of_domain,
+            "verdict": v.acceptance.verdict if v.acceptance else None,
+        }
+        for (name, v), folder in zip(result.validations.items(), folders, strict=True)
+    ]
+    payload = {
+        "recordings": recordings,
+        "pooled": result.pooled,
+        "acceptance": result.acceptance.to_dict(),
+    }
+    with atomic_write(path, "w") as f:
+        json.dump(payload, f, indent=2)
+    return payload
 
 
 def validation_responses(
