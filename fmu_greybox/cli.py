@@ -475,9 +475,8 @@ def validate(
         verdict = _validate_one(ctx, model, config, recordings[0], out_dir, as_json, progress)
     else:
         folders = [f"{i}-{Path(r.source or 'recording').stem}" for i, r in enumerate(recordings, 1)]
-        verdict = _validate_several(
-            ctx, model, config, dict(zip(folders, recordings, strict=True)), out_dir, as_json
-        )
+        named = dict(zip(folders, recordings, strict=True))
+        verdict = _validate_several(ctx, model, config, named, out_dir, as_json, progress)
     if strict and verdict != "PASS":
         ctx.exit(EXIT_NOT_ACCEPTED)
 
@@ -514,6 +513,7 @@ def _validate_several(
     recordings: dict[str, Recording],
     out_dir: Path,
     as_json: bool,
+    progress: bool,
 ) -> str:
     """Validate on each recording (its outputs in ``out_dir/<name>``), pool the coverage and
     write ``out_dir/metrics.json``; the verdict over all."""
@@ -525,9 +525,7 @@ def _validate_several(
         write_pooled_metrics,
     )
 
-    result = validate_recordings(
-        model, recordings, progress=not (ctx.obj["quiet"] or as_json), acceptance=config.acceptance
-    )
+    result = validate_recordings(model, recordings, progress, config.acceptance)
     for name, validation in result.validations.items():
         (out_dir / name).mkdir(parents=True, exist_ok=True)
         write_metrics(validation, model, out_dir / name / "metrics.json")
