@@ -530,7 +530,7 @@ def _validate_several(
         (out_dir / name).mkdir(parents=True, exist_ok=True)
         write_metrics(validation, model, out_dir / name / "metrics.json")
         write_plots(validation, model, out_dir / name)
-    metrics = write_pooled_metrics(result, list(recordings), out_dir / "metrics.json")
+    metrics = write_pooled_metrics(result, out_dir / "metrics.json")
     if as_json:
         click.echo(json.dumps(metrics))
         return result.acceptance.verdict

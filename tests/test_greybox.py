@@ -315,6 +315,7 @@ def test_validate_pools_the_coverage_of_several_recordings(
     metrics = json.loads((out / "metrics.json").read_text())
     folders = [r["folder"] for r in metrics["recordings"]]
     assert folders == ["1-rec", "2-other"]
+    assert [r["recording"] for r in metrics["recordings"]] == [str(p) for p in paths]
     parts = [json.loads((out / f / "metrics.json").read_text()) for f in folders]
     assert all((out / f / "traces.png").read_bytes().startswith(b"\x89PNG") for f in folders)
     checks = {(c["stage"], c["criterion"]): c for c in metrics["acceptance"]["checks"]}

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -253,20 +253,20 @@ def validate_recordings(
     )
 
 
-def write_pooled_metrics(result: PooledValidation, folders: Sequence[str], path: Path) -> dict:
-    """Write the ``metrics.json`` of several recordings atomically: per recording its held-out
-    rows, verdict and the folder holding its own ``metrics.json``; the pooled shares; the
-    acceptance over all. Returns its content."""
+def write_pooled_metrics(result: PooledValidation, path: Path) -> dict:
+    """Write the ``metrics.json`` of several recordings atomically: per recording its file, its
+    name (the folder of its own ``metrics.json`` beside this one), held-out rows and verdict;
+    the pooled shares; the acceptance over all. Returns its content."""
     recordings = [
         {
-            "recording": name,
-            "folder": folder,
+            "recording": v.data.recording.source,
+            "folder": name,
             "held_out": v.held_out,
             "n_rows": int(v.scored.size),
             "rows_out_of_domain": v.rows_out_of_domain,
             "verdict": v.acceptance.verdict if v.acceptance else None,
         }
-        for (name, v), folder in zip(result.validations.items(), folders, strict=True)
+        for name, v in result.validations.items()
     ]
     payload = {
         "recordings": recordings,
