@@ -156,7 +156,8 @@ def main(ctx: click.Context, debug: bool, quiet: bool, verbose: bool) -> None:
     """Grey-box enhancement of white-box FMUs with sparse-GP correctors.
 
     Exit codes: 0 success, 1 an error in the input (the message says which file, column or
-    variable and how to mend it), 2 a usage error.
+    variable and how to mend it), 2 a usage error, 3 acceptance criteria not met
+    (validate --strict).
 
     \b
     Examples:

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner, Result
 
-from fmu_greybox.cli import main
+from fmu_greybox.cli import EXIT_NOT_ACCEPTED, main
 from fmu_greybox.data.recording import load_recording
 from fmu_greybox.fmi.builtin import sources_digest
 from fmu_greybox.synth.actuator import SENSOR_NOISE
@@ -296,6 +296,8 @@ def test_top_level_help_lists_each_command_with_its_whole_sentence() -> None:
         "Export a trained grey-box as an FMI 2.0 co-simulation FMU (and an SSP bench).",
     ):
         assert sentence in text
+    # every exit code a command can end with is listed, the acceptance one included
+    assert f"{EXIT_NOT_ACCEPTED} acceptance criteria not met (validate --strict)" in text
 
 
 def test_without_a_terminal_each_step_prints_one_line(env: dict[str, str], tmp_path: Path) -> None:
