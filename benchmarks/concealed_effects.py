@@ -55,12 +55,14 @@ Per stage name (EHV, RAM, ...) the shares are also pooled over the cases
 (:func:`~fmu_greybox.model.calibration.pooled_coverage`: each weighted by its independent rows,
 with the interval of their sum): a drifting position stage's recording is worth a handful of
 independent rows, too few to decide alone whether its band is wide or narrow; the cases
-together can.
+together can. Bands decidedly too narrow are counted, with how many of them were scored on
+a recording whose grey-box errors are at least twice those of the training free runs their σ
+was calibrated on (``validate`` notes those in its acceptance table).
 
 With ``--json`` each case is also printed as one JSON line when it is done, and the last line
 is one JSON object: the summary figures (with ``--coverage`` also ``coverage95_in_target``,
-``coverage95_consistent``, ``coverage95_median``, ``coverage95_range`` and
-``coverage95_pooled``) and the cases. ``--summarise LOG [LOG ...]`` runs nothing: it reads the
+``coverage95_consistent``, ``coverage95_median``, ``coverage95_range``,
+``coverage95_pooled`` and ``coverage95_narrow``) and the cases. ``--summarise LOG [LOG ...]`` runs nothing: it reads the
 cases such runs printed (a suite run in parts, or stopped part way) and prints their summary.
 """
 
@@ -100,6 +102,7 @@ from fmu_greybox.synth.actuator import (  # noqa: E402
     synthesise,
 )
 from fmu_greybox.synth.loop import is_loop_effect, loop_terms, parse_loop_effects  # noqa: E402
+from fmu_greybox.workflow.acceptance import ERROR_SHIFT  # noqa: E402
 from fmu_greybox.workflow.demo import VALIDATION_SEED_OFFSET  # noqa: E402
 from fmu_greybox.workflow.metrics import coverage_text, pooled_row  # noqa: E402
 from fmu_greybox.workflow.train import train_model, with_inducing  # noqa: E402
@@ -397,14 +400,14 @@ def uncertainty_coverage(
     config, findings: list, recording, independent, sizes: tuple[int, int]
 ) -> dict[str, dict[str, float]]:
     """Train the grey-box on the case's recording (named terms first), free-run it on the
-    independent recording; per stage ``coverage68``, ``coverage95`` with its interval, RMSE
-    and median σ."""
+    independent recording; per stage ``coverage68``, ``coverage95`` with its interval, RMSE,
+    median σ and the RMSE of the training free runs σ was calibrated on."""
     model = train_model(
         with_inducing(config, *sizes), recording, terms=terms_from_findings(findings)
     )
     table = validate_model(model, independent).table
     keys = ("coverage68", "coverage95", "coverage95_low", "coverage95_high", "gb_rmse")
-    keys += ("median_std", "independent_rows")
+    keys += ("median_std", "independent_rows", "calibration_rmse")
     return {stage: {k: row[k] for k in keys} for stage, row in table.items()}
 
 
@@ -460,6 +463,17 @@ def _reaches_target(stage: dict) -> bool:
     return stage["coverage95_low"] <= 0.99 and stage["coverage95_high"] >= 0.90
 
 
+def _narrow(stages: list[dict]) -> dict[str, int]:
+    """Stages whose ±1.96σ share is decidedly below 0.90 (``decided``), and how many of them
+    (``shifted``) were scored on a recording whose grey-box RMSE is at least
+    :data:`~fmu_greybox.workflow.acceptance.ERROR_SHIFT` times that of the training free runs
+    their σ was calibrated on (counted over the stages that report it, ``told``)."""
+    decided = [c for c in stages if c["coverage95_high"] < 0.90]
+    told = [c for c in decided if c.get("calibration_rmse")]
+    shifted = [c for c in told if c["gb_rmse"] >= ERROR_SHIFT * c["calibration_rmse"]]
+    return {"decided": len(decided), "told": len(told), "shifted": len(shifted)}
+
+
 def pooled_by_stage(rows: list[dict]) -> dict[str, dict[str, float]]:
     """Per stage name, its ±1.96σ shares over the cases pooled by their independent rows."""
     by_stage: dict[str, list[dict]] = {}
@@ -482,6 +496,7 @@ def summary(rows: list[dict]) -> dict:
             "coverage95_median": statistics.median(covered),
             "coverage95_range": [min(covered), max(covered)],
             "coverage95_pooled": pooled_by_stage(rows),
+            "coverage95_narrow": _narrow(stages),
         }
         if covered
         else {}
@@ -624,6 +639,13 @@ def print_summary(result: dict, as_json: bool) -> None:
             f"reaches it for {100 * result['coverage95_consistent']:.0f} %), median "
             f"{result['coverage95_median']:.3f} (range {low:.3f}-{high:.3f})"
         )
+        narrow = result.get("coverage95_narrow", {})
+        if narrow.get("decided"):
+            print(
+                f"  decided too narrow: {narrow['decided']} stage(s); of the {narrow['told']} "
+                f"that say, {narrow['shifted']} on a recording whose errors are at least "
+                f"{ERROR_SHIFT:g} times those their band was calibrated on"
+            )
         for stage, c in result["coverage95_pooled"].items():
             print(
                 f"  {stage} pooled over {c['recordings']} cases: {coverage_text(c, 'coverage95')} "

@@ -162,6 +162,34 @@ def test_a_share_outside_its_limits_fails_only_when_its_interval_does(
     assert check.note.startswith("the rows are worth" if verdict == UNDECIDED else "on 99.5 %")
 
 
+def test_a_band_missed_on_a_recording_unlike_the_training_one_says_so() -> None:
+    """A band calibrated on training free runs with an RMSE of 1e-4 misses on a recording whose
+    RMSE is 4.5e-4: the note says the recording's errors are 4.5 times those the band was set
+    on. The verdict does not move; a miss on a recording like the training one, or a miss in
+    the other direction, gets no such note."""
+    criteria = parsed({"band": [600.0, 900.0], "max_nrmse": False, "coverage68": False})
+    decided = {"coverage95_low": 0.2, "coverage95_high": 0.5, "independent_rows": 40.0}
+    row = {**ROW, "coverage95": 0.3, **decided, "gb_rmse": 4.5e-4, "calibration_rmse": 1e-4}
+
+    def share(row: dict) -> object:
+        checks = evaluate(criteria, {"RAM": row}, []).checks
+        return next(c for c in checks if c.criterion.startswith(SHARE_INSIDE))
+
+    narrow = share(row)
+    assert narrow.verdict == FAIL and narrow.value == 0.3
+    assert "4.5 times its RMSE on the training rows the band was calibrated on (0.0001)" in (
+        narrow.note
+    )
+    assert "errors are larger" in narrow.note
+    like = share({**row, "gb_rmse": 1.5e-4})  # 1.5 times: within ERROR_SHIFT
+    assert like.verdict == FAIL and "times its RMSE" not in like.note
+    assert "times its RMSE" not in share({k: v for k, v in row.items() if k != "gb_rmse"}).note
+    wide = {**row, "coverage95": 1.0, "coverage95_low": 0.995, "coverage95_high": 1.0}
+    assert "errors are larger" not in share(wide).note  # larger errors do not widen a band
+    gentle = share({**wide, "gb_rmse": 4e-5})
+    assert gentle.verdict == FAIL and "0.4 times" in gentle.note and "smaller" in gentle.note
+
+
 def test_several_recordings_decide_a_coverage_no_single_one_can() -> None:
     """Three recordings whose RAM band held every row, each worth 150 independent rows: each
     alone is UNDECIDED (its interval reaches 0.99); pooled (450 rows) the band is decidedly too

@@ -258,8 +258,12 @@ def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
             "independent_rows",
             "median_std",
             "median_latent_std",
+            "calibration_rmse",
         }
         row = metrics["stages"][stage]
+        # the error the band was calibrated on, as training stored it
+        stored = json.loads((tmp_path / "model" / "model.json").read_text())
+        assert row["calibration_rmse"] == stored["training"]["calibration_check"][stage]["rmse"]
         assert 0.0 <= row["coverage68"] <= row["coverage95"] <= 1.0
         assert row["coverage95_low"] <= row["coverage95"] <= row["coverage95_high"]
         assert 1.0 <= row["independent_rows"] <= 1000  # the validation's rows at most

@@ -207,7 +207,9 @@ def _share_inside(
     """A coverage check: ``FAIL`` only when the share's confidence interval (``key_low`` ..
     ``key_high`` in ``row``, when it has them) lies wholly outside the limits; a share outside
     them whose interval still reaches them is ``UNDECIDED`` (too few independent rows). A check
-    that does not pass names ``outside_share``, the rows no calibration vouches for, if any."""
+    that does not pass names ``outside_share``, the rows no calibration vouches for, if any, and
+    a recording whose errors are not the size of those the band was calibrated on
+    (:data:`ERROR_SHIFT`)."""
     check = _within(stage, f"{SHARE_INSIDE} {width}", row[key], bounds)
     if check.verdict != FAIL:
         return check
@@ -225,7 +227,40 @@ def _share_inside(
             f"on {100 * outside_share:.3g} % of the rows the correctors were outside their "
             "domain (out_of_domain), where no calibration vouches for the band"
         )
+    notes += _error_shift(row, narrow=check.value < bounds[0])
     return replace(check, verdict=UNDECIDED if undecided else FAIL, note="; ".join(notes))
+
+
+#: A recording whose grey-box RMSE is this many times that of the rows the band was calibrated
+#: on (or as many times smaller) is not like them: the band's variance was set for errors
+#: ``ERROR_SHIFT²`` times smaller (larger), and a calibrated ±1.96σ then holds about 68 % (or
+#: about 100 %) of Gaussian errors, whatever the calibration did.
+ERROR_SHIFT = 2.0
+
+
+def _error_shift(row: Mapping[str, float], narrow: bool) -> list[str]:
+    """Why a band that was calibrated may still miss on a recording: the recording's grey-box
+    error (``gb_rmse``) is not the size of the error on the rows the band was calibrated on
+    (``calibration_rmse``, the held-out free runs of training), in the direction of the miss
+    (``narrow``: the share lies below its limits); [] when it is, or when the row does not
+    say."""
+    scored, calibrated = row.get("gb_rmse"), row.get("calibration_rmse")
+    if not scored or not calibrated:
+        return []
+    ratio = scored / calibrated
+    if not (ratio >= ERROR_SHIFT if narrow else ratio <= 1.0 / ERROR_SHIFT):
+        return []
+    said = (
+        f"the grey-box's RMSE here is {ratio:.3g} times its RMSE on the training rows the band "
+        f"was calibrated on ({calibrated:.3g}): "
+    )
+    if narrow:
+        return [
+            said + "this recording's errors are larger than those the band was set on (it "
+            "drives the model beyond the training recording); train on a recording that "
+            "excites the stage as this one does"
+        ]
+    return [said + "this recording's errors are smaller than those the band was set on"]
 
 
 def _frequency_checks(

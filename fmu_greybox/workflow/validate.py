@@ -48,7 +48,9 @@ class Validation:
         grey-box against the plain white-box), and for a model with named terms
         ``named_rmse``, ``named_nrmse`` (white-box + terms, without the correctors); the
         coverage of its uncertainty (:func:`~fmu_greybox.workflow.metrics.uncertainty_table`);
-        all over the scored rows.
+        all over the scored rows; and ``calibration_rmse``, the grey-box's RMSE on the
+        training rows its uncertainty was calibrated on (held-out free runs), when the model
+        stores it.
     held_out : str
         Which rows were scored, in words.
     scored : ndarray of int, shape (m,)
@@ -182,6 +184,9 @@ def validate_model(
     )
     for name, row in uncertainty.items():
         table[name].update(row)
+    # the error the band was calibrated on (models trained before it was stored say nothing)
+    for name, check in model.training.get("calibration_check", {}).items():
+        table[name]["calibration_rmse"] = check["rmse"]
     criteria = acceptance if acceptance is not None else model.config.acceptance
     responses = validation_responses(model, data, run, scored, criteria)
     return Validation(
