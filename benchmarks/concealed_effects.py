@@ -62,8 +62,9 @@ was calibrated on (``validate`` notes those in its acceptance table).
 With ``--json`` each case is also printed as one JSON line when it is done, and the last line
 is one JSON object: the summary figures (with ``--coverage`` also ``coverage95_in_target``,
 ``coverage95_consistent``, ``coverage95_median``, ``coverage95_range``,
-``coverage95_pooled`` and ``coverage95_narrow``) and the cases. ``--summarise LOG [LOG ...]`` runs nothing: it reads the
-cases such runs printed (a suite run in parts, or stopped part way) and prints their summary.
+``coverage95_pooled`` and ``coverage95_narrow``) and the cases. ``--summarise LOG [LOG ...]``
+runs nothing: it reads the cases such runs printed (a suite run in parts, or stopped part way)
+and prints their summary.
 """
 
 from __future__ import annotations
