@@ -12,6 +12,7 @@ import pytest
 from scipy import signal
 
 from fmu_greybox.errors import ConfigError
+from fmu_greybox.model.calibration import Z95
 from fmu_greybox.project.config import AcceptanceConfig, Criteria, parse_config
 from fmu_greybox.report.spectra import frequency_response
 from fmu_greybox.workflow.acceptance import (
@@ -21,6 +22,7 @@ from fmu_greybox.workflow.acceptance import (
     UNDECIDED,
     across_recordings,
     evaluate,
+    share_at_error_ratio,
 )
 from fmu_greybox.workflow.metrics import pooled_row
 
@@ -165,8 +167,9 @@ def test_a_share_outside_its_limits_fails_only_when_its_interval_does(
 def test_a_band_missed_on_a_recording_unlike_the_training_one_says_so() -> None:
     """A band calibrated on training free runs with an RMSE of 1e-4 misses on a recording whose
     RMSE is 4.5e-4: the note says the recording's errors are 4.5 times those the band was set
-    on. The verdict does not move; a miss on a recording like the training one, or a miss in
-    the other direction, gets no such note."""
+    on, and that such a band holds about 33.7 % of them (erf(1.96 / 4.5 / √2)). The verdict
+    does not move; a miss on a recording like the training one, or a miss in the other
+    direction, gets no such note."""
     criteria = parsed({"band": [600.0, 900.0], "max_nrmse": False, "coverage68": False})
     decided = {"coverage95_low": 0.2, "coverage95_high": 0.5, "independent_rows": 40.0}
     row = {**ROW, "coverage95": 0.3, **decided, "gb_rmse": 4.5e-4, "calibration_rmse": 1e-4}
@@ -180,12 +183,16 @@ def test_a_band_missed_on_a_recording_unlike_the_training_one_says_so() -> None:
     assert "4.5 times its RMSE on the training rows the band was calibrated on (0.0001)" in (
         narrow.note
     )
+    assert "holds about 33.7 % of errors 4.5 times theirs" in narrow.note
     assert "errors are larger" in narrow.note
-    like = share({**row, "gb_rmse": 1.5e-4})  # 1.5 times: within ERROR_SHIFT
+    assert share_at_error_ratio(1.0, Z95) == pytest.approx(0.95)
+    assert share_at_error_ratio(Z95, Z95) == pytest.approx(0.6827, abs=1e-4)
+    # 1.1 times larger: 92.5 % expected, inside the limits; the size does not explain the miss
+    like = share({**row, "gb_rmse": 1.1e-4})
     assert like.verdict == FAIL and "times its RMSE" not in like.note
     assert "times its RMSE" not in share({k: v for k, v in row.items() if k != "gb_rmse"}).note
     wide = {**row, "coverage95": 1.0, "coverage95_low": 0.995, "coverage95_high": 1.0}
-    assert "errors are larger" not in share(wide).note  # larger errors do not widen a band
+    assert "times its RMSE" not in share(wide).note  # larger errors do not widen a band
     gentle = share({**wide, "gb_rmse": 4e-5})
     assert gentle.verdict == FAIL and "0.4 times" in gentle.note and "smaller" in gentle.note
 

@@ -304,9 +304,10 @@ def test_the_suite_pools_its_parts_logs(tmp_path: Path, capsys: pytest.CaptureFi
         main()
     assert "RAM pooled over 2 cases: 91.7 %" in capsys.readouterr().out
     # a decided narrow band is counted, and so is whether its recording's errors were larger
-    # than those its σ was calibrated on
+    # than those its σ was calibrated on by enough to account for it (3 times: about 50 % of
+    # Gaussian errors expected inside; 1.1 times: 92.5 %, which does not)
     narrow = [_suite_case("saturation@valve_current=4", 124 + i, (0.6, 20.0)) for i in range(3)]
-    for case, scored in zip(narrow, (3e-4, 1.2e-4, None), strict=True):
+    for case, scored in zip(narrow, (3e-4, 1.1e-4, None), strict=True):
         case["coverage"]["RAM"] |= {"coverage95_low": 0.35, "coverage95_high": 0.87}
         if scored is not None:  # the third is of a run that did not store it
             case["coverage"]["RAM"] |= {"gb_rmse": scored, "calibration_rmse": 1e-4}

@@ -15,6 +15,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
+from fmu_greybox.model.calibration import Z95
 from fmu_greybox.project.config import AcceptanceConfig, Criteria
 from fmu_greybox.report.spectra import FrequencyResponse
 
@@ -189,16 +190,16 @@ def _coverage_checks(
 ) -> list[Check]:
     """The stage's coverage criteria checked against the shares of ``row``."""
     checks = []
-    for key, width in (("coverage95", "±1.96σ"), ("coverage68", "±1σ")):
+    for key, z, width in (("coverage95", Z95, "±1.96σ"), ("coverage68", 1.0, "±1σ")):
         bounds = getattr(limits, key)
         if bounds is not None:
-            checks.append(_share_inside(stage, width, row, key, bounds, outside_share))
+            checks.append(_share_inside(stage, (z, width), row, key, bounds, outside_share))
     return checks
 
 
 def _share_inside(
     stage: str,
-    width: str,
+    band: tuple[float, str],
     row: Mapping[str, float],
     key: str,
     bounds: tuple[float, float],
@@ -208,8 +209,10 @@ def _share_inside(
     ``key_high`` in ``row``, when it has them) lies wholly outside the limits; a share outside
     them whose interval still reaches them is ``UNDECIDED`` (too few independent rows). A check
     that does not pass names ``outside_share``, the rows no calibration vouches for, if any, and
-    a recording whose errors are not the size of those the band was calibrated on
-    (:data:`ERROR_SHIFT`)."""
+    a recording whose errors are not the size of those the band was calibrated on, when that
+    alone accounts for the miss (:func:`share_at_error_ratio`). ``band``: ``z`` and the band in
+    words (``±1.96σ``)."""
+    z, width = band
     check = _within(stage, f"{SHARE_INSIDE} {width}", row[key], bounds)
     if check.verdict != FAIL:
         return check
@@ -227,40 +230,44 @@ def _share_inside(
             f"on {100 * outside_share:.3g} % of the rows the correctors were outside their "
             "domain (out_of_domain), where no calibration vouches for the band"
         )
-    notes += _error_shift(row, narrow=check.value < bounds[0])
+    notes += _error_size(row, z, bounds, narrow=check.value < bounds[0])
     return replace(check, verdict=UNDECIDED if undecided else FAIL, note="; ".join(notes))
 
 
-#: A recording whose grey-box RMSE is this many times that of the rows the band was calibrated
-#: on (or as many times smaller) is not like them: the band's variance was set for errors
-#: ``ERROR_SHIFT²`` times smaller (larger), and a calibrated ±1.96σ then holds about 68 % (or
-#: about 100 %) of Gaussian errors, whatever the calibration did.
-ERROR_SHIFT = 2.0
+def share_at_error_ratio(ratio: float, z: float) -> float:
+    """Share of Gaussian errors inside ±``z`` σ, σ calibrated on errors ``ratio`` times smaller
+    than them: ``erf(z / ratio / √2)`` (0.95 at ``z`` = 1.96 and ``ratio`` = 1; 0.82 at
+    ``ratio`` = 1.46; 0.68 at ``ratio`` = 1.96)."""
+    return math.erf(z / ratio / math.sqrt(2.0))
 
 
-def _error_shift(row: Mapping[str, float], narrow: bool) -> list[str]:
-    """Why a band that was calibrated may still miss on a recording: the recording's grey-box
-    error (``gb_rmse``) is not the size of the error on the rows the band was calibrated on
-    (``calibration_rmse``, the held-out free runs of training), in the direction of the miss
-    (``narrow``: the share lies below its limits); [] when it is, or when the row does not
-    say."""
+def _error_size(
+    row: Mapping[str, float], z: float, bounds: tuple[float, float], narrow: bool
+) -> list[str]:
+    """Why a band that was calibrated may miss on a recording: its grey-box errors
+    (``gb_rmse``) are not the size of those the band was calibrated on (``calibration_rmse``,
+    the held-out free runs of training). Said when that alone puts the expected share outside
+    ``bounds`` on the side of the miss (``narrow``: below them); [] otherwise, or when the row
+    does not say."""
     scored, calibrated = row.get("gb_rmse"), row.get("calibration_rmse")
     if not scored or not calibrated:
         return []
     ratio = scored / calibrated
-    if not (ratio >= ERROR_SHIFT if narrow else ratio <= 1.0 / ERROR_SHIFT):
+    expected = share_at_error_ratio(ratio, z)
+    if not (expected < bounds[0] if narrow else expected > bounds[1]):
         return []
-    said = (
+    return [
         f"the grey-box's RMSE here is {ratio:.3g} times its RMSE on the training rows the band "
-        f"was calibrated on ({calibrated:.3g}): "
-    )
-    if narrow:
-        return [
-            said + "this recording's errors are larger than those the band was set on (it "
-            "drives the model beyond the training recording); train on a recording that "
+        f"was calibrated on ({calibrated:.3g}), and a band set on errors of that size holds "
+        f"about {100 * expected:.3g} % of errors {ratio:.3g} times theirs: this recording's "
+        f"errors are {'larger' if narrow else 'smaller'} than those the band was set on"
+        + (
+            " (it drives the model beyond the training recording); train on a recording that "
             "excites the stage as this one does"
-        ]
-    return [said + "this recording's errors are smaller than those the band was set on"]
+            if narrow
+            else ""
+        )
+    ]
 
 
 def _frequency_checks(
