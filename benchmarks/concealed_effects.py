@@ -466,19 +466,31 @@ def _reaches_target(stage: dict) -> bool:
     return stage["coverage95_low"] <= 0.99 and stage["coverage95_high"] >= 0.90
 
 
-def _narrow(stages: list[dict]) -> dict[str, int]:
-    """Stages whose ±1.96σ share is decidedly below 0.90 (``decided``), and how many of them
+def _narrow(rows: list[dict]) -> dict:
+    """The stages whose ±1.96σ share is decidedly below 0.90 (``decided``), and how many of them
     (``shifted``) were scored on a recording whose grey-box errors are so much larger than
-    those of the training free runs their σ was calibrated on that this alone puts the share
-    expected of Gaussian errors below 0.90
+    those of the training free runs their σ was calibrated on (``k`` times) that this alone
+    puts the share expected of Gaussian errors below 0.90
     (:func:`~fmu_greybox.workflow.acceptance.share_at_error_ratio`), counted over the stages
-    that report it (``told``)."""
-    decided = [c for c in stages if c["coverage95_high"] < 0.90]
-    told = [c for c in decided if c.get("calibration_rmse")]
-    shifted = [
-        c for c in told if share_at_error_ratio(c["gb_rmse"] / c["calibration_rmse"], Z95) < 0.90
-    ]
-    return {"decided": len(decided), "told": len(told), "shifted": len(shifted)}
+    that report it (``told``); ``stages`` lists each with its case, share, ``k`` and the share
+    ``k`` predicts."""
+    listed = []
+    for row in rows:
+        for stage, c in row.get("coverage", {}).items():
+            if c["coverage95_high"] >= 0.90:
+                continue
+            item = {"case": row["case"], "stage": stage, "coverage95": c["coverage95"]}
+            if c.get("calibration_rmse"):
+                k = c["gb_rmse"] / c["calibration_rmse"]
+                item |= {"k": k, "predicted": share_at_error_ratio(k, Z95)}
+            listed.append(item)
+    told = [item for item in listed if "k" in item]
+    return {
+        "decided": len(listed),
+        "told": len(told),
+        "shifted": sum(item["predicted"] < 0.90 for item in told),
+        "stages": listed,
+    }
 
 
 def pooled_by_stage(rows: list[dict]) -> dict[str, dict[str, float]]:
@@ -503,7 +515,7 @@ def summary(rows: list[dict]) -> dict:
             "coverage95_median": statistics.median(covered),
             "coverage95_range": [min(covered), max(covered)],
             "coverage95_pooled": pooled_by_stage(rows),
-            "coverage95_narrow": _narrow(stages),
+            "coverage95_narrow": _narrow(rows),
         }
         if covered
         else {}
@@ -653,6 +665,14 @@ def print_summary(result: dict, as_json: bool) -> None:
                 f"that say, {narrow['shifted']} on a recording whose errors are larger than "
                 "those their band was calibrated on by enough to account for it"
             )
+        for item in narrow.get("stages", []):
+            ratio = (
+                f": errors {item['k']:.3g} times the calibration's, which predict "
+                f"{100 * item['predicted']:.1f} %"
+                if "k" in item
+                else ""
+            )
+            print(f"    {item['case']} {item['stage']} {100 * item['coverage95']:.1f} %{ratio}")
         for stage, c in result["coverage95_pooled"].items():
             print(
                 f"  {stage} pooled over {c['recordings']} cases: {coverage_text(c, 'coverage95')} "

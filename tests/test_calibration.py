@@ -10,6 +10,7 @@ of rows the chain never saw, in training or in calibration.
 from __future__ import annotations
 
 import json
+import math
 import tomllib
 from pathlib import Path
 
@@ -311,8 +312,10 @@ def test_the_suite_pools_its_parts_logs(tmp_path: Path, capsys: pytest.CaptureFi
         case["coverage"]["RAM"] |= {"coverage95_low": 0.35, "coverage95_high": 0.87}
         if scored is not None:  # the third is of a run that did not store it
             case["coverage"]["RAM"] |= {"gb_rmse": scored, "calibration_rmse": 1e-4}
-    assert summary([*cases, *narrow])["coverage95_narrow"] == {
-        "decided": 3,
-        "told": 2,
-        "shifted": 1,
-    }
+    counted = summary([*cases, *narrow])["coverage95_narrow"]
+    assert (counted["decided"], counted["told"], counted["shifted"]) == (3, 2, 1)
+    first = counted["stages"][0]
+    assert (first["case"], first["stage"]) == ("saturation@valve_current=4", "RAM")
+    assert first["k"] == pytest.approx(3.0)
+    assert first["predicted"] == pytest.approx(math.erf(Z95 / 3 / math.sqrt(2)))
+    assert "k" not in counted["stages"][2]
