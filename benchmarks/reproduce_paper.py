@@ -194,6 +194,7 @@ def stage_rows(table: dict) -> dict:
         "coverage95_low",
         "coverage95_high",
         "independent_rows",
+        "calibration_rmse",
     )
     return {stage: {k: row[k] for k in keys if k in row} for stage, row in table.items()}
 

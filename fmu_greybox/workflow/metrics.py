@@ -151,14 +151,17 @@ def pooled_row(rows: Sequence[Mapping[str, float]]) -> dict[str, float]:
 
 def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, str]) -> str:
     """The table as fixed-width text, one stage a line (for the terminal); a column for the
-    white-box with named terms, and the coverage of ±1.96σ, when the table has them."""
+    white-box with named terms, the coverage of ±1.96σ, and the grey-box's RMSE as a multiple
+    of the one its σ was calibrated on (``calibration_rmse``), when the table has them."""
     named = all("named_rmse" in row for row in table.values())
     covered = all("coverage95" in row for row in table.values())
+    ratio = all(row.get("calibration_rmse") for row in table.values())
     lines = [
         f"{'stage':8s} {'unit':6s} {'WB RMSE':>11s} "
         + (f"{'+terms RMSE':>11s} " if named else "")
         + f"{'GB RMSE':>11s} {'WB nRMSE':>9s} {'GB nRMSE':>9s} {'improvement':>11s}"
         + (f" {'in ±1.96σ (95 % interval)':>27s}" if covered else "")
+        + (f" {'GB RMSE / calibration':>21s}" if ratio else "")
     ]
     for name, row in table.items():
         lines.append(
@@ -167,6 +170,7 @@ def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, s
             + f"{row['gb_rmse']:11.3e} {row['wb_nrmse']:9.3g} {row['gb_nrmse']:9.3g} "
             f"{100 * row['improvement']:10.1f}%"
             + (f" {coverage_text(row, 'coverage95'):>27s}" if covered else "")
+            + (f" {row['gb_rmse'] / row['calibration_rmse']:20.3g}×" if ratio else "")
         )
     return "\n".join(lines)
 
