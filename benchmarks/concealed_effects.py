@@ -107,7 +107,7 @@ from fmu_greybox.synth.actuator import (  # noqa: E402
 from fmu_greybox.synth.loop import is_loop_effect, loop_terms, parse_loop_effects  # noqa: E402
 from fmu_greybox.workflow.acceptance import share_at_error_ratio  # noqa: E402
 from fmu_greybox.workflow.demo import VALIDATION_SEED_OFFSET  # noqa: E402
-from fmu_greybox.workflow.metrics import coverage_text, pooled_row  # noqa: E402
+from fmu_greybox.workflow.metrics import coverage_text, error_ratio, pooled_row  # noqa: E402
 from fmu_greybox.workflow.train import train_model, with_inducing  # noqa: E402
 from fmu_greybox.workflow.validate import validate_model  # noqa: E402
 
@@ -480,8 +480,8 @@ def _narrow(rows: list[dict]) -> dict:
             if c["coverage95_high"] >= 0.90:
                 continue
             item = {"case": row["case"], "stage": stage, "coverage95": c["coverage95"]}
-            if c.get("calibration_rmse"):
-                k = c["gb_rmse"] / c["calibration_rmse"]
+            k = error_ratio(c)
+            if k is not None:
                 item |= {"k": k, "predicted": share_at_error_ratio(k, Z95)}
             listed.append(item)
     told = [item for item in listed if "k" in item]

@@ -18,6 +18,7 @@ from typing import Any
 from fmu_greybox.model.calibration import Z95
 from fmu_greybox.project.config import AcceptanceConfig, Criteria
 from fmu_greybox.report.spectra import FrequencyResponse
+from fmu_greybox.workflow.metrics import error_ratio
 
 PASS, FAIL, UNDECIDED = "PASS", "FAIL", "UNDECIDED"
 
@@ -249,18 +250,17 @@ def _error_size(
     the held-out free runs of training). Said when that alone puts the expected share outside
     ``bounds`` on the side of the miss (``narrow``: below them); [] otherwise, or when the row
     does not say."""
-    scored, calibrated = row.get("gb_rmse"), row.get("calibration_rmse")
-    if not scored or not calibrated:
+    ratio = error_ratio(row)
+    if not ratio:
         return []
-    ratio = scored / calibrated
     expected = share_at_error_ratio(ratio, z)
     if not (expected < bounds[0] if narrow else expected > bounds[1]):
         return []
     return [
         f"the grey-box's RMSE here is {ratio:.3g} times its RMSE on the training rows the band "
-        f"was calibrated on ({calibrated:.3g}), and a band set on errors of that size holds "
-        f"about {100 * expected:.3g} % of errors {ratio:.3g} times theirs: this recording's "
-        f"errors are {'larger' if narrow else 'smaller'} than those the band was set on"
+        f"was calibrated on ({row['calibration_rmse']:.3g}), and a band set on errors of that "
+        f"size holds about {100 * expected:.3g} % of errors {ratio:.3g} times theirs: this "
+        f"recording's errors are {'larger' if narrow else 'smaller'} than those the band was set on"
         + (
             " (it drives the model beyond the training recording); train on a recording that "
             "excites the stage as this one does"

@@ -149,13 +149,21 @@ def pooled_row(rows: Sequence[Mapping[str, float]]) -> dict[str, float]:
     return pooled
 
 
+def error_ratio(row: Mapping[str, float]) -> float | None:
+    """The grey-box's RMSE on a validation's scored rows (``gb_rmse``) as a multiple of its RMSE
+    on the training free runs its σ was calibrated on (``calibration_rmse``); ``None`` when the
+    row lacks either (a model stored before it kept the latter)."""
+    scored, calibrated = row.get("gb_rmse"), row.get("calibration_rmse")
+    return scored / calibrated if scored is not None and calibrated else None
+
+
 def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, str]) -> str:
     """The table as fixed-width text, one stage a line (for the terminal); a column for the
     white-box with named terms, the coverage of ±1.96σ, and the grey-box's RMSE as a multiple
     of the one its σ was calibrated on (``calibration_rmse``), when the table has them."""
     named = all("named_rmse" in row for row in table.values())
     covered = all("coverage95" in row for row in table.values())
-    ratio = all(row.get("calibration_rmse") for row in table.values())
+    ratio = all(error_ratio(row) is not None for row in table.values())
     lines = [
         f"{'stage':8s} {'unit':6s} {'WB RMSE':>11s} "
         + (f"{'+terms RMSE':>11s} " if named else "")
@@ -170,7 +178,7 @@ def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, s
             + f"{row['gb_rmse']:11.3e} {row['wb_nrmse']:9.3g} {row['gb_nrmse']:9.3g} "
             f"{100 * row['improvement']:10.1f}%"
             + (f" {coverage_text(row, 'coverage95'):>27s}" if covered else "")
-            + (f" {row['gb_rmse'] / row['calibration_rmse']:20.3g}×" if ratio else "")
+            + (f" {error_ratio(row):20.3g}×" if ratio else "")
         )
     return "\n".join(lines)
 
