@@ -63,9 +63,9 @@ table).
 With ``--json`` each case is also printed as one JSON line when it is done, and the last line
 is one JSON object: the summary figures (with ``--coverage`` also ``coverage95_in_target``,
 ``coverage95_consistent``, ``coverage95_median``, ``coverage95_range``,
-``coverage95_pooled`` and ``coverage95_narrow``) and the cases. ``--summarise LOG [LOG ...]``
-runs nothing: it reads the cases such runs printed (a suite run in parts, or stopped part way)
-and prints their summary.
+``coverage95_pooled``, ``coverage95_narrow`` and ``coverage95_by_size``) and the cases.
+``--summarise LOG [LOG ...]`` runs nothing: it reads the cases such runs printed (a suite run
+in parts, or stopped part way) and prints their summary.
 """
 
 from __future__ import annotations
@@ -493,6 +493,20 @@ def _narrow(rows: list[dict]) -> dict:
     }
 
 
+def _by_size(stages: list[dict]) -> dict[str, float]:
+    """How well the error ratio ``k`` alone predicts the ±1.96σ shares: over the stages that
+    report it (``stages``), the median and the largest distance between a share and
+    :func:`~fmu_greybox.workflow.acceptance.share_at_error_ratio` of its ``k``."""
+    gaps = [
+        abs(c["coverage95"] - share_at_error_ratio(k, Z95))
+        for c in stages
+        if (k := error_ratio(c)) is not None
+    ]
+    if not gaps:
+        return {"stages": 0}
+    return {"stages": len(gaps), "median_gap": statistics.median(gaps), "max_gap": max(gaps)}
+
+
 def pooled_by_stage(rows: list[dict]) -> dict[str, dict[str, float]]:
     """Per stage name, its ±1.96σ shares over the cases pooled by their independent rows."""
     by_stage: dict[str, list[dict]] = {}
@@ -516,6 +530,7 @@ def summary(rows: list[dict]) -> dict:
             "coverage95_range": [min(covered), max(covered)],
             "coverage95_pooled": pooled_by_stage(rows),
             "coverage95_narrow": _narrow(rows),
+            "coverage95_by_size": _by_size(stages),
         }
         if covered
         else {}
@@ -664,6 +679,13 @@ def print_summary(result: dict, as_json: bool) -> None:
                 f"  decided too narrow: {narrow['decided']} stage(s); of the {narrow['told']} "
                 f"that say, {narrow['shifted']} on a recording whose errors are larger than "
                 "those their band was calibrated on by enough to account for it"
+            )
+        by_size = result.get("coverage95_by_size", {})
+        if by_size.get("stages"):
+            print(
+                f"  share against the one its error ratio predicts, over {by_size['stages']} "
+                f"stages: median gap {100 * by_size['median_gap']:.1f} points, largest "
+                f"{100 * by_size['max_gap']:.1f}"
             )
         for item in narrow.get("stages", []):
             ratio = (

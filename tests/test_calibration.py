@@ -319,3 +319,7 @@ def test_the_suite_pools_its_parts_logs(tmp_path: Path, capsys: pytest.CaptureFi
     assert first["k"] == pytest.approx(3.0)
     assert first["predicted"] == pytest.approx(math.erf(Z95 / 3 / math.sqrt(2)))
     assert "k" not in counted["stages"][2]
+    # how far each share lies from the one its k predicts, over the stages that give k
+    by_size = summary([*cases, *narrow])["coverage95_by_size"]
+    gaps = [abs(0.6 - math.erf(Z95 / k / math.sqrt(2))) for k in (3.0, 1.1)]
+    assert by_size["stages"] == 2 and by_size["max_gap"] == pytest.approx(max(gaps))
