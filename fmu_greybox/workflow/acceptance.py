@@ -256,17 +256,12 @@ def _error_size(
     expected = share_at_error_ratio(ratio, z)
     if not (expected < bounds[0] if narrow else expected > bounds[1]):
         return []
+    size = "larger" if narrow else "smaller"
     return [
-        f"the grey-box's RMSE here is {ratio:.3g} times its RMSE on the training rows the band "
-        f"was calibrated on ({row['calibration_rmse']:.3g}), and a band set on errors of that "
-        f"size holds about {100 * expected:.3g} % of errors {ratio:.3g} times theirs: this "
-        f"recording's errors are {'larger' if narrow else 'smaller'} than those the band was set on"
-        + (
-            " (it drives the model beyond the training recording); train on a recording that "
-            "excites the stage as this one does"
-            if narrow
-            else ""
-        )
+        f"errors {ratio:.3g} times those the band was calibrated on (RMSE "
+        f"{row['calibration_rmse']:.3g} on the training free runs), where it holds about "
+        f"{100 * expected:.3g} %: this recording's errors are {size} than the training one's"
+        + ("; train on a recording that excites the stage as much" if narrow else "")
     ]
 
 
