@@ -20,7 +20,7 @@ from fmu_greybox.report.html import escape, figure, fmt, page, percent, table, v
 from fmu_greybox.report.plots import calibration_figure, frequency_figure, trace_figure
 from fmu_greybox.workflow.acceptance import PASS, Acceptance
 from fmu_greybox.workflow.demo import DemoResult
-from fmu_greybox.workflow.metrics import INTERVAL_NOTE, coverage_text, improvement
+from fmu_greybox.workflow.metrics import INTERVAL_NOTE, coverage_text, error_ratio, improvement
 from fmu_greybox.workflow.parts import summary as parts_summary
 from fmu_greybox.workflow.validate import Validation, frequency_table
 
@@ -36,7 +36,15 @@ REPLACED_SECTIONS = ("<h2>Before and after on held-out data</h2>", "<p><small>")
 def summary(result: DemoResult) -> dict[str, Any]:
     """The machine-readable outcome (``summary.json``, ``demo --json``)."""
     validation = result.validation
-    keys = ("wb_rmse", "gb_rmse", "improvement", "coverage68", "coverage95", "median_std")
+    keys = (
+        "wb_rmse",
+        "gb_rmse",
+        "improvement",
+        "coverage68",
+        "coverage95",
+        "median_std",
+        "calibration_rmse",
+    )
     return {
         "acceptance": validation.acceptance.to_dict() if validation.acceptance else None,
         "concealed_effects": result.effects,
@@ -45,7 +53,9 @@ def summary(result: DemoResult) -> dict[str, Any]:
         "top_finding": result.payload["findings"][0] if result.payload["findings"] else None,
         "top_finding_correct": result.top_finding_correct(),
         "parts": result.parts or None,
-        "validation": {stage: {k: row[k] for k in keys} for stage, row in validation.table.items()},
+        "validation": {
+            stage: {k: row[k] for k in keys if k in row} for stage, row in validation.table.items()
+        },
         "frequency": frequency_table(validation),
         "bench": {
             a.engine: {
@@ -157,9 +167,24 @@ def acceptance_section(acceptance: Acceptance, source: str) -> str:
     )
 
 
+#: What the independent-recording table's last column says.
+RATIO_NOTE = (
+    "Last column: k, this RMSE over that of the training free runs σ was calibrated on; "
+    "±1.96σ then holds about erf(1.96 / k / √2) of Gaussian errors."
+)
+
+
+def calibration_ratios(validation: Validation) -> bool:
+    """Whether every stage's row can say how its errors compare with those its σ was
+    calibrated on (a model stored before ``calibration_rmse`` was kept cannot)."""
+    return all(error_ratio(row) is not None for row in validation.table.values())
+
+
 def validation_rows(validation: Validation, units: list[str]) -> list[tuple]:
-    """Rows of the independent-recording table: errors and the uncertainty's coverage."""
+    """Rows of the independent-recording table: errors, the uncertainty's coverage and the
+    grey-box's RMSE as a multiple of the one its σ was calibrated on."""
     named = all("named_rmse" in row for row in validation.table.values())
+    ratio = calibration_ratios(validation)
     return [
         (
             stage,
@@ -172,6 +197,7 @@ def validation_rows(validation: Validation, units: list[str]) -> list[tuple]:
             fmt(row["median_std"]),
             coverage_text(row, "coverage68"),
             coverage_text(row, "coverage95"),
+            *([f"{error_ratio(row):.3g}×"] if ratio else []),
         )
         for (stage, row), unit in zip(validation.table.items(), units, strict=True)
     ]
@@ -228,7 +254,9 @@ def report_html(result: DemoResult) -> str:
         f"<p>{escape(validation.held_out)}; free run, correctors fed their own outputs."
         + (f" The exported model: {shipped_model(result)}." if result.parts else "")
         + " σ is the grey-box's calibrated standard deviation (docs/greybox.md, 'Calibrated "
-        f"uncertainty'), the exported FMU's _std; {INTERVAL_NOTE}.</p>",
+        f"uncertainty'), the exported FMU's _std; {INTERVAL_NOTE}."
+        + (f" {RATIO_NOTE}" if calibration_ratios(validation) else "")
+        + "</p>",
         table(
             (
                 "stage",
@@ -241,6 +269,7 @@ def report_html(result: DemoResult) -> str:
                 "median σ",
                 "inside ±1σ",
                 "inside ±1.96σ",
+                *(["RMSE / calibration's"] if calibration_ratios(validation) else []),
             ),
             validation_rows(validation, units),
         ),
