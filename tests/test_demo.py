@@ -161,7 +161,7 @@ def test_report_gives_each_stage_its_error_ratio(demo: tuple[Path, dict]) -> Non
     start = text.index("<h2>Grey-box on an independent recording</h2>")
     section = text[start : text.index("</table>", start)]
     header = re.findall(r"<th>(.*?)</th>", section)
-    assert header[-1] == "RMSE / calibration&#x27;s", header
+    assert header[-1] == "k: RMSE / calibration&#x27;s", header
     rows = [re.findall(r"<td>(.*?)</td>", r) for r in re.findall(r"<tr>(<td>.*?)</tr>", section)]
     cells = {row[0]: row for row in rows}
     assert set(cells) == {"EHV", "RAM", "ITFV"}

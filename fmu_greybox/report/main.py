@@ -169,7 +169,7 @@ def acceptance_section(acceptance: Acceptance, source: str) -> str:
 
 #: What the independent-recording table's last column says.
 RATIO_NOTE = (
-    "Last column: k, this RMSE over that of the training free runs σ was calibrated on; "
+    "k: this RMSE over that of the training free runs σ was calibrated on; "
     "±1.96σ then holds about erf(1.96 / k / √2) of Gaussian errors."
 )
 
@@ -269,7 +269,7 @@ def report_html(result: DemoResult) -> str:
                 "median σ",
                 "inside ±1σ",
                 "inside ±1.96σ",
-                *(["RMSE / calibration's"] if calibration_ratios(validation) else []),
+                *(["k: RMSE / calibration's"] if calibration_ratios(validation) else []),
             ),
             validation_rows(validation, units),
         ),
