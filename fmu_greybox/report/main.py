@@ -254,9 +254,8 @@ def report_html(result: DemoResult) -> str:
         f"<p>{escape(validation.held_out)}; free run, correctors fed their own outputs."
         + (f" The exported model: {shipped_model(result)}." if result.parts else "")
         + " σ is the grey-box's calibrated standard deviation (docs/greybox.md, 'Calibrated "
-        f"uncertainty'), the exported FMU's _std; {INTERVAL_NOTE}."
-        + (f" {RATIO_NOTE}" if calibration_ratios(validation) else "")
-        + "</p>",
+        "uncertainty'), the exported FMU's _std; in brackets: the share's 95 % interval, as in "
+        "the verdict." + (f" {RATIO_NOTE}" if calibration_ratios(validation) else "") + "</p>",
         table(
             (
                 "stage",
