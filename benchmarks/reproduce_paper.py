@@ -164,6 +164,7 @@ def run_experiment(
     if not independent:
         return stage_rows(result.table)
     tables = {name: stage_rows(result.table)}
+    scored = [result.scored.size]
     for k in range(1, independent + 1):
         seed = spec["seed"] + 100 * k
         other, _ = synthesise_experiment(spec, scale, seed)
@@ -172,7 +173,10 @@ def run_experiment(
             print(f"{name}, independent recording (seed {seed}): {checked.held_out}")
             print(format_table(checked.table, model.training["target_unit"]), flush=True)
         tables[f"{name}/seed {seed}"] = stage_rows(checked.table)
-    pooled = {stage: pooled_row([t[stage] for t in tables.values()]) for stage in tables[name]}
+        scored.append(checked.scored.size)
+    pooled = {
+        stage: pooled_row([t[stage] for t in tables.values()], scored) for stage in tables[name]
+    }
     if not quiet:
         shares = ", ".join(f"{s} {coverage_text(row, 'coverage95')}" for s, row in pooled.items())
         print(f"{name}, the {independent + 1} recordings pooled: inside ±1.96σ {shares}")

@@ -518,7 +518,7 @@ def _validate_several(
 ) -> str:
     """Validate on each recording (its outputs in ``out_dir/<name>``), pool the coverage and
     write ``out_dir/metrics.json``; the verdict over all."""
-    from fmu_greybox.workflow.metrics import coverage_text
+    from fmu_greybox.workflow.metrics import coverage_text, error_ratio
     from fmu_greybox.workflow.validate import (
         validate_recordings,
         write_metrics,
@@ -540,9 +540,12 @@ def _validate_several(
         _print_validation(ctx, model, validation)
     click.echo(f"pooled over the {len(recordings)} recordings:")
     for stage, row in result.pooled.items():
+        k = error_ratio(row)
         click.echo(
             f"  {stage} inside ±1σ / ±1.96σ: {coverage_text(row, 'coverage68')} / "
-            f"{coverage_text(row, 'coverage95')} ({row['independent_rows']:.0f} independent rows)"
+            f"{coverage_text(row, 'coverage95')} ({row['independent_rows']:.0f} independent rows"
+            + (f"; RMSE {k:.3g} times the calibration's" if k is not None else "")
+            + ")"
         )
     click.echo(result.acceptance.summary())
     _info(ctx, f"wrote {out_dir / 'metrics.json'} and a folder per recording in {out_dir}")

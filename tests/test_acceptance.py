@@ -227,3 +227,32 @@ def test_several_recordings_decide_a_coverage_no_single_one_can() -> None:
         c for c in across_recordings(tight, alone, pooled).checks if c.criterion == "nRMSE"
     )
     assert (nrmse.verdict, nrmse.value, nrmse.note) == (FAIL, 0.08, "worst on rec1")
+
+
+def test_pooled_recordings_say_how_their_errors_compare_with_the_calibrations() -> None:
+    """Rows of one model pool their grey-box RMSE over every scored row, so the pooled check
+    gives the error ratio k like a single recording's; rows of different models (the suite's
+    cases) cannot, and say nothing of it."""
+    criteria = parsed({"band": [600.0, 900.0], "coverage68": False})
+    rows = [
+        {**ROW, "gb_rmse": error, "calibration_rmse": 1e-4, "coverage95": 1.0}
+        | {"coverage95_low": 0.976, "coverage95_high": 1.0, "independent_rows": 150.0}
+        for error in (3e-5, 5e-5, 4e-5)
+    ]
+    pooled = pooled_row(rows, [1000, 3000, 4000])
+    expected = ((1000 * 9e-10 + 3000 * 25e-10 + 4000 * 16e-10) / 8000) ** 0.5
+    assert pooled["gb_rmse"] == pytest.approx(expected, rel=1e-12)
+    assert pooled["calibration_rmse"] == 1e-4
+    alone = {f"rec{i}": evaluate(criteria, {"RAM": r}, []) for i, r in enumerate(rows)}
+    share = next(
+        c
+        for c in across_recordings(criteria, alone, {"RAM": pooled}).checks
+        if c.criterion.startswith(SHARE_INSIDE)
+    )
+    assert share.verdict == FAIL
+    assert f"errors {expected / 1e-4:.3g} times those the band was calibrated on" in share.note
+    assert "smaller" in share.note
+    # without the row counts, or across models, no RMSE is pooled and no ratio is claimed
+    assert "gb_rmse" not in pooled_row(rows)
+    other = [rows[0], {**rows[1], "calibration_rmse": 2e-4}]
+    assert "gb_rmse" not in pooled_row(other, [1000, 3000])

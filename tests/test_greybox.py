@@ -334,6 +334,14 @@ def test_validate_pools_the_coverage_of_several_recordings(
         worst = max(range(2), key=lambda i: rows[i]["gb_nrmse"])
         assert checks[(stage, "nRMSE")]["value"] == rows[worst]["gb_nrmse"]
         assert checks[(stage, "nRMSE")]["note"] == f"worst on {folders[worst]}"
+        # the RMSE over both recordings' rows, against the one the band was calibrated on
+        counts = [r["n_rows"] for r in metrics["recordings"]]
+        errors = [r["gb_rmse"] ** 2 * n for r, n in zip(rows, counts, strict=True)]
+        assert pooled["gb_rmse"] == pytest.approx((sum(errors) / sum(counts)) ** 0.5)
+        assert pooled["calibration_rmse"] == rows[0]["calibration_rmse"]
+        k = pooled["gb_rmse"] / pooled["calibration_rmse"]
+        assert f"{stage} inside ±1σ" in result.output
+        assert f"RMSE {k:.3g} times the calibration's" in result.output
 
 
 @pytest.mark.parametrize("experiment", ["experiment1", "experiment2"])

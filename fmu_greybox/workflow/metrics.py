@@ -118,7 +118,9 @@ def uncertainty_table(
     return table
 
 
-def pooled_row(rows: Sequence[Mapping[str, float]]) -> dict[str, float]:
+def pooled_row(
+    rows: Sequence[Mapping[str, float]], scored_rows: Sequence[int] | None = None
+) -> dict[str, float]:
     """The shares inside a band of several recordings' rows of one stage, pooled by what their
     rows are worth (:func:`~fmu_greybox.model.calibration.pooled_coverage`).
 
@@ -128,6 +130,10 @@ def pooled_row(rows: Sequence[Mapping[str, float]]) -> dict[str, float]:
         Rows of :func:`uncertainty_table`, one per recording: ``independent_rows`` and
         ``coverage95`` with its ``_low`` and ``_high`` (and ``coverage68``, when every row
         has it with its interval).
+    scored_rows : sequence of int, optional
+        How many rows each recording scored. With them, rows of one model (one
+        ``calibration_rmse``) that give ``gb_rmse`` pool it too, as the RMSE over all the
+        scored rows, so that the pooled row has an :func:`error_ratio`.
 
     Returns
     -------
@@ -135,6 +141,13 @@ def pooled_row(rows: Sequence[Mapping[str, float]]) -> dict[str, float]:
         The same keys over all of them, and ``recordings``: how many were pooled.
     """
     pooled: dict[str, float] = {"recordings": len(rows)}
+    calibrated = {r.get("calibration_rmse") for r in rows}
+    if scored_rows is not None and len(calibrated) == 1 and all("gb_rmse" in r for r in rows):
+        weights = np.asarray(scored_rows, dtype=float)
+        errors = np.array([r["gb_rmse"] for r in rows])
+        pooled["gb_rmse"] = float(np.sqrt(weights @ errors**2 / weights.sum()))
+        if None not in calibrated:
+            pooled["calibration_rmse"] = calibrated.pop()
     for key in ("coverage95", "coverage68"):
         if not all(f"{key}_low" in r and f"{key}_high" in r for r in rows):
             continue

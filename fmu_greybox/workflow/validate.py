@@ -249,8 +249,9 @@ def validate_recordings(
         for name, recording in recordings.items()
     }
     stages = model.chain.stage_names
-    pooled = {s: pooled_row([v.table[s] for v in validations.values()]) for s in stages}
-    scored = sum(v.scored.size for v in validations.values())
+    counts = [v.scored.size for v in validations.values()]
+    pooled = {s: pooled_row([v.table[s] for v in validations.values()], counts) for s in stages}
+    scored = sum(counts)
     outside = sum(v.rows_out_of_domain or 0 for v in validations.values()) / scored
     checked = {name: v.acceptance for name, v in validations.items() if v.acceptance}
     return PooledValidation(
