@@ -493,18 +493,37 @@ def _narrow(rows: list[dict]) -> dict:
     }
 
 
+def _in_target(share: float) -> bool:
+    """Whether a ±1.96σ share lies in the target, 0.90 .. 0.99."""
+    return 0.90 <= share <= 0.99
+
+
 def _by_size(stages: list[dict]) -> dict[str, float]:
-    """How well the error ratio ``k`` alone predicts the ±1.96σ shares: over the stages that
-    report it (``stages``), the median and the largest distance between a share and
-    :func:`~fmu_greybox.workflow.acceptance.share_at_error_ratio` of its ``k``."""
-    gaps = [
-        abs(c["coverage95"] - share_at_error_ratio(k, Z95))
+    """How well the error ratio ``k`` alone predicts the ±1.96σ shares, over the stages that
+    report it (``stages``): the median and the largest distance between a share and
+    :func:`~fmu_greybox.workflow.acceptance.share_at_error_ratio` of its ``k``; and, split by
+    whether that prediction lies in the target (``k`` about 0.76 .. 1.19), how many stages
+    there are and how many of them lie in the target (``predicted_in``, ``in_of_predicted_in``;
+    ``predicted_out``, ``in_of_predicted_out``)."""
+    pairs = [
+        (c["coverage95"], share_at_error_ratio(k, Z95))
         for c in stages
         if (k := error_ratio(c)) is not None
     ]
-    if not gaps:
+    if not pairs:
         return {"stages": 0}
-    return {"stages": len(gaps), "median_gap": statistics.median(gaps), "max_gap": max(gaps)}
+    gaps = [abs(share - predicted) for share, predicted in pairs]
+    inside = [_in_target(share) for share, predicted in pairs if _in_target(predicted)]
+    outside = [_in_target(share) for share, predicted in pairs if not _in_target(predicted)]
+    return {
+        "stages": len(gaps),
+        "median_gap": statistics.median(gaps),
+        "max_gap": max(gaps),
+        "predicted_in": len(inside),
+        "in_of_predicted_in": sum(inside),
+        "predicted_out": len(outside),
+        "in_of_predicted_out": sum(outside),
+    }
 
 
 def pooled_by_stage(rows: list[dict]) -> dict[str, dict[str, float]]:
@@ -524,7 +543,7 @@ def summary(rows: list[dict]) -> dict:
     covered = [c["coverage95"] for c in stages]
     coverage = (
         {
-            "coverage95_in_target": float(np.mean([0.90 <= c <= 0.99 for c in covered])),
+            "coverage95_in_target": float(np.mean([_in_target(c) for c in covered])),
             "coverage95_consistent": float(np.mean([_reaches_target(c) for c in stages])),
             "coverage95_median": statistics.median(covered),
             "coverage95_range": [min(covered), max(covered)],
@@ -686,6 +705,12 @@ def print_summary(result: dict, as_json: bool) -> None:
                 f"  share against the one its error ratio predicts, over {by_size['stages']} "
                 f"stages: median gap {100 * by_size['median_gap']:.1f} points, largest "
                 f"{100 * by_size['max_gap']:.1f}"
+            )
+            print(
+                f"  in 0.90..0.99: {by_size['in_of_predicted_in']} of the "
+                f"{by_size['predicted_in']} stages whose error ratio predicts a share there, "
+                f"{by_size['in_of_predicted_out']} of the {by_size['predicted_out']} whose "
+                "ratio predicts one outside"
             )
         for item in narrow.get("stages", []):
             ratio = (

@@ -323,3 +323,10 @@ def test_the_suite_pools_its_parts_logs(tmp_path: Path, capsys: pytest.CaptureFi
     by_size = summary([*cases, *narrow])["coverage95_by_size"]
     gaps = [abs(0.6 - math.erf(Z95 / k / math.sqrt(2))) for k in (3.0, 1.1)]
     assert by_size["stages"] == 2 and by_size["max_gap"] == pytest.approx(max(gaps))
+    # k = 1.1 predicts a share in the target (92.5 %), k = 3 one outside; neither lies in it
+    assert (by_size["predicted_in"], by_size["in_of_predicted_in"]) == (1, 0)
+    assert (by_size["predicted_out"], by_size["in_of_predicted_out"]) == (1, 0)
+    in_target = {**narrow[1], "coverage": {"RAM": {**narrow[1]["coverage"]["RAM"]}}}
+    in_target["coverage"]["RAM"]["coverage95"] = 0.93
+    by_size = summary([*cases, narrow[0], in_target])["coverage95_by_size"]
+    assert (by_size["predicted_in"], by_size["in_of_predicted_in"]) == (1, 1)
