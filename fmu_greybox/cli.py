@@ -426,7 +426,7 @@ def train(
     " Repeatable: each recording's results go to a numbered subfolder, and the coverage "
     "criteria are checked on the shares pooled over all of them.",
 )
-@out_option("validation", "Folder for metrics.json and the plots", folder=True)
+@out_option("validation", "Folder for report.html, metrics.json and the plots", folder=True)
 @click.option("--json", "as_json", is_flag=True, help="Print metrics as one JSON line.")
 @click.option(
     "--strict",
@@ -444,7 +444,7 @@ def validate(
     strict: bool,
 ) -> None:
     """Free-run the grey-box on held-out data, check the acceptance criteria; write
-    metrics.json and plots.
+    report.html, metrics.json and plots.
 
     The criteria are the project file's [acceptance] table (docs/config.md); the result,
     PASS, FAIL or UNDECIDED per stage and criterion, is printed and stored in metrics.json.
@@ -472,12 +472,13 @@ def validate(
     check_project(config, model, model_dir)
     recordings = [load_project_recording(config, p) for p in recording_paths or (None,)]
     progress = not (ctx.obj["quiet"] or as_json)
+    where = (model_dir, out_dir)
     if len(recordings) == 1:
-        verdict = _validate_one(ctx, model, config, recordings[0], out_dir, as_json, progress)
+        verdict = _validate_one(ctx, model, config, recordings[0], where, as_json, progress)
     else:
         folders = [f"{i}-{Path(r.source or 'recording').stem}" for i, r in enumerate(recordings, 1)]
         named = dict(zip(folders, recordings, strict=True))
-        verdict = _validate_several(ctx, model, config, named, out_dir, as_json, progress)
+        verdict = _validate_several(ctx, model, config, named, where, as_json, progress)
     if strict and verdict != "PASS":
         ctx.exit(EXIT_NOT_ACCEPTED)
 
@@ -487,22 +488,28 @@ def _validate_one(
     model: GreyBoxModel,
     config: ProjectConfig,
     recording: Recording,
-    out_dir: Path,
+    where: tuple[Path, Path],
     as_json: bool,
     progress: bool,
 ) -> str | None:
-    """Validate on one recording, write its outputs into ``out_dir``; the verdict."""
+    """Validate on one recording, write its outputs into ``where``'s output folder (the model
+    folder first); the verdict."""
+    from fmu_greybox.report.provenance import command_line
+    from fmu_greybox.report.validation import REPORT, validation_report_html, write_report
     from fmu_greybox.workflow.validate import validate_model, write_metrics, write_plots
 
+    model_dir, out_dir = where
     result = validate_model(model, recording, progress=progress, acceptance=config.acceptance)
     out_dir.mkdir(parents=True, exist_ok=True)
     metrics = write_metrics(result, model, out_dir / "metrics.json")
     plots = write_plots(result, model, out_dir)
+    html = validation_report_html(result, model, config, model_dir, command_line())
+    write_report(html, out_dir / REPORT)
     if as_json:
         click.echo(json.dumps(metrics))
     else:
         _print_validation(ctx, model, result)
-        written = ", ".join(str(out_dir / name) for name in ("metrics.json", *plots))
+        written = ", ".join(str(out_dir / name) for name in ("metrics.json", *plots, REPORT))
         _info(ctx, f"wrote {written}")
     return result.acceptance.verdict if result.acceptance is not None else None
 
@@ -512,12 +519,20 @@ def _validate_several(
     model: GreyBoxModel,
     config: ProjectConfig,
     recordings: dict[str, Recording],
-    out_dir: Path,
+    where: tuple[Path, Path],
     as_json: bool,
     progress: bool,
 ) -> str:
-    """Validate on each recording (its outputs in ``out_dir/<name>``), pool the coverage and
-    write ``out_dir/metrics.json``; the verdict over all."""
+    """Validate on each recording (its outputs in ``<output folder>/<name>``), pool the
+    coverage and write the output folder's ``metrics.json`` and ``report.html``; the verdict
+    over all."""
+    from fmu_greybox.report.provenance import command_line
+    from fmu_greybox.report.validation import (
+        REPORT,
+        pooled_report_html,
+        validation_report_html,
+        write_report,
+    )
     from fmu_greybox.workflow.metrics import coverage_text, error_ratio
     from fmu_greybox.workflow.validate import (
         validate_recordings,
@@ -526,12 +541,17 @@ def _validate_several(
         write_pooled_metrics,
     )
 
+    model_dir, out_dir = where
+    command = command_line()
     result = validate_recordings(model, recordings, progress, config.acceptance)
     for name, validation in result.validations.items():
         (out_dir / name).mkdir(parents=True, exist_ok=True)
         write_metrics(validation, model, out_dir / name / "metrics.json")
         write_plots(validation, model, out_dir / name)
+        html = validation_report_html(validation, model, config, model_dir, command)
+        write_report(html, out_dir / name / REPORT)
     metrics = write_pooled_metrics(result, out_dir / "metrics.json")
+    write_report(pooled_report_html(result, config, model_dir, command), out_dir / REPORT)
     if as_json:
         click.echo(json.dumps(metrics))
         return result.acceptance.verdict
@@ -548,7 +568,11 @@ def _validate_several(
             + ")"
         )
     click.echo(result.acceptance.summary())
-    _info(ctx, f"wrote {out_dir / 'metrics.json'} and a folder per recording in {out_dir}")
+    _info(
+        ctx,
+        f"wrote {out_dir / 'metrics.json'}, {out_dir / REPORT} and a folder per recording in "
+        f"{out_dir}",
+    )
     return result.acceptance.verdict
 
 
@@ -558,7 +582,7 @@ def _print_validation(ctx: click.Context, model: GreyBoxModel, result: Validatio
 
     _info(ctx, f"held out: {result.held_out}")
     click.echo(format_table(result.table, model.training["target_unit"]))
-    passed = [n for n, a in zip(model.chain.stage_names, model.chain.active_, strict=True) if not a]
+    passed = model.chain.passed_through
     if passed:
         _info(ctx, f"passed through (corrector lost to the white-box in training): {passed}")
     if result.acceptance is not None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import sys
 import tomllib
 from pathlib import Path
@@ -16,9 +17,10 @@ from fmu_greybox.data.recording import save_recording
 from fmu_greybox.errors import ModelFormatError
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.chain import GreyBoxChain
-from fmu_greybox.model.store import MANIFEST, load_model, save_model
+from fmu_greybox.model.store import MANIFEST, file_sha256, load_model, save_model
 from fmu_greybox.project.config import parse_config
 from fmu_greybox.project.data import prepare, split_row
+from fmu_greybox.report.validation import REPORT
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 from fmu_greybox.workflow.master import run_master
 from fmu_greybox.workflow.train import train_model
@@ -208,6 +210,28 @@ def test_failed_save_leaves_the_previous_model_intact(model, tmp_path: Path, mon
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model"]
 
 
+def assert_validation_report(folder: Path, metrics: dict, local: Path, model: Path) -> None:
+    """``validate``'s report.html: self-contained, the acceptance table first with the verdicts
+    of metrics.json, each stage's k, and a traceability table whose hashes are the files'."""
+    text = (folder / REPORT).read_text(encoding="utf-8")
+    assert text.index("Acceptance") < text.index("Verdict") < text.index("Traceability")
+    assert "<script" not in text and "http" not in text and str(local) not in text
+    sources = re.findall(r"src='([^']*)'", text)
+    assert len(sources) >= 2 and all(s.startswith("data:image/png;base64,") for s in sources)
+    checks = metrics["acceptance"]["checks"]
+    badges = re.findall(r"<span class='(?:pass|fail|undecided)'>(\w+)</span>", text)
+    assert badges[1:] == [c["verdict"] for c in checks]  # the first: the whole verdict
+    assert badges[0] == metrics["acceptance"]["verdict"]
+    for stage, row in metrics["stages"].items():
+        k = row["gb_rmse"] / row["calibration_rmse"]
+        assert re.search(rf"<tr><td>{stage}</td>.*?<td>{re.escape(f'{k:.3g}')}×</td></tr>", text)
+    rows = re.findall(r"<tr><td>(.*?)</td><td>(.*?)</td><td><code>(.*?)</code>", text)
+    items = {item: value for item, _, value in rows}
+    assert items["model: model.json"] == file_sha256(model / "model.json")
+    assert items["project file"] == file_sha256(REFERENCE)
+    assert re.fullmatch(r"[0-9a-f]{64}", items["package sources"])
+
+
 def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
     rec = save_recording(recording, tmp_path / "rec.csv")
     runner = CliRunner()
@@ -276,6 +300,7 @@ def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
         assert png.startswith(b"\x89PNG") and len(png) > 10_000, name
     assert metrics["acceptance"]["verdict"] in ("PASS", "FAIL", "UNDECIDED")
     assert "Acceptance: " in result.output
+    assert_validation_report(tmp_path / "val", metrics, tmp_path, tmp_path / "model")
     # criteria no model can meet: --strict exits 3, and metrics.json says which failed
     strict = tmp_path / "strict.toml"
     strict.write_text(
@@ -288,6 +313,9 @@ def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
     assert "Acceptance: FAIL" in result.stdout and "nRMSE: FAIL" in result.stdout
     failed = json.loads((tmp_path / "strict" / "metrics.json").read_text())["acceptance"]
     assert failed["verdict"] == "FAIL"
+    assert (
+        "Acceptance: <span class='fail'>FAIL</span>" in (tmp_path / "strict" / REPORT).read_text()
+    )
     assert {c["stage"] for c in failed["checks"] if c["verdict"] == "FAIL"} == {
         "EHV",
         "RAM",
@@ -342,6 +370,19 @@ def test_validate_pools_the_coverage_of_several_recordings(
         k = pooled["gb_rmse"] / pooled["calibration_rmse"]
         assert f"{stage} inside ±1σ" in result.output
         assert f"RMSE {k:.3g} times the calibration's" in result.output
+    # the page over both: the acceptance over all first, each recording linked to its own page
+    top = (out / REPORT).read_text(encoding="utf-8")
+    assert top.index("Acceptance") < top.index("Recordings") < top.index("Traceability")
+    links = re.findall(r"<a href='([^']*)'>", top)
+    assert links == [f"{f}/{REPORT}" for f in folders]
+    assert all((out / link).is_file() for link in links)
+    for stage, pooled in metrics["pooled"].items():
+        k = pooled["gb_rmse"] / pooled["calibration_rmse"]
+        assert re.search(rf"<tr><td>{stage}</td>.*?<td>{re.escape(f'{k:.3g}')}×</td></tr>", top)
+    badges = re.findall(r"<span class='(?:pass|fail|undecided)'>(\w+)</span>", top)
+    assert badges == [metrics["acceptance"]["verdict"]] + [c["verdict"] for c in checks.values()]
+    for folder, part in zip(folders, parts, strict=True):
+        assert_validation_report(out / folder, part, tmp_path, tmp_path / "model")
 
 
 @pytest.mark.parametrize("experiment", ["experiment1", "experiment2"])

@@ -134,6 +134,11 @@ class GreyBoxChain:
         return [s.name for s in self.stages]
 
     @property
+    def passed_through(self) -> list[str]:
+        """Names of the stages whose corrector is switched off (``active_`` false)."""
+        return [n for n, on in zip(self.stage_names, self.active_, strict=True) if not on]
+
+    @property
     def target_signals(self) -> list[str]:
         """Recorded signal of each stage."""
         return [s.config.target for s in self.stages]

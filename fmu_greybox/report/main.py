@@ -11,11 +11,13 @@ a traceability table in which every hash says what it covers.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.diagnosis.report import diagnosis_sections, write_json
+from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.report.html import escape, figure, fmt, page, percent, table, verdict
 from fmu_greybox.report.plots import calibration_figure, frequency_figure, trace_figure
 from fmu_greybox.workflow.acceptance import PASS, Acceptance
@@ -79,9 +81,11 @@ SHIPPED_MODEL = {
 }
 
 
-def shipped_model(result: DemoResult) -> str:
-    """The exported model in words: the part shipped, or the grey-box without terms."""
-    return SHIPPED_MODEL.get(result.parts.get("shipped", ""), "Grey-box")
+def shipped_model(parts: Mapping[str, Any]) -> str:
+    """The exported model in words, from the comparison of its parts at training
+    (:func:`~fmu_greybox.workflow.parts.summary`'s input): the part shipped, or the grey-box
+    without terms."""
+    return SHIPPED_MODEL.get(parts.get("shipped", ""), "Grey-box")
 
 
 def verdict_lines(result: DemoResult) -> list[str]:
@@ -97,16 +101,47 @@ def verdict_lines(result: DemoResult) -> list[str]:
         if result.top_finding_correct()
         else "The top finding does not name the concealed effect.",
     ]
-    table_ = result.validation.table
-    named = all("named_rmse" in row for row in table_.values())
     if result.parts:
         lines.append(f"Parts compared at training: {parts_summary(result.parts)}.")
+    lines += validation_lines(
+        result.validation.table,
+        f"{shipped_model(result.parts)} (the exported FMU)",
+        f"an independent {result.settings.validation_duration:g} s recording",
+    )
+    engines = ", ".join(f"{a.engine} {a.worst:.1e}" for a in result.bench)
     lines.append(
-        f"{shipped_model(result)} (the exported FMU) against the white-box on an independent "
-        f"{result.settings.validation_duration:g} s recording (RMSE change, negative = better): "
+        f"Exported FMU on the SSP bench, largest difference from the in-process master "
+        f"(relative): {engines}."
+    )
+    return lines
+
+
+def validation_lines(
+    table_: Mapping[str, Mapping[str, float]],
+    model: str,
+    recording: str,
+    scored: str = "the independent recording",
+) -> list[str]:
+    """A validation's verdict sentences: the RMSE change against the white-box (and the named
+    terms alone's), a warning where the correctors do worse, the share inside ±1.96σ.
+
+    Parameters
+    ----------
+    table_ : mapping
+        The validation's table, stage -> row.
+    model : str
+        The model validated, as the sentence's subject (``"The grey-box"``).
+    recording : str
+        The recording, in words (``"an independent 8 s recording"``, a file name).
+    scored : str
+        The same, as the share's sentence names it.
+    """
+    named = all("named_rmse" in row for row in table_.values())
+    lines = [
+        f"{model} against the white-box on {recording} (RMSE change, negative = better): "
         + ", ".join(f"{stage} {percent(row['improvement'])}" for stage, row in table_.items())
         + "."
-    )
+    ]
     if named:
         lines.append(
             "The named terms alone: "
@@ -126,16 +161,26 @@ def verdict_lines(result: DemoResult) -> list[str]:
             f"false gives {than})."
         )
     lines.append(
-        "Share of the independent recording inside the grey-box's ±1.96σ: "
+        f"Share of {scored} inside the grey-box's ±1.96σ: "
         + ", ".join(f"{stage} {coverage_text(row, 'coverage95')}" for stage, row in table_.items())
         + f" ({INTERVAL_NOTE})."
     )
-    engines = ", ".join(f"{a.engine} {a.worst:.1e}" for a in result.bench)
-    lines.append(
-        f"Exported FMU on the SSP bench, largest difference from the in-process master "
-        f"(relative): {engines}."
-    )
     return lines
+
+
+def traceability_section(rows: list[tuple[str, str, str]]) -> list[str]:
+    """The traceability table: rows ``(item, what it covers, value)``."""
+    return [
+        "<h2>Traceability</h2>",
+        table(
+            ("item", "what it covers", "value"),
+            [
+                (escape(item), escape(covers), f"<code>{escape(value)}</code>")
+                for item, covers, value in rows
+            ],
+            raw=True,
+        ),
+    ]
 
 
 def acceptance_section(acceptance: Acceptance, source: str) -> str:
@@ -223,36 +268,36 @@ def frequency_rows(validation: Validation) -> list[tuple]:
     return rows
 
 
-def report_html(result: DemoResult) -> str:
-    """The whole report page."""
-    validation = result.validation
+def stage_titles(config: ProjectConfig) -> tuple[list[str], list[str]]:
+    """Each stage's output unit and panel title (``"RAM: ram_position"``), in chain order."""
+    units = [config.signals[stage.target].unit for stage in config.stages]
+    return units, [f"{stage.name}: {stage.target}" for stage in config.stages]
+
+
+def validation_sections(
+    validation: Validation, units: list[str], labels: list[str], model_text: str = ""
+) -> list[str]:
+    """The sections on a validation (the demo's independent recording, or ``validate``'s): its
+    table, the residuals with their band, the calibration plot, the frequency responses and
+    their band statistics.
+
+    Parameters
+    ----------
+    validation : Validation
+    units : list of str
+        Each stage's output unit, in chain order.
+    labels : list of str
+        Each stage's panel title (``"RAM: ram_position"``).
+    model_text : str
+        A sentence on the model validated, or ``""``.
+    """
     run = validation.run
-    names = result.config.stages
-    units = [result.config.signals[stage.target].unit for stage in names]
-    named = all("named_rmse" in row for row in validation.table.values())
     recorded = validation.data.outputs[run.rows]
-    labels = [f"{stage.name}: {stage.target}" for stage in names]
-    sections = []
-    if validation.acceptance is not None:
-        sections.append(
-            acceptance_section(
-                validation.acceptance,
-                f"Criteria of the project file's [acceptance] table "
-                f"({result.config.path.name if result.config.path else 'defaults'}; "
-                "docs/config.md says why each default), checked on the independent "
-                f"{result.settings.validation_duration:g} s recording.",
-            )
-        )
-    diagnosis = [
-        s
-        for s in diagnosis_sections(result.diagnosis, result.payload)
-        if not s.startswith(REPLACED_SECTIONS)
-    ]
-    sections += [
-        verdict(verdict_lines(result)),
+    named = all("named_rmse" in row for row in validation.table.values())
+    return [
         "<h2>Grey-box on an independent recording</h2>",
         f"<p>{escape(validation.held_out)}; free run, correctors fed their own outputs."
-        + (f" The exported model: {shipped_model(result)}." if result.parts else "")
+        + model_text
         + " σ is the grey-box's calibrated standard deviation (docs/greybox.md, 'Calibrated "
         "uncertainty'), the exported FMU's _std; in brackets: the share's 95 % interval, as in "
         "the verdict." + (f" {RATIO_NOTE}" if calibration_ratios(validation) else "") + "</p>",
@@ -319,6 +364,37 @@ def report_html(result: DemoResult) -> str:
             ),
             frequency_rows(validation),
         ),
+    ]
+
+
+def report_html(result: DemoResult) -> str:
+    """The whole report page."""
+    validation = result.validation
+    units, labels = stage_titles(result.config)
+    sections = []
+    if validation.acceptance is not None:
+        sections.append(
+            acceptance_section(
+                validation.acceptance,
+                f"Criteria of the project file's [acceptance] table "
+                f"({result.config.path.name if result.config.path else 'defaults'}; "
+                "docs/config.md says why each default), checked on the independent "
+                f"{result.settings.validation_duration:g} s recording.",
+            )
+        )
+    diagnosis = [
+        s
+        for s in diagnosis_sections(result.diagnosis, result.payload)
+        if not s.startswith(REPLACED_SECTIONS)
+    ]
+    sections += [
+        verdict(verdict_lines(result)),
+        *validation_sections(
+            validation,
+            units,
+            labels,
+            f" The exported model: {shipped_model(result.parts)}." if result.parts else "",
+        ),
         *diagnosis,
         "<h2>The exported FMU on the SSP bench</h2>",
         f"<p>{escape(result.fmu.name)} in {escape(result.ssp.name)} (recording playback → "
@@ -347,15 +423,7 @@ def report_html(result: DemoResult) -> str:
                 for a in result.bench
             ],
         ),
-        "<h2>Traceability</h2>",
-        table(
-            ("item", "what it covers", "value"),
-            [
-                (escape(item), escape(covers), f"<code>{escape(value)}</code>")
-                for item, covers, value in result.traceability()
-            ],
-            raw=True,
-        ),
+        *traceability_section(result.traceability()),
         "<h3>Run time of each step of the demo</h3>",
         table(
             ("step", "seconds"),

@@ -9,7 +9,12 @@ source files as they are on disk, which an installed wheel has as much as a chec
 from __future__ import annotations
 
 import hashlib
+import platform
+import shlex
 import subprocess
+import sys
+from datetime import UTC, datetime
+from importlib import metadata
 from pathlib import Path
 
 import fmu_greybox
@@ -72,3 +77,33 @@ def tool_rows() -> list[tuple[str, str, str]]:
         )
     )
     return rows
+
+
+#: Packages whose versions decide what a run computed.
+RUNTIME_PACKAGES = ("fmpy", "pythonfmu", "libcosimpy", "numpy", "scipy")
+
+
+def environment_rows(command: str) -> list[tuple[str, str, str]]:
+    """Traceability rows of where and how a run ran: the versions of
+    :data:`RUNTIME_PACKAGES`, Python's, the platform, the command line and the finishing time."""
+    rows = []
+    for package in RUNTIME_PACKAGES:
+        try:
+            version = metadata.version(package)
+        except metadata.PackageNotFoundError:
+            version = "not installed"
+        rows.append((package, "version", version))
+    return [
+        *rows,
+        ("python", "version", platform.python_version()),
+        ("platform", "operating system and machine", platform.platform()),
+        ("command", "the command line", command),
+        ("finished", "UTC", datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S")),
+    ]
+
+
+def command_line() -> str:
+    """The command line that runs, as ``fmu-greybox ...``, each absolute path cut to its name
+    (a report names no local folder)."""
+    args = [Path(a).name if Path(a).is_absolute() else a for a in sys.argv[1:]]
+    return shlex.join(["fmu-greybox", *args])

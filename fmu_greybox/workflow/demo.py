@@ -21,14 +21,9 @@ folder without them is an interrupted run.
 
 from __future__ import annotations
 
-import platform
-import shlex
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +40,7 @@ from fmu_greybox.fmi.builtin import reference_fmus, reference_project, sources_d
 from fmu_greybox.model.store import file_sha256, load_model, save_model
 from fmu_greybox.model.whitebox import terms_from_findings
 from fmu_greybox.project.config import ProjectConfig, load_config
-from fmu_greybox.report.provenance import tool_rows
+from fmu_greybox.report.provenance import command_line, environment_rows, tool_rows
 from fmu_greybox.synth.actuator import (
     TYPICAL_MAGNITUDES,
     FlightTestProfile,
@@ -196,20 +191,10 @@ class DemoResult:
                 self.payload["recording"]["sha256"],
             )
         )
-        for package in ("fmpy", "pythonfmu", "libcosimpy", "numpy", "scipy"):
-            try:
-                version = metadata.version(package)
-            except metadata.PackageNotFoundError:
-                version = "not installed"
-            rows.append((package, "version", version))
-        rows += [
-            ("python", "version", platform.python_version()),
-            ("platform", "operating system and machine", platform.platform()),
-            ("command", "the command line", self.command),
-            ("seed", "seed of the effect draw and of the recordings", str(self.settings.seed)),
-            ("finished", "UTC", datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S")),
-        ]
-        return rows
+        rows.append(
+            ("seed", "seed of the effect draw and of the recordings", str(self.settings.seed))
+        )
+        return rows + environment_rows(self.command)
 
 
 def choose_effect(seed: int) -> dict[str, float]:
@@ -331,7 +316,7 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
         bench=agreements,
         files=files,
         timings=timings,
-        command=shlex.join(["fmu-greybox", *sys.argv[1:]]),
+        command=command_line(),
         parts=model.training.get("parts", {}),
     )
 
