@@ -495,22 +495,16 @@ def _validate_one(
     """Validate on one recording, write its outputs into ``where``'s output folder (the model
     folder first); the verdict."""
     from fmu_greybox.report.provenance import command_line
-    from fmu_greybox.report.validation import REPORT, validation_report_html, write_report
-    from fmu_greybox.workflow.validate import validate_model, write_metrics, write_plots
+    from fmu_greybox.workflow.validate import validate_model
 
     model_dir, out_dir = where
     result = validate_model(model, recording, progress=progress, acceptance=config.acceptance)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    metrics = write_metrics(result, model, out_dir / "metrics.json")
-    plots = write_plots(result, model, out_dir)
-    html = validation_report_html(result, model, config, model_dir, command_line())
-    write_report(html, out_dir / REPORT)
+    metrics, files = _write_validation(result, model, config, model_dir, out_dir, command_line())
     if as_json:
         click.echo(json.dumps(metrics))
     else:
         _print_validation(ctx, model, result)
-        written = ", ".join(str(out_dir / name) for name in ("metrics.json", *plots, REPORT))
-        _info(ctx, f"wrote {written}")
+        _info(ctx, f"wrote {', '.join(str(out_dir / name) for name in files)}")
     return result.acceptance.verdict if result.acceptance is not None else None
 
 
@@ -527,29 +521,15 @@ def _validate_several(
     coverage and write the output folder's ``metrics.json`` and ``report.html``; the verdict
     over all."""
     from fmu_greybox.report.provenance import command_line
-    from fmu_greybox.report.validation import (
-        REPORT,
-        pooled_report_html,
-        validation_report_html,
-        write_report,
-    )
+    from fmu_greybox.report.validation import REPORT, pooled_report_html, write_report
     from fmu_greybox.workflow.metrics import coverage_text, error_ratio
-    from fmu_greybox.workflow.validate import (
-        validate_recordings,
-        write_metrics,
-        write_plots,
-        write_pooled_metrics,
-    )
+    from fmu_greybox.workflow.validate import validate_recordings, write_pooled_metrics
 
     model_dir, out_dir = where
     command = command_line()
     result = validate_recordings(model, recordings, progress, config.acceptance)
     for name, validation in result.validations.items():
-        (out_dir / name).mkdir(parents=True, exist_ok=True)
-        write_metrics(validation, model, out_dir / name / "metrics.json")
-        write_plots(validation, model, out_dir / name)
-        html = validation_report_html(validation, model, config, model_dir, command)
-        write_report(html, out_dir / name / REPORT)
+        _write_validation(validation, model, config, model_dir, out_dir / name, command)
     metrics = write_pooled_metrics(result, out_dir / "metrics.json")
     write_report(pooled_report_html(result, config, model_dir, command), out_dir / REPORT)
     if as_json:
@@ -574,6 +554,26 @@ def _validate_several(
         f"{out_dir}",
     )
     return result.acceptance.verdict
+
+
+def _write_validation(
+    result: Validation,
+    model: GreyBoxModel,
+    config: ProjectConfig,
+    model_dir: Path,
+    folder: Path,
+    command: str,
+) -> tuple[dict, list[str]]:
+    """Write one recording's validation into ``folder``: ``metrics.json``, the plots and
+    ``report.html``, each atomically, the page last. Returns the metrics and the files' names."""
+    from fmu_greybox.report.validation import REPORT, validation_report_html, write_report
+    from fmu_greybox.workflow.validate import write_metrics, write_plots
+
+    folder.mkdir(parents=True, exist_ok=True)
+    metrics = write_metrics(result, model, folder / "metrics.json")
+    plots = write_plots(result, model, folder)
+    write_report(validation_report_html(result, model, config, model_dir, command), folder / REPORT)
+    return metrics, ["metrics.json", *plots, REPORT]
 
 
 def _print_validation(ctx: click.Context, model: GreyBoxModel, result: Validation) -> None:
