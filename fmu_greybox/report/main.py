@@ -183,6 +183,15 @@ def traceability_section(rows: list[tuple[str, str, str]]) -> list[str]:
     ]
 
 
+def criteria_source(config: ProjectConfig, recordings: str) -> str:
+    """Where the acceptance criteria come from and what they were checked on, in words."""
+    name = config.path.name if config.path else "defaults"
+    return (
+        f"Criteria of the project file's [acceptance] table ({name}; docs/config.md says why "
+        f"each default), checked on {recordings}."
+    )
+
+
 def acceptance_section(acceptance: Acceptance, source: str) -> str:
     """The PASS / FAIL table, headed by the whole verdict.
 
@@ -376,10 +385,10 @@ def report_html(result: DemoResult) -> str:
         sections.append(
             acceptance_section(
                 validation.acceptance,
-                f"Criteria of the project file's [acceptance] table "
-                f"({result.config.path.name if result.config.path else 'defaults'}; "
-                "docs/config.md says why each default), checked on the independent "
-                f"{result.settings.validation_duration:g} s recording.",
+                criteria_source(
+                    result.config,
+                    f"the independent {result.settings.validation_duration:g} s recording",
+                ),
             )
         )
     diagnosis = [

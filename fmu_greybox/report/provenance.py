@@ -19,6 +19,7 @@ from pathlib import Path
 
 import fmu_greybox
 from fmu_greybox import __version__
+from fmu_greybox.model.store import file_sha256
 
 #: Where the package lives (its package data, ``_data/``, is hashed by what it holds: the
 #: white-box sources and the project files have their own hashes).
@@ -107,3 +108,12 @@ def command_line() -> str:
     (a report names no local folder)."""
     args = [Path(a).name if Path(a).is_absolute() else a for a in sys.argv[1:]]
     return shlex.join(["fmu-greybox", *args])
+
+
+def project_row(path: Path) -> tuple[str, str, str]:
+    """The traceability row of a project file: its name and SHA-256."""
+    return (
+        "project file",
+        f"SHA-256 of {path.name} (stages, signals, GP settings, acceptance criteria)",
+        file_sha256(path),
+    )

@@ -20,13 +20,14 @@ from fmu_greybox.project.data import whitebox_path
 from fmu_greybox.report.html import escape, page, table, verdict
 from fmu_greybox.report.main import (
     acceptance_section,
+    criteria_source,
     shipped_model,
     stage_titles,
     traceability_section,
     validation_lines,
     validation_sections,
 )
-from fmu_greybox.report.provenance import environment_rows, tool_rows
+from fmu_greybox.report.provenance import environment_rows, project_row, tool_rows
 from fmu_greybox.workflow.metrics import INTERVAL_NOTE, coverage_text, error_ratio
 from fmu_greybox.workflow.validate import PooledValidation, Validation
 
@@ -61,7 +62,7 @@ def validation_report_html(
     sections = []
     if validation.acceptance is not None:
         sections.append(
-            acceptance_section(validation.acceptance, f"{_criteria_source(config)} {recording}.")
+            acceptance_section(validation.acceptance, criteria_source(config, recording))
         )
     shipped = shipped_model(model.training.get("parts", {}))
     lines = [validation.acceptance.summary()] if validation.acceptance is not None else []
@@ -98,8 +99,11 @@ def pooled_report_html(
     sections = [
         acceptance_section(
             result.acceptance,
-            f"{_criteria_source(config)} {names}: the coverage criteria on the shares pooled "
-            "over them, every other criterion on each (its worst).",
+            criteria_source(
+                config,
+                f"{names}: the coverage criteria on the shares pooled over them, every other "
+                "criterion on each (its worst)",
+            ),
         ),
         "<h2>Recordings</h2>",
         table(
@@ -152,15 +156,6 @@ def _recording_name(recording: Recording) -> str:
     return Path(recording.source).name if recording.source else "the recording"
 
 
-def _criteria_source(config: ProjectConfig) -> str:
-    """Where the criteria come from, in words, ending before the recording's name."""
-    name = config.path.name if config.path else "defaults"
-    return (
-        f"Criteria of the project file's [acceptance] table ({name}; docs/config.md says why "
-        "each default), checked on"
-    )
-
-
 def _traceability(
     config: ProjectConfig, model_dir: Path, recordings: list[Recording], command: str
 ) -> list[str]:
@@ -168,14 +163,7 @@ def _traceability(
     folder's files and the recordings' data, each hash labelled with what it covers."""
     rows = tool_rows()
     if config.path is not None:
-        rows.append(
-            (
-                "project file",
-                f"SHA-256 of {config.path.name} (stages, signals, GP settings, acceptance "
-                "criteria)",
-                file_sha256(config.path),
-            )
-        )
+        rows.append(project_row(config.path))
     fmu = whitebox_path(config)
     rows.append(("white-box FMU", f"SHA-256 of the file {fmu.name}", file_sha256(fmu)))
     rows += [

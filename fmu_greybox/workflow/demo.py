@@ -40,7 +40,12 @@ from fmu_greybox.fmi.builtin import reference_fmus, reference_project, sources_d
 from fmu_greybox.model.store import file_sha256, load_model, save_model
 from fmu_greybox.model.whitebox import terms_from_findings
 from fmu_greybox.project.config import ProjectConfig, load_config
-from fmu_greybox.report.provenance import command_line, environment_rows, tool_rows
+from fmu_greybox.report.provenance import (
+    command_line,
+    environment_rows,
+    project_row,
+    tool_rows,
+)
 from fmu_greybox.synth.actuator import (
     TYPICAL_MAGNITUDES,
     FlightTestProfile,
@@ -163,14 +168,7 @@ class DemoResult:
         """Rows ``(item, what it covers, value)``: the tool, the project file, the white-box
         sources, every file's SHA-256, the recordings' data hashes, versions, the command."""
         rows = tool_rows()
-        rows.append(
-            (
-                "project file",
-                f"SHA-256 of {reference_project().name} (stages, signals, GP settings, "
-                "acceptance criteria)",
-                file_sha256(reference_project()),
-            )
-        )
+        rows.append(project_row(reference_project()))
         rows.append(
             (
                 "white-box sources",
