@@ -16,7 +16,16 @@ import numpy as np
 from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.diagnosis.figures import regime_figure, residual_figure, trace_figure
-from fmu_greybox.report.html import escape, figure, fmt, page, percent, table, verdict
+from fmu_greybox.report.html import (
+    escape,
+    figure,
+    fmt,
+    page,
+    percent,
+    table,
+    verdict,
+    write_page,
+)
 from fmu_greybox.workflow.parts import summary as parts_summary
 
 SCHEMA_VERSION = 1
@@ -150,8 +159,7 @@ def write_report_files(payload: dict, html: str, out_dir: str | Path) -> None:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     write_json(payload, out / "diagnosis.json")
-    with atomic_write(out / "report.html") as f:
-        f.write(html)
+    write_page(html, out / "report.html")
 
 
 def write_json(payload: dict, path: str | Path) -> None:

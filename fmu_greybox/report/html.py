@@ -9,9 +9,11 @@ from __future__ import annotations
 import base64
 import html
 from collections.abc import Iterable, Sequence
+from pathlib import Path
 
 import matplotlib.pyplot as plt
 
+from fmu_greybox.atomic import atomic_write
 from fmu_greybox.report.plots import png_bytes
 
 STYLE = (
@@ -99,3 +101,9 @@ def fmt(value: float | None, digits: int = 3, unit: str = "") -> str:
 def percent(fraction: float | None) -> str:
     """A signed percentage of a fraction (blank for ``None``)."""
     return "" if fraction is None else f"{100 * fraction:+.1f} %"
+
+
+def write_page(html_text: str, path: str | Path) -> None:
+    """Write a page atomically (an earlier page stays whole until the new one is complete)."""
+    with atomic_write(Path(path)) as f:
+        f.write(html_text)

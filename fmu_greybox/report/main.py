@@ -15,10 +15,18 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from fmu_greybox.atomic import atomic_write
 from fmu_greybox.diagnosis.report import diagnosis_sections, write_json
 from fmu_greybox.project.config import ProjectConfig
-from fmu_greybox.report.html import escape, figure, fmt, page, percent, table, verdict
+from fmu_greybox.report.html import (
+    escape,
+    figure,
+    fmt,
+    page,
+    percent,
+    table,
+    verdict,
+    write_page,
+)
 from fmu_greybox.report.plots import calibration_figure, frequency_figure, trace_figure
 from fmu_greybox.workflow.acceptance import PASS, Acceptance
 from fmu_greybox.workflow.demo import DemoResult
@@ -453,6 +461,5 @@ def write_report(result: DemoResult) -> dict[str, Any]:
     out = Path(result.settings.out_dir)
     outcome = summary(result)
     write_json(outcome, out / "summary.json")
-    with atomic_write(out / "report.html") as f:
-        f.write(report_html(result))
+    write_page(report_html(result), out / "report.html")
     return outcome

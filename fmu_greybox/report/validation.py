@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from fmu_greybox.atomic import atomic_write
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.model.store import GreyBoxModel, file_sha256
 from fmu_greybox.project.config import ProjectConfig
@@ -143,12 +142,6 @@ def pooled_report_html(
     return page(
         f"fmu-greybox validation: {config.name}, {len(result.validations)} recordings", sections
     )
-
-
-def write_report(html: str, path: Path) -> None:
-    """Write a page atomically (an earlier page stays whole until the new one is complete)."""
-    with atomic_write(path) as f:
-        f.write(html)
 
 
 def _recording_name(recording: Recording) -> str:
