@@ -313,3 +313,13 @@ def test_without_a_terminal_each_step_prints_one_line(env: dict[str, str], tmp_p
     assert re.fullmatch(
         r"Stepping the white-box over the recording: done, 1000 steps in \d+\.\d s", lines[0]
     )
+
+
+def test_the_command_line_in_a_report_names_no_local_folder(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from fmu_greybox.report.provenance import command_line
+
+    argv = ["x", "validate", "cfg.toml", "--recording", "/data/flight 7.csv", "--out=/tmp/val"]
+    monkeypatch.setattr("sys.argv", argv)
+    assert command_line() == ("fmu-greybox validate cfg.toml --recording 'flight 7.csv' --out=val")

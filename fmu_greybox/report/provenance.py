@@ -104,10 +104,15 @@ def environment_rows(command: str) -> list[tuple[str, str, str]]:
 
 
 def command_line() -> str:
-    """The command line that runs, as ``fmu-greybox ...``, each absolute path cut to its name
-    (a report names no local folder)."""
-    args = [Path(a).name if Path(a).is_absolute() else a for a in sys.argv[1:]]
-    return shlex.join(["fmu-greybox", *args])
+    """The command line that runs, as ``fmu-greybox ...``, each absolute path cut to its name,
+    also as an option's ``--name=value`` (a report names no local folder)."""
+    return shlex.join(["fmu-greybox", *map(_without_folder, sys.argv[1:])])
+
+
+def _without_folder(arg: str) -> str:
+    """An argument with an absolute path in it cut to the path's name."""
+    option, sep, value = arg.partition("=") if arg.startswith("-") else ("", "", arg)
+    return option + sep + (Path(value).name if Path(value).is_absolute() else value)
 
 
 def project_row(path: Path) -> tuple[str, str, str]:
