@@ -35,7 +35,13 @@ from fmu_greybox.model.terms import CoulombForce, InputDelay, InputGain, SensorD
 from fmu_greybox.model.whitebox import NamedModel, check_terms, read_terms
 from fmu_greybox.project.config import load_config
 from fmu_greybox.project.data import split_row
-from fmu_greybox.workflow.parts import EQUAL_MARGIN, PARTS, compare_parts, summary
+from fmu_greybox.workflow.parts import (
+    EQUAL_MARGIN,
+    PARTS,
+    compare_parts,
+    passed_through_reason,
+    summary,
+)
 from fmu_greybox.workflow.train import train_model, with_inducing
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -185,6 +191,10 @@ def test_parts_within_the_margin_are_equally_good(factor: float, equal: bool) ->
     line = summary(payload)
     assert (f"equally good within {100 * EQUAL_MARGIN:.0f} %: terms+correctors" in line) is equal
     assert line.endswith("; shipped terms")
+    # the terminal and the report say why the correctors are off: here the terms won
+    assert passed_through_reason(payload) == "the named terms alone ship"
+    lost = passed_through_reason({**payload, "shipped": "terms+correctors"})
+    assert lost == passed_through_reason({}) and "free-run check" in lost
 
 
 def test_train_with_terms_compares_its_parts_forward_in_time(termed) -> None:

@@ -28,6 +28,7 @@ from fmu_greybox.report.main import (
 )
 from fmu_greybox.report.provenance import environment_rows, project_row, tool_rows
 from fmu_greybox.workflow.metrics import INTERVAL_NOTE, coverage_text, error_ratio
+from fmu_greybox.workflow.parts import passed_through_reason
 from fmu_greybox.workflow.validate import PooledValidation, Validation
 
 #: Name of the page in each folder ``validate`` writes.
@@ -69,8 +70,8 @@ def validation_report_html(
     passed = model.chain.passed_through
     if passed:
         lines.append(
-            f"Correctors switched off (passed through; σ is the stage's residual alone): "
-            f"{', '.join(passed)}."
+            f"Correctors switched off ({passed_through_reason(model.training.get('parts', {}))}"
+            f"; σ is the stage's residual alone): {', '.join(passed)}."
         )
     sections += [
         verdict(lines),

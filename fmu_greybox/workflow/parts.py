@@ -111,6 +111,14 @@ def summary(parts: Mapping) -> str:
     return f"held-out nRMSE {scores}: {best}{shipped}"
 
 
+def passed_through_reason(parts: Mapping) -> str:
+    """Why a model's correctors are switched off, in words, from the comparison of its parts
+    (:meth:`PartsComparison.to_dict`; empty for a model trained without terms)."""
+    if parts.get("shipped") == "terms":
+        return "the named terms alone ship"
+    return "the corrector lost to the white-box in the free-run check at training"
+
+
 def compare_parts(
     names: Sequence[str],
     recorded: np.ndarray,
