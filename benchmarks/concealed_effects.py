@@ -63,7 +63,8 @@ table).
 With ``--json`` each case is also printed as one JSON line when it is done, and the last line
 is one JSON object: the summary figures (with ``--coverage`` also ``coverage95_in_target``,
 ``coverage95_consistent``, ``coverage95_median``, ``coverage95_range``,
-``coverage95_pooled``, ``coverage95_narrow`` and ``coverage95_by_size``) and the cases.
+``coverage95_pooled``, ``coverage95_narrow``, ``coverage95_by_size`` and
+``coverage95_by_worth``) and the cases.
 ``--summarise LOG [LOG ...]`` runs nothing: it reads the cases such runs printed (a suite run
 in parts, or stopped part way) and prints their summary.
 """
@@ -92,7 +93,7 @@ from fmu_greybox.diagnosis.findings import named_physics  # noqa: E402
 from fmu_greybox.diagnosis.noise import SIGNIFICANT_STRUCTURE  # noqa: E402
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu  # noqa: E402
 from fmu_greybox.fmi.builtin import reference_fmus  # noqa: E402
-from fmu_greybox.model.calibration import Z95  # noqa: E402
+from fmu_greybox.model.calibration import Z95, calibration_spread  # noqa: E402
 from fmu_greybox.model.simulate import simulate_with_terms  # noqa: E402
 from fmu_greybox.model.whitebox import terms_from_findings  # noqa: E402
 from fmu_greybox.project.config import load_config  # noqa: E402
@@ -410,7 +411,7 @@ def uncertainty_coverage(
     )
     table = validate_model(model, independent).table
     keys = ("coverage68", "coverage95", "coverage95_low", "coverage95_high", "gb_rmse")
-    keys += ("median_std", "independent_rows", "calibration_rmse")
+    keys += ("median_std", "independent_rows", "calibration_rmse", "calibration_independent_rows")
     return {stage: {k: row[k] for k in keys} for stage, row in table.items()}
 
 
@@ -526,6 +527,25 @@ def _by_size(stages: list[dict]) -> dict[str, float]:
     }
 
 
+def _by_worth(stages: list[dict]) -> dict[str, int]:
+    """Split the stages that say what their calibration rows were worth by whether those rows
+    vouch for the target on recordings like them (their
+    :func:`~fmu_greybox.model.calibration.calibration_spread` within 0.90 .. 0.99), and count
+    how many of each lie in the target (``vouched``, ``in_of_vouched``; ``unvouched``,
+    ``in_of_unvouched``)."""
+    split: dict[bool, list[bool]] = {True: [], False: []}
+    for c in stages:
+        if "calibration_independent_rows" in c:
+            low, high = calibration_spread(c["calibration_independent_rows"])
+            split[_in_target(low) and _in_target(high)].append(_in_target(c["coverage95"]))
+    return {
+        "vouched": len(split[True]),
+        "in_of_vouched": sum(split[True]),
+        "unvouched": len(split[False]),
+        "in_of_unvouched": sum(split[False]),
+    }
+
+
 def pooled_by_stage(rows: list[dict]) -> dict[str, dict[str, float]]:
     """Per stage name, its ±1.96σ shares over the cases pooled by their independent rows."""
     by_stage: dict[str, list[dict]] = {}
@@ -550,6 +570,7 @@ def summary(rows: list[dict]) -> dict:
             "coverage95_pooled": pooled_by_stage(rows),
             "coverage95_narrow": _narrow(rows),
             "coverage95_by_size": _by_size(stages),
+            "coverage95_by_worth": _by_worth(stages),
         }
         if covered
         else {}
@@ -711,6 +732,13 @@ def print_summary(result: dict, as_json: bool) -> None:
                 f"{by_size['predicted_in']} stages whose error ratio predicts a share there, "
                 f"{by_size['in_of_predicted_out']} of the {by_size['predicted_out']} whose "
                 "ratio predicts one outside"
+            )
+        worth = result.get("coverage95_by_worth", {})
+        if worth.get("vouched", 0) + worth.get("unvouched", 0):
+            print(
+                f"  in 0.90..0.99: {worth['in_of_vouched']} of the {worth['vouched']} stages "
+                "whose calibration rows vouch for it on recordings like them, "
+                f"{worth['in_of_unvouched']} of the {worth['unvouched']} whose rows are too few"
             )
         for item in narrow.get("stages", []):
             ratio = (

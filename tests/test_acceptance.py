@@ -12,7 +12,7 @@ import pytest
 from scipy import signal
 
 from fmu_greybox.errors import ConfigError
-from fmu_greybox.model.calibration import Z95
+from fmu_greybox.model.calibration import Z95, calibration_spread
 from fmu_greybox.project.config import AcceptanceConfig, Criteria, parse_config
 from fmu_greybox.report.spectra import frequency_response
 from fmu_greybox.workflow.acceptance import (
@@ -197,6 +197,32 @@ def test_a_band_missed_on_a_recording_unlike_the_training_one_says_so() -> None:
     assert gentle.verdict == FAIL and "0.4 times" in gentle.note and "smaller" in gentle.note
 
 
+def test_a_band_calibrated_on_few_independent_rows_says_it_cannot_vouch_for_the_limits() -> None:
+    """A missed ±1.96σ check on a stage whose σ was calibrated on free runs worth 5 independent
+    rows says that such a calibration puts the band anywhere in 47.8-99.5 % of recordings like
+    the training one (the conformal Beta law); one worth 5 000 rows (94.4-95.6 %, inside the
+    limits) gets no such note, nor a row that does not say, nor the ±1σ check."""
+    criteria = parsed({"band": [600.0, 900.0], "max_nrmse": False, "coverage68": [0.6, 0.75]})
+    decided = {"coverage95_low": 0.2, "coverage95_high": 0.5, "independent_rows": 40.0}
+    row = {**ROW, "coverage95": 0.3, **decided, "calibration_independent_rows": 5.3}
+    row |= {"coverage68": 0.2, "coverage68_low": 0.1, "coverage68_high": 0.3}
+
+    def notes(row: dict) -> dict[str, str]:
+        checks = evaluate(criteria, {"RAM": row}, []).checks
+        return {c.criterion: c.note for c in checks if c.criterion.startswith(SHARE_INSIDE)}
+
+    few = notes(row)
+    assert "worth about 5 independent rows" in few[f"{SHARE_INSIDE} ±1.96σ"]
+    assert "anywhere in 47.8-99.5 % of recordings like them" in few[f"{SHARE_INSIDE} ±1.96σ"]
+    assert "independent rows, which" not in few[f"{SHARE_INSIDE} ±1σ"]
+    low, high = calibration_spread(5000)
+    assert 0.9 < low < 0.95 < high < 0.99
+    many = notes({**row, "calibration_independent_rows": 5000.0})
+    assert "independent rows, which" not in many[f"{SHARE_INSIDE} ±1.96σ"]
+    silent = notes({k: v for k, v in row.items() if k != "calibration_independent_rows"})
+    assert "independent rows, which" not in silent[f"{SHARE_INSIDE} ±1.96σ"]
+
+
 def test_several_recordings_decide_a_coverage_no_single_one_can() -> None:
     """Three recordings whose RAM band held every row, each worth 150 independent rows: each
     alone is UNDECIDED (its interval reaches 0.99); pooled (450 rows) the band is decidedly too
@@ -237,12 +263,14 @@ def test_pooled_recordings_say_how_their_errors_compare_with_the_calibrations() 
     rows = [
         {**ROW, "gb_rmse": error, "calibration_rmse": 1e-4, "coverage95": 1.0}
         | {"coverage95_low": 0.976, "coverage95_high": 1.0, "independent_rows": 150.0}
+        | {"calibration_independent_rows": 12.0}
         for error in (3e-5, 5e-5, 4e-5)
     ]
     pooled = pooled_row(rows, [1000, 3000, 4000])
     expected = ((1000 * 9e-10 + 3000 * 25e-10 + 4000 * 16e-10) / 8000) ** 0.5
     assert pooled["gb_rmse"] == pytest.approx(expected, rel=1e-12)
     assert pooled["calibration_rmse"] == 1e-4
+    assert pooled["calibration_independent_rows"] == 12.0
     alone = {f"rec{i}": evaluate(criteria, {"RAM": r}, []) for i, r in enumerate(rows)}
     share = next(
         c
@@ -256,3 +284,4 @@ def test_pooled_recordings_say_how_their_errors_compare_with_the_calibrations() 
     assert "gb_rmse" not in pooled_row(rows)
     other = [rows[0], {**rows[1], "calibration_rmse": 2e-4}]
     assert "gb_rmse" not in pooled_row(other, [1000, 3000])
+    assert "calibration_independent_rows" not in pooled_row(other, [1000, 3000])

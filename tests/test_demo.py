@@ -22,6 +22,7 @@ from fmpy.validation import validate_fmu
 from PIL import Image
 
 from fmu_greybox.cli import main
+from fmu_greybox.model.calibration import calibration_spread
 from fmu_greybox.report.main import SHIPPED_MODEL
 from fmu_greybox.synth.actuator import TYPICAL_MAGNITUDES
 from fmu_greybox.workflow.demo import choose_effect
@@ -155,7 +156,9 @@ def test_demo_reports_acceptance_and_calibrated_coverage(demo: tuple[Path, dict]
 
 def test_report_gives_each_stage_its_error_ratio(demo: tuple[Path, dict]) -> None:
     """The independent-recording table says how this recording's errors compare with those the
-    band was calibrated on (k), the figure metrics.json's numbers give."""
+    band was calibrated on (k), the figure metrics.json's numbers give; the table under the
+    calibration plot says what each stage's calibration rows are worth and where they put
+    ±1.96σ on recordings like them (the conformal Beta law for that many rows)."""
     out, summary = demo
     text = (out / "report.html").read_text(encoding="utf-8")
     start = text.index("<h2>Grey-box on an independent recording</h2>")
@@ -169,6 +172,14 @@ def test_report_gives_each_stage_its_error_ratio(demo: tuple[Path, dict]) -> Non
         k = row["gb_rmse"] / row["calibration_rmse"]
         assert cells[stage][-1] == f"{k:.3g}×", (stage, cells[stage])
     assert "erf(1.96 / k / √2)" in section
+    start = text.index("<p>What σ was calibrated on")
+    section = text[start : text.index("</table>", start)]
+    rows = [re.findall(r"<td>(.*?)</td>", r) for r in re.findall(r"<tr>(<td>.*?)</tr>", section)]
+    assert [row[0] for row in rows] == list(summary["validation"])
+    for row in rows:
+        worth = summary["validation"][row[0]]["calibration_independent_rows"]
+        low, high = calibration_spread(worth)
+        assert row[3:] == [f"{worth:.0f}", f"{100 * low:.3g}-{100 * high:.3g} %"], row
 
 
 def chromium() -> str | None:

@@ -284,11 +284,15 @@ def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
             "median_std",
             "median_latent_std",
             "calibration_rmse",
+            "calibration_independent_rows",
         }
         row = metrics["stages"][stage]
-        # the error the band was calibrated on, as training stored it
+        # the error the band was calibrated on, and what its rows were worth, as stored
         stored = json.loads((tmp_path / "model" / "model.json").read_text())
-        assert row["calibration_rmse"] == stored["training"]["calibration_check"][stage]["rmse"]
+        check = stored["training"]["calibration_check"][stage]
+        assert row["calibration_rmse"] == check["rmse"]
+        assert row["calibration_independent_rows"] == check["independent_rows"]
+        assert 1.0 <= check["independent_rows"] <= check["rows"]
         assert 0.0 <= row["coverage68"] <= row["coverage95"] <= 1.0
         assert row["coverage95_low"] <= row["coverage95"] <= row["coverage95_high"]
         assert 1.0 <= row["independent_rows"] <= 1000  # the validation's rows at most

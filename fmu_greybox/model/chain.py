@@ -18,7 +18,12 @@ import numpy as np
 
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.gp import SparseGPR
-from fmu_greybox.model.calibration import UNCALIBRATED, VarianceCalibration, fit_calibration
+from fmu_greybox.model.calibration import (
+    UNCALIBRATED,
+    VarianceCalibration,
+    error_independent_rows,
+    fit_calibration,
+)
 from fmu_greybox.model.chain_step import ChainPlan, ChainState, out_of_domain
 from fmu_greybox.model.stage import TARGET_MODES, SourceLayout, StageLayout
 from fmu_greybox.project.config import AUTO, ProjectConfig
@@ -377,6 +382,7 @@ class GreyBoxChain:
                 "rows": int(residual.size),
                 "rmse": float(np.sqrt(np.mean(residual**2))),
                 "median_latent_std": float(np.median(np.sqrt(latent_var))),
+                "independent_rows": error_independent_rows(residual),
             }
         self.calibration_ = calibration
 

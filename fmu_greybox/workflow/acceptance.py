@@ -15,7 +15,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
-from fmu_greybox.model.calibration import Z95
+from fmu_greybox.model.calibration import Z95, calibration_spread
 from fmu_greybox.project.config import AcceptanceConfig, Criteria
 from fmu_greybox.report.spectra import FrequencyResponse
 from fmu_greybox.workflow.metrics import error_ratio
@@ -232,6 +232,8 @@ def _share_inside(
             "domain (out_of_domain), where no calibration vouches for the band"
         )
     notes += _error_size(row, z, bounds, narrow=check.value < bounds[0])
+    if key == "coverage95":
+        notes += _calibration_worth(row, bounds)
     return replace(check, verdict=UNDECIDED if undecided else FAIL, note="; ".join(notes))
 
 
@@ -262,6 +264,25 @@ def _error_size(
         f"{row['calibration_rmse']:.3g} on the training free runs), where it holds about "
         f"{100 * expected:.3g} %: this recording's errors are {size} than the training one's"
         + ("; train on a recording that excites the stage as much" if narrow else "")
+    ]
+
+
+def _calibration_worth(row: Mapping[str, float], bounds: tuple[float, float]) -> list[str]:
+    """Why no recording may find a band within ``bounds``: the training free runs its σ was
+    calibrated on are worth too few independent rows (``calibration_independent_rows``) to
+    vouch for them, even on recordings of their kind
+    (:func:`~fmu_greybox.model.calibration.calibration_spread`). Said when that range reaches
+    beyond ``bounds``; [] otherwise, or when the row does not say."""
+    rows = row.get("calibration_independent_rows")
+    if rows is None:
+        return []
+    low, high = calibration_spread(rows)
+    if bounds[0] <= low and high <= bounds[1]:
+        return []
+    return [
+        f"its σ was calibrated on training free runs worth about {rows:.0f} independent rows, "
+        f"which put ±1.96σ anywhere in {100 * low:.3g}-{100 * high:.3g} % of recordings like "
+        "them: a longer or more varied training recording narrows that"
     ]
 
 

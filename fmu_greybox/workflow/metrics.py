@@ -133,7 +133,8 @@ def pooled_row(
     scored_rows : sequence of int, optional
         How many rows each recording scored. With them, rows of one model (one
         ``calibration_rmse``) that give ``gb_rmse`` pool it too, as the RMSE over all the
-        scored rows, so that the pooled row has an :func:`error_ratio`.
+        scored rows, so that the pooled row has an :func:`error_ratio`, and keep the
+        calibration's ``calibration_independent_rows``.
 
     Returns
     -------
@@ -148,6 +149,9 @@ def pooled_row(
         pooled["gb_rmse"] = float(np.sqrt(weights @ errors**2 / weights.sum()))
         if None not in calibrated:
             pooled["calibration_rmse"] = calibrated.pop()
+            worth = rows[0].get("calibration_independent_rows")
+            if worth is not None:  # one model: one calibration
+                pooled["calibration_independent_rows"] = worth
     for key in ("coverage95", "coverage68"):
         if not all(f"{key}_low" in r and f"{key}_high" in r for r in rows):
             continue

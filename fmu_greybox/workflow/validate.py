@@ -49,8 +49,10 @@ class Validation:
         ``named_rmse``, ``named_nrmse`` (white-box + terms, without the correctors); the
         coverage of its uncertainty (:func:`~fmu_greybox.workflow.metrics.uncertainty_table`);
         all over the scored rows; and ``calibration_rmse``, the grey-box's RMSE on the
-        training rows its uncertainty was calibrated on (held-out free runs), when the model
-        stores it.
+        training rows its uncertainty was calibrated on (held-out free runs), and
+        ``calibration_independent_rows``, what those rows are worth for the band
+        (:func:`~fmu_greybox.model.calibration.error_independent_rows`), when the model stores
+        them.
     held_out : str
         Which rows were scored, in words.
     scored : ndarray of int, shape (m,)
@@ -187,6 +189,8 @@ def validate_model(
     # the error the band was calibrated on (models trained before it was stored say nothing)
     for name, check in model.training.get("calibration_check", {}).items():
         table[name]["calibration_rmse"] = check["rmse"]
+        if "independent_rows" in check:  # kept since 2026-11-27
+            table[name]["calibration_independent_rows"] = check["independent_rows"]
     criteria = acceptance if acceptance is not None else model.config.acceptance
     responses = validation_responses(model, data, run, scored, criteria)
     return Validation(
