@@ -47,7 +47,12 @@ from fmu_greybox.fmi.builtin import reference_fmus
 from fmu_greybox.model.whitebox import terms_from_findings
 from fmu_greybox.project.config import ProjectConfig, parse_config
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
-from fmu_greybox.workflow.metrics import coverage_text, format_table, pooled_row
+from fmu_greybox.workflow.metrics import (
+    calibration_worth_text,
+    coverage_text,
+    format_table,
+    pooled_row,
+)
 from fmu_greybox.workflow.train import train_model
 from fmu_greybox.workflow.validate import validate_model
 
@@ -180,6 +185,10 @@ def run_experiment(
     if not quiet:
         shares = ", ".join(f"{s} {coverage_text(row, 'coverage95')}" for s, row in pooled.items())
         print(f"{name}, the {independent + 1} recordings pooled: inside ±1.96σ {shares}")
+        for stage, row in tables[name].items():
+            worth = calibration_worth_text(row)
+            if worth:
+                print(f"{name}, {stage}: {worth}")
     tables[f"{name}/pooled"] = pooled
     return tables
 
@@ -199,6 +208,7 @@ def stage_rows(table: dict) -> dict:
         "coverage95_high",
         "independent_rows",
         "calibration_rmse",
+        "calibration_independent_rows",
     )
     return {stage: {k: row[k] for k in keys if k in row} for stage, row in table.items()}
 

@@ -212,15 +212,15 @@ def test_a_band_calibrated_on_few_independent_rows_says_it_cannot_vouch_for_the_
         return {c.criterion: c.note for c in checks if c.criterion.startswith(SHARE_INSIDE)}
 
     few = notes(row)
-    assert "worth about 5 independent rows" in few[f"{SHARE_INSIDE} ±1.96σ"]
-    assert "anywhere in 47.8-99.5 % of recordings like them" in few[f"{SHARE_INSIDE} ±1.96σ"]
-    assert "independent rows, which" not in few[f"{SHARE_INSIDE} ±1σ"]
+    note = "σ rests on about 5 independent training rows: ±1.96σ holds 47.8-99.5 % on recordings"
+    assert note in few[f"{SHARE_INSIDE} ±1.96σ"]
+    assert "independent training rows" not in few[f"{SHARE_INSIDE} ±1σ"]
     low, high = calibration_spread(5000)
     assert 0.9 < low < 0.95 < high < 0.99
     many = notes({**row, "calibration_independent_rows": 5000.0})
-    assert "independent rows, which" not in many[f"{SHARE_INSIDE} ±1.96σ"]
+    assert "independent training rows" not in many[f"{SHARE_INSIDE} ±1.96σ"]
     silent = notes({k: v for k, v in row.items() if k != "calibration_independent_rows"})
-    assert "independent rows, which" not in silent[f"{SHARE_INSIDE} ±1.96σ"]
+    assert "independent training rows" not in silent[f"{SHARE_INSIDE} ±1.96σ"]
 
 
 def test_several_recordings_decide_a_coverage_no_single_one_can() -> None:

@@ -267,8 +267,9 @@ def test_report_renders_in_headless_chromium(demo: tuple[Path, dict], tmp_path: 
 
 
 #: Height of the rendered page [px]: the acceptance table (its notes vary with the run) and the
-#: residual figure below it must both lie inside.
-SHOT_HEIGHT = 3000
+#: residual figure below it must both lie inside (3000 until the coverage notes said what a
+#: band's calibration rows are worth: the figure then ended at 3111 px on this demo).
+SHOT_HEIGHT = 3200
 #: Badge colours of PASS, FAIL and UNDECIDED (report/html.py).
 VERDICT_COLOURS = ((0x1A, 0x7F, 0x37), (0xC6, 0x28, 0x28), (0xF2, 0xC9, 0x4C))
 #: The band's fill: tab:green at alpha 0.25 over white.

@@ -422,3 +422,10 @@ def test_paper_experiment2_band_claims_no_more_certainty_than_its_rows(fmu_dir) 
         assert row["independent_rows"] == pytest.approx(rows)
         assert row["coverage95"] == pytest.approx(share)
         assert row["coverage95_low"] <= share <= row["coverage95_high"]
+        # one model, one calibration: what its rows were worth carries through the pooling
+        worth = table[stage]["calibration_independent_rows"]
+        assert (
+            row["calibration_independent_rows"]
+            == worth
+            == other[stage]["calibration_independent_rows"]
+        )

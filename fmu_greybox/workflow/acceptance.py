@@ -18,7 +18,7 @@ from typing import Any
 from fmu_greybox.model.calibration import Z95, calibration_spread
 from fmu_greybox.project.config import AcceptanceConfig, Criteria
 from fmu_greybox.report.spectra import FrequencyResponse
-from fmu_greybox.workflow.metrics import error_ratio
+from fmu_greybox.workflow.metrics import calibration_worth_text, error_ratio
 
 PASS, FAIL, UNDECIDED = "PASS", "FAIL", "UNDECIDED"
 
@@ -273,17 +273,11 @@ def _calibration_worth(row: Mapping[str, float], bounds: tuple[float, float]) ->
     vouch for them, even on recordings of their kind
     (:func:`~fmu_greybox.model.calibration.calibration_spread`). Said when that range reaches
     beyond ``bounds``; [] otherwise, or when the row does not say."""
-    rows = row.get("calibration_independent_rows")
-    if rows is None:
+    text = calibration_worth_text(row)
+    if text is None:
         return []
-    low, high = calibration_spread(rows)
-    if bounds[0] <= low and high <= bounds[1]:
-        return []
-    return [
-        f"its σ was calibrated on training free runs worth about {rows:.0f} independent rows, "
-        f"which put ±1.96σ anywhere in {100 * low:.3g}-{100 * high:.3g} % of recordings like "
-        "them: a longer or more varied training recording narrows that"
-    ]
+    low, high = calibration_spread(row["calibration_independent_rows"])
+    return [] if bounds[0] <= low and high <= bounds[1] else [text]
 
 
 def _frequency_checks(

@@ -10,6 +10,7 @@ import numpy as np
 from fmu_greybox.model.calibration import (
     Z95,
     CoverageEstimate,
+    calibration_spread,
     coverage_interval,
     independent_rows,
     pooled_coverage,
@@ -205,6 +206,21 @@ INTERVAL_NOTE = (
     "in brackets: the 95 % interval of the share inside a band that a longer recording would "
     "give (a free run's errors come in waves, so its rows count for fewer independent ones)"
 )
+
+
+def calibration_worth_text(row: Mapping[str, float]) -> str | None:
+    """What a stage's σ rests on, in words: ``σ rests on about 23 independent training rows:
+    ±1.96σ holds 84.6-99.9 % on recordings like them``
+    (:func:`~fmu_greybox.model.calibration.calibration_spread` of the row's
+    ``calibration_independent_rows``); ``None`` when the row does not say."""
+    rows = row.get("calibration_independent_rows")
+    if rows is None:
+        return None
+    low, high = calibration_spread(rows)
+    return (
+        f"σ rests on about {rows:.0f} independent training rows: ±1.96σ holds "
+        f"{100 * low:.3g}-{100 * high:.3g} % on recordings like them"
+    )
 
 
 def coverage_text(row: Mapping[str, float], key: str) -> str:
