@@ -12,7 +12,7 @@ import pytest
 from scipy import signal
 
 from fmu_greybox.errors import ConfigError
-from fmu_greybox.model.calibration import Z95, calibration_spread
+from fmu_greybox.model.calibration import Z95, calibration_spread, rows_to_vouch
 from fmu_greybox.project.config import AcceptanceConfig, Criteria, parse_config
 from fmu_greybox.report.spectra import frequency_response
 from fmu_greybox.workflow.acceptance import (
@@ -214,6 +214,16 @@ def test_a_band_calibrated_on_few_independent_rows_says_it_cannot_vouch_for_the_
     few = notes(row)
     note = "σ rests on about 5 independent training rows: ±1.96σ holds 47.8-99.5 % on recordings"
     assert note in few[f"{SHARE_INSIDE} ±1.96σ"]
+    # and how many would (100 rows: every count from there puts the range inside 0.9-0.99)
+    assert (
+        "about 100 would vouch for 0.9-0.99: a training recording about 19 times as long"
+        in (few[f"{SHARE_INSIDE} ±1.96σ"])
+    )
+    assert rows_to_vouch((0.9, 0.99)) == 100
+    for n in (100, 101, 150, 1000):
+        assert 0.9 <= calibration_spread(n)[0] and calibration_spread(n)[1] <= 0.99
+    assert calibration_spread(99)[0] < 0.9
+    assert rows_to_vouch((0.949, 0.951)) is None  # narrower than 20 000 rows vouch for
     assert "independent training rows" not in few[f"{SHARE_INSIDE} ±1σ"]
     low, high = calibration_spread(5000)
     assert 0.9 < low < 0.95 < high < 0.99

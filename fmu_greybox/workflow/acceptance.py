@@ -15,7 +15,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
-from fmu_greybox.model.calibration import Z95, calibration_spread
+from fmu_greybox.model.calibration import Z95, calibration_spread, rows_to_vouch
 from fmu_greybox.project.config import AcceptanceConfig, Criteria
 from fmu_greybox.report.spectra import FrequencyResponse
 from fmu_greybox.workflow.metrics import calibration_worth_text, error_ratio
@@ -276,8 +276,17 @@ def _calibration_worth(row: Mapping[str, float], bounds: tuple[float, float]) ->
     text = calibration_worth_text(row)
     if text is None:
         return []
-    low, high = calibration_spread(row["calibration_independent_rows"])
-    return [] if bounds[0] <= low and high <= bounds[1] else [text]
+    rows = row["calibration_independent_rows"]
+    low, high = calibration_spread(rows)
+    if bounds[0] <= low and high <= bounds[1]:
+        return []
+    needed = rows_to_vouch((float(bounds[0]), float(bounds[1])))
+    if needed is not None and needed > rows:
+        text += (
+            f"; about {needed} would vouch for {bounds[0]:g}-{bounds[1]:g}: a training "
+            f"recording about {needed / max(rows, 1.0):.2g} times as long"
+        )
+    return [text]
 
 
 def _frequency_checks(
