@@ -93,7 +93,7 @@ from fmu_greybox.diagnosis.findings import named_physics  # noqa: E402
 from fmu_greybox.diagnosis.noise import SIGNIFICANT_STRUCTURE  # noqa: E402
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu  # noqa: E402
 from fmu_greybox.fmi.builtin import reference_fmus  # noqa: E402
-from fmu_greybox.model.calibration import Z95, calibration_spread  # noqa: E402
+from fmu_greybox.model.calibration import Z95, calibration_spread, chance_within  # noqa: E402
 from fmu_greybox.model.simulate import simulate_with_terms  # noqa: E402
 from fmu_greybox.model.whitebox import terms_from_findings  # noqa: E402
 from fmu_greybox.project.config import load_config  # noqa: E402
@@ -494,9 +494,13 @@ def _narrow(rows: list[dict]) -> dict:
     }
 
 
+#: The target of a ±1.96σ share on an independent recording.
+TARGET = (0.90, 0.99)
+
+
 def _in_target(share: float) -> bool:
-    """Whether a ±1.96σ share lies in the target, 0.90 .. 0.99."""
-    return 0.90 <= share <= 0.99
+    """Whether a ±1.96σ share lies in the :data:`TARGET`."""
+    return TARGET[0] <= share <= TARGET[1]
 
 
 def _by_size(stages: list[dict]) -> dict[str, float]:
@@ -527,23 +531,30 @@ def _by_size(stages: list[dict]) -> dict[str, float]:
     }
 
 
-def _by_worth(stages: list[dict]) -> dict[str, int]:
+def _by_worth(stages: list[dict]) -> dict[str, float]:
     """Split the stages that say what their calibration rows were worth by whether those rows
     vouch for the target on recordings like them (their
     :func:`~fmu_greybox.model.calibration.calibration_spread` within 0.90 .. 0.99), and count
     how many of each lie in the target (``vouched``, ``in_of_vouched``; ``unvouched``,
-    ``in_of_unvouched``)."""
-    split: dict[bool, list[bool]] = {True: [], False: []}
+    ``in_of_unvouched``) and how many the Beta law of their rows expects there
+    (``expected_of_vouched``, ``expected_of_unvouched``: the sum of each stage's
+    :func:`~fmu_greybox.model.calibration.chance_within`; for endless recordings, so an upper
+    figure for 8 s ones)."""
+    split: dict[bool, list[tuple[bool, float]]] = {True: [], False: []}
     for c in stages:
         if "calibration_independent_rows" in c:
-            low, high = calibration_spread(c["calibration_independent_rows"])
-            split[_in_target(low) and _in_target(high)].append(_in_target(c["coverage95"]))
-    return {
-        "vouched": len(split[True]),
-        "in_of_vouched": sum(split[True]),
-        "unvouched": len(split[False]),
-        "in_of_unvouched": sum(split[False]),
-    }
+            rows = c["calibration_independent_rows"]
+            low, high = calibration_spread(rows)
+            chance = chance_within(rows, TARGET)
+            split[_in_target(low) and _in_target(high)].append(
+                (_in_target(c["coverage95"]), chance)
+            )
+    counts: dict[str, float] = {}
+    for vouched, name in ((True, "vouched"), (False, "unvouched")):
+        counts[name] = len(split[vouched])
+        counts[f"in_of_{name}"] = sum(inside for inside, _ in split[vouched])
+        counts[f"expected_of_{name}"] = sum(chance for _, chance in split[vouched])
+    return counts
 
 
 def pooled_by_stage(rows: list[dict]) -> dict[str, dict[str, float]]:
@@ -737,8 +748,10 @@ def print_summary(result: dict, as_json: bool) -> None:
         if worth.get("vouched", 0) + worth.get("unvouched", 0):
             print(
                 f"  in 0.90..0.99: {worth['in_of_vouched']} of the {worth['vouched']} stages "
-                "whose calibration rows vouch for it on recordings like them, "
-                f"{worth['in_of_unvouched']} of the {worth['unvouched']} whose rows are too few"
+                "whose calibration rows vouch for it on recordings like them "
+                f"({worth['expected_of_vouched']:.1f} expected from their rows), "
+                f"{worth['in_of_unvouched']} of the {worth['unvouched']} whose rows are too few "
+                f"({worth['expected_of_unvouched']:.1f} expected)"
             )
         for item in narrow.get("stages", []):
             ratio = (

@@ -381,7 +381,11 @@ def test_the_suite_pools_its_parts_logs(tmp_path: Path, capsys: pytest.CaptureFi
     narrow[0]["coverage"]["RAM"]["calibration_independent_rows"] = 20.0
     in_target["coverage"]["RAM"]["calibration_independent_rows"] = 5000.0
     by_worth = summary([*cases, narrow[0], in_target])["coverage95_by_worth"]
-    assert by_worth == {"vouched": 1, "in_of_vouched": 1, "unvouched": 1, "in_of_unvouched": 0}
+    expected = {"vouched": 1, "in_of_vouched": 1, "unvouched": 1, "in_of_unvouched": 0}
+    assert {k: by_worth[k] for k in expected} == expected
+    # the Beta law of 20 rows: 0.99^20 - 0.9^20 of such bands hold a share in the target
+    assert by_worth["expected_of_unvouched"] == pytest.approx(0.99**20 - 0.9**20)
+    assert by_worth["expected_of_vouched"] == pytest.approx(1.0)
     log = tmp_path / "worth.log"
     log.write_text("".join(json.dumps(c) + "\n" for c in (narrow[0], in_target)), "utf-8")
     with pytest.MonkeyPatch.context() as patch:
@@ -389,5 +393,6 @@ def test_the_suite_pools_its_parts_logs(tmp_path: Path, capsys: pytest.CaptureFi
         main()
     assert (
         "in 0.90..0.99: 1 of the 1 stages whose calibration rows vouch for it on recordings "
-        "like them, 0 of the 1 whose rows are too few"
+        "like them (1.0 expected from their rows), 0 of the 1 whose rows are too few (0.7 "
+        "expected)"
     ) in capsys.readouterr().out
