@@ -36,6 +36,7 @@ import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -305,10 +306,17 @@ def calibration_spread(rows: float, level: float = CALIBRATION_LEVEL) -> tuple[f
     n = math.floor(rows)
     if n < 1:
         return float("nan"), float("nan")
-    rank = min(n, math.ceil((n + 1) * level))
     tail = (1.0 - INTERVAL_LEVEL) / 2.0
-    low, high = beta.ppf([tail, 1.0 - tail], rank, n + 1 - rank)
+    low, high = _coverage_law(n, level).ppf([tail, 1.0 - tail])
     return float(low), float(high)
+
+
+def _coverage_law(n: int | np.ndarray, level: float) -> Any:
+    """The Beta law of the share a split-conformal band calibrated on ``n`` (>= 1, or an
+    array of such) exchangeable rows holds on an endless recording of their kind (frozen
+    ``scipy.stats.beta``)."""
+    rank = np.minimum(n, np.ceil((np.asarray(n) + 1) * level))
+    return beta(rank, np.asarray(n) + 1 - rank)
 
 
 def chance_within(
@@ -321,8 +329,7 @@ def chance_within(
     n = math.floor(rows)
     if n < 1:
         return float("nan")
-    rank = min(n, math.ceil((n + 1) * level))
-    law = beta(rank, n + 1 - rank)
+    law = _coverage_law(n, level)
     return float(law.cdf(bounds[1]) - law.cdf(bounds[0]))
 
 
@@ -348,10 +355,9 @@ def rows_to_vouch(
         ``None`` when even ``most`` rows do not (limits narrower than any calibration vouches
         for, or not around ``level``).
     """
-    n = np.arange(1, most + 1)
-    rank = np.minimum(n, np.ceil((n + 1) * level))
+    law = _coverage_law(np.arange(1, most + 1), level)
     tail = (1.0 - INTERVAL_LEVEL) / 2.0
-    low, high = beta.ppf(tail, rank, n + 1 - rank), beta.ppf(1.0 - tail, rank, n + 1 - rank)
+    low, high = law.ppf(tail), law.ppf(1.0 - tail)
     short = np.flatnonzero((low < bounds[0]) | (high > bounds[1]))
     if short.size and short[-1] == most - 1:
         return None

@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Any
 
 from fmu_greybox.diagnosis.report import diagnosis_sections, write_json
-from fmu_greybox.model.calibration import calibration_spread
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.report.html import (
     escape,
@@ -31,7 +30,13 @@ from fmu_greybox.report.html import (
 from fmu_greybox.report.plots import calibration_figure, frequency_figure, trace_figure
 from fmu_greybox.workflow.acceptance import PASS, Acceptance
 from fmu_greybox.workflow.demo import DemoResult
-from fmu_greybox.workflow.metrics import INTERVAL_NOTE, coverage_text, error_ratio, improvement
+from fmu_greybox.workflow.metrics import (
+    INTERVAL_NOTE,
+    coverage_text,
+    error_ratio,
+    improvement,
+    spread_text,
+)
 from fmu_greybox.workflow.parts import summary as parts_summary
 from fmu_greybox.workflow.validate import Validation, frequency_table
 
@@ -277,9 +282,7 @@ def calibration_worth_rows(validation: Validation, units: list[str]) -> list[tup
         worth = row.get("calibration_independent_rows")
         if worth is None:
             return []
-        low, high = calibration_spread(worth)
-        spread = f"{100 * low:.3g}-{100 * high:.3g} %"
-        rows.append((stage, unit, fmt(row["calibration_rmse"]), f"{worth:.0f}", spread))
+        rows.append((stage, unit, fmt(row["calibration_rmse"]), f"{worth:.0f}", spread_text(worth)))
     return rows
 
 

@@ -216,11 +216,17 @@ def calibration_worth_text(row: Mapping[str, float]) -> str | None:
     rows = row.get("calibration_independent_rows")
     if rows is None:
         return None
-    low, high = calibration_spread(rows)
     return (
         f"σ rests on about {rows:.0f} independent training rows: ±1.96σ holds "
-        f"{100 * low:.3g}-{100 * high:.3g} % on recordings like them"
+        f"{spread_text(rows)} on recordings like them"
     )
+
+
+def spread_text(rows: float) -> str:
+    """:func:`~fmu_greybox.model.calibration.calibration_spread` of ``rows`` in percent, e.g.
+    ``84.6-99.9 %``."""
+    low, high = calibration_spread(rows)
+    return f"{100 * low:.3g}-{100 * high:.3g} %"
 
 
 def coverage_text(row: Mapping[str, float], key: str) -> str:
