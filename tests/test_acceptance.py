@@ -231,6 +231,8 @@ def test_a_band_calibrated_on_few_independent_rows_says_it_cannot_vouch_for_the_
     assert "independent training rows" not in many[f"{SHARE_INSIDE} ±1.96σ"]
     silent = notes({k: v for k, v in row.items() if k != "calibration_independent_rows"})
     assert "independent training rows" not in silent[f"{SHARE_INSIDE} ±1.96σ"]
+    empty = notes({**row, "calibration_independent_rows": 0.0})  # no range to give, no "nan"
+    assert "independent training rows" not in empty[f"{SHARE_INSIDE} ±1.96σ"]
 
 
 def test_several_recordings_decide_a_coverage_no_single_one_can() -> None:

@@ -3,6 +3,7 @@ predictive uncertainty (coverage of the ±1σ and ±1.96σ bands)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -212,9 +213,10 @@ def calibration_worth_text(row: Mapping[str, float]) -> str | None:
     """What a stage's σ rests on, in words: ``σ rests on about 23 independent training rows:
     ±1.96σ holds 84.6-99.9 % on recordings like them``
     (:func:`~fmu_greybox.model.calibration.calibration_spread` of the row's
-    ``calibration_independent_rows``); ``None`` when the row does not say."""
+    ``calibration_independent_rows``); ``None`` when the row does not say, or says less than one
+    row (no residual to calibrate on)."""
     rows = row.get("calibration_independent_rows")
-    if rows is None:
+    if rows is None or rows < 1.0:
         return None
     return (
         f"σ rests on about {rows:.0f} independent training rows: ±1.96σ holds "
@@ -224,9 +226,9 @@ def calibration_worth_text(row: Mapping[str, float]) -> str | None:
 
 def spread_text(rows: float) -> str:
     """:func:`~fmu_greybox.model.calibration.calibration_spread` of ``rows`` in percent, e.g.
-    ``84.6-99.9 %``."""
+    ``84.6-99.9 %``; ``none`` for fewer than one row."""
     low, high = calibration_spread(rows)
-    return f"{100 * low:.3g}-{100 * high:.3g} %"
+    return "none" if math.isnan(low) else f"{100 * low:.3g}-{100 * high:.3g} %"
 
 
 def coverage_text(row: Mapping[str, float], key: str) -> str:
