@@ -23,6 +23,7 @@ from fmu_greybox.project.data import prepare, split_row
 from fmu_greybox.report.validation import REPORT
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 from fmu_greybox.workflow.master import run_master
+from fmu_greybox.workflow.metrics import spread_text
 from fmu_greybox.workflow.train import train_model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -267,6 +268,12 @@ def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
     assert "EHV" in result.output and "improvement" in result.output
     assert "GB RMSE / calibration" in result.output  # how this recording's errors compare
     metrics = json.loads((tmp_path / "val" / "metrics.json").read_text())
+    # what each stage's calibration rows vouch for, in the terminal's table too
+    assert "calibration vouches (rows)" in result.output
+    for stage, row in metrics["stages"].items():
+        rows = row["calibration_independent_rows"]
+        line = next(text for text in result.output.splitlines() if text.startswith(f"{stage} "))
+        assert line.endswith(f"{spread_text(rows)} ({rows:.0f})")
     for stage in ("EHV", "RAM", "ITFV"):
         assert set(metrics["stages"][stage]) == {
             "wb_rmse",

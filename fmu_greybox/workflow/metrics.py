@@ -178,17 +178,21 @@ def error_ratio(row: Mapping[str, float]) -> float | None:
 
 def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, str]) -> str:
     """The table as fixed-width text, one stage a line (for the terminal); a column for the
-    white-box with named terms, the coverage of ±1.96σ, and the grey-box's RMSE as a multiple
-    of the one its σ was calibrated on (``calibration_rmse``), when the table has them."""
+    white-box with named terms, the coverage of ±1.96σ, the grey-box's RMSE as a multiple
+    of the one its σ was calibrated on (``calibration_rmse``), and the share of ±1.96σ its
+    calibration rows vouch for (:func:`spread_text` of ``calibration_independent_rows``), when
+    the table has them."""
     named = all("named_rmse" in row for row in table.values())
     covered = all("coverage95" in row for row in table.values())
     ratio = all(error_ratio(row) is not None for row in table.values())
+    vouched = all("calibration_independent_rows" in row for row in table.values())
     lines = [
         f"{'stage':8s} {'unit':6s} {'WB RMSE':>11s} "
         + (f"{'+terms RMSE':>11s} " if named else "")
         + f"{'GB RMSE':>11s} {'WB nRMSE':>9s} {'GB nRMSE':>9s} {'improvement':>11s}"
         + (f" {'in ±1.96σ (95 % interval)':>27s}" if covered else "")
         + (f" {'GB RMSE / calibration':>21s}" if ratio else "")
+        + (f" {'calibration vouches (rows)':>26s}" if vouched else "")
     ]
     for name, row in table.items():
         lines.append(
@@ -198,6 +202,7 @@ def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, s
             f"{100 * row['improvement']:10.1f}%"
             + (f" {coverage_text(row, 'coverage95'):>27s}" if covered else "")
             + (f" {error_ratio(row):20.3g}×" if ratio else "")
+            + (f" {_vouched_text(row['calibration_independent_rows']):>26s}" if vouched else "")
         )
     return "\n".join(lines)
 
@@ -222,6 +227,11 @@ def calibration_worth_text(row: Mapping[str, float]) -> str | None:
         f"σ rests on about {rows:.0f} independent training rows: ±1.96σ holds "
         f"{spread_text(rows)} on recordings like them"
     )
+
+
+def _vouched_text(rows: float) -> str:
+    """The table cell of a stage's calibration rows: ``47.8-99.5 % (5)``, or ``none (0)``."""
+    return f"{spread_text(rows)} ({rows:.0f})"
 
 
 def spread_text(rows: float) -> str:
