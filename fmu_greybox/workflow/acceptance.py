@@ -272,7 +272,12 @@ def _calibration_worth(row: Mapping[str, float], bounds: tuple[float, float]) ->
     calibrated on are worth too few independent rows (``calibration_independent_rows``) to
     vouch for them, even on recordings of their kind
     (:func:`~fmu_greybox.model.calibration.calibration_spread`). Said when that range reaches
-    beyond ``bounds``; [] otherwise, or when the row does not say."""
+    beyond ``bounds``; [] otherwise, or when the row does not say.
+
+    The rows that would vouch come with the recording length that gives them, and its
+    condition: the errors keep the memory they had. A drift that grows with the run (an
+    integrating stage with no restoring force, a ram held by Coulomb friction) keeps a
+    handful of independent rows however long the recording (docs/diagnosis.md)."""
     text = calibration_worth_text(row)
     if text is None:
         return []
@@ -284,7 +289,8 @@ def _calibration_worth(row: Mapping[str, float], bounds: tuple[float, float]) ->
     if needed is not None and needed > rows:
         text += (
             f"; about {needed} would vouch for {bounds[0]:g}-{bounds[1]:g}: a training "
-            f"recording about {needed / max(rows, 1.0):.2g} times as long"
+            f"recording about {needed / max(rows, 1.0):.2g} times as long, unless its errors "
+            "grow with the run (a drift's do)"
         )
     return [text]
 
