@@ -49,7 +49,8 @@ named terms folded into the white-box, the grey-box trained on the recording (``
 recording of the same truth model (seed + 1 000 003); per stage the share of its rows inside
 ±1σ and ±1.96σ (with the 95 % interval of the ±1.96σ share), and over all stages of all cases
 the share whose ±1.96σ coverage lies in the target 0.90 .. 0.99, and the share whose interval
-reaches it (the recording cannot tell those from calibrated).
+reaches it (the recording cannot tell those from calibrated). Each case's ``--json`` line
+also says which of the model's parts shipped (``shipped``: the terms, the correctors or both).
 
 Per stage name (EHV, RAM, ...) the shares are also pooled over the cases
 (:func:`~fmu_greybox.model.calibration.pooled_coverage`: each weighted by its independent rows,
@@ -359,10 +360,10 @@ def run_case(
             independent = record(
                 case, truth, whitebox, case.seed + VALIDATION_SEED_OFFSET, VALIDATION_DURATION
             )
-    checked = (
+    checked, shipped = (
         uncertainty_coverage(config, findings, recording, independent, coverage)
         if coverage is not None
-        else None
+        else (None, None)
     )
     true_value = true_magnitude(case, named) if correct else None
     affected = [diagnosis.fit_[s] for s in moved if s in diagnosis.fit_]
@@ -391,7 +392,7 @@ def run_case(
         "true": true_value,
         "improvement": improvement,
         "seconds": round(seconds, 1),
-        **({"coverage": checked} if checked is not None else {}),
+        **({"coverage": checked, "shipped": shipped} if checked is not None else {}),
     }
 
 
@@ -402,17 +403,20 @@ VALIDATION_DURATION = 8.0
 
 def uncertainty_coverage(
     config, findings: list, recording, independent, sizes: tuple[int, int]
-) -> dict[str, dict[str, float]]:
+) -> tuple[dict[str, dict[str, float]], str]:
     """Train the grey-box on the case's recording (named terms first), free-run it on the
     independent recording; per stage ``coverage68``, ``coverage95`` with its interval, RMSE,
-    median σ and the RMSE of the training free runs σ was calibrated on."""
+    median σ and the RMSE of the training free runs σ was calibrated on, and which of the
+    model's parts shipped (``terms``, ``correctors`` or ``terms+correctors``; ``correctors``
+    when nothing was named)."""
     model = train_model(
         with_inducing(config, *sizes), recording, terms=terms_from_findings(findings)
     )
     table = validate_model(model, independent).table
     keys = ("coverage68", "coverage95", "coverage95_low", "coverage95_high", "gb_rmse")
     keys += ("median_std", "independent_rows", "calibration_rmse", "calibration_independent_rows")
-    return {stage: {k: row[k] for k in keys} for stage, row in table.items()}
+    shipped = model.training.get("parts", {}).get("shipped", "correctors")
+    return {stage: {k: row[k] for k in keys} for stage, row in table.items()}, shipped
 
 
 def print_coverage(row: dict) -> None:
