@@ -466,9 +466,17 @@ def print_row(row: dict) -> None:
     )
 
 
+#: The target of a ±1.96σ share on an independent recording.
+TARGET = (0.90, 0.99)
+
+
+#: The target as the summary prints it.
+TARGET_TEXT = f"{TARGET[0]:.2f}..{TARGET[1]:.2f}"
+
+
 def _reaches_target(stage: dict) -> bool:
-    """Whether a stage's ±1.96σ share's 95 % interval reaches 0.90 .. 0.99."""
-    return stage["coverage95_low"] <= 0.99 and stage["coverage95_high"] >= 0.90
+    """Whether a stage's ±1.96σ share's 95 % interval reaches the :data:`TARGET`."""
+    return stage["coverage95_low"] <= TARGET[1] and stage["coverage95_high"] >= TARGET[0]
 
 
 def _narrow(rows: list[dict]) -> dict:
@@ -482,7 +490,7 @@ def _narrow(rows: list[dict]) -> dict:
     listed = []
     for row in rows:
         for stage, c in row.get("coverage", {}).items():
-            if c["coverage95_high"] >= 0.90:
+            if c["coverage95_high"] >= TARGET[0]:
                 continue
             item = {"case": row["case"], "stage": stage, "coverage95": c["coverage95"]}
             k = error_ratio(c)
@@ -493,13 +501,9 @@ def _narrow(rows: list[dict]) -> dict:
     return {
         "decided": len(listed),
         "told": len(told),
-        "shifted": sum(item["predicted"] < 0.90 for item in told),
+        "shifted": sum(item["predicted"] < TARGET[0] for item in told),
         "stages": listed,
     }
-
-
-#: The target of a ±1.96σ share on an independent recording.
-TARGET = (0.90, 0.99)
 
 
 def _in_target(share: float) -> bool:
@@ -723,7 +727,7 @@ def print_summary(result: dict, as_json: bool) -> None:
     if "coverage95_in_target" in result:
         low, high = result["coverage95_range"]
         print(
-            f"coverage of ±1.96σ on independent recordings: in 0.90..0.99 for "
+            f"coverage of ±1.96σ on independent recordings: in {TARGET_TEXT} for "
             f"{100 * result['coverage95_in_target']:.0f} % of the stages (its 95 % interval "
             f"reaches it for {100 * result['coverage95_consistent']:.0f} %), median "
             f"{result['coverage95_median']:.3f} (range {low:.3f}-{high:.3f})"
@@ -743,7 +747,7 @@ def print_summary(result: dict, as_json: bool) -> None:
                 f"{100 * by_size['max_gap']:.1f}"
             )
             print(
-                f"  in 0.90..0.99: {by_size['in_of_predicted_in']} of the "
+                f"  in {TARGET_TEXT}: {by_size['in_of_predicted_in']} of the "
                 f"{by_size['predicted_in']} stages whose error ratio predicts a share there, "
                 f"{by_size['in_of_predicted_out']} of the {by_size['predicted_out']} whose "
                 "ratio predicts one outside"
@@ -751,7 +755,7 @@ def print_summary(result: dict, as_json: bool) -> None:
         worth = result.get("coverage95_by_worth", {})
         if worth.get("vouched", 0) + worth.get("unvouched", 0):
             print(
-                f"  in 0.90..0.99: {worth['in_of_vouched']} of the {worth['vouched']} stages "
+                f"  in {TARGET_TEXT}: {worth['in_of_vouched']} of the {worth['vouched']} stages "
                 "whose calibration rows vouch for it on recordings like them "
                 f"({worth['expected_of_vouched']:.1f} expected from their rows), "
                 f"{worth['in_of_unvouched']} of the {worth['unvouched']} whose rows are too few "

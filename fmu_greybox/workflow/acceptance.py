@@ -289,7 +289,7 @@ def _calibration_worth(row: Mapping[str, float], bounds: tuple[float, float]) ->
     if needed is not None and needed > rows:
         text += (
             f"; about {needed} would vouch for {bounds[0]:g}-{bounds[1]:g}: a training "
-            f"recording about {needed / max(rows, 1.0):.2g} times as long, unless its errors "
+            f"recording about {needed / rows:.2g} times as long, unless its errors "
             "grow with the run (a drift's do)"
         )
     return [text]
