@@ -364,6 +364,17 @@ def simulate(
     "alone and correctors on the terms are compared on the held-out rows; 'best' writes the "
     "best of them.",
 )
+@click.option(
+    "--calibrate-on",
+    "calibration_paths",
+    type=click.Path(dir_okay=False, path_type=Path),
+    multiple=True,
+    help="Recording to calibrate the uncertainty (σ) on, free-run whole by the model that "
+    "ships; repeatable. Default: the two halves of the training rows, each free-run by "
+    "correctors trained on the other. Every recording is one more free run: a drifting "
+    "stage's σ rests on a few independent rows per free run. Their rows are not scored by "
+    "'validate'.",
+)
 @out_option("model", "Model folder to write", folder=True)
 @click.pass_context
 def train(
@@ -374,6 +385,7 @@ def train(
     max_iter: int | None,
     terms_path: Path | None,
     ship: str,
+    calibration_paths: tuple[Path, ...],
     out_dir: Path,
 ) -> None:
     """Train the stage correctors of a project (teacher forcing).
@@ -385,6 +397,8 @@ def train(
       fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv --out model/
       fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv \\
           --terms diag/diagnosis.json --out model/
+      fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv \\
+          --calibrate-on run2.csv --calibrate-on run3.csv --out model/
     """
     from fmu_greybox.atomic import output_lock
     from fmu_greybox.model.store import save_model
@@ -398,8 +412,14 @@ def train(
     with output_lock(out_dir, "--out"):
         recording = load_project_recording(config, recording_path)
         terms = read_terms(terms_path) if terms_path is not None else []
+        calibration = [load_project_recording(config, path) for path in calibration_paths]
         model = train_model(
-            config, recording, progress=not ctx.obj["quiet"], terms=terms, ship=ship
+            config,
+            recording,
+            progress=not ctx.obj["quiet"],
+            terms=terms,
+            ship=ship,
+            calibration_recordings=calibration,
         )
         save_model(model, out_dir)
     named = f", named terms: {', '.join(t.effect for t in model.terms)}" if model.terms else ""

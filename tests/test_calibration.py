@@ -30,7 +30,7 @@ from fmu_greybox.model.calibration import (
     fit_calibration,
     pooled_coverage,
 )
-from fmu_greybox.model.chain import GreyBoxChain
+from fmu_greybox.model.chain import GreyBoxChain, RecordedRun
 from fmu_greybox.project.config import parse_config
 from fmu_greybox.report.plots import OUTSIDE_STYLE, trace_figure, zoom_range
 
@@ -141,6 +141,43 @@ def test_a_chain_reports_the_known_noise_and_covers_95_percent_of_unseen_rows() 
         assert 0.62 <= coverage(residual[:, q], std[:, q], 1.0) <= 0.74
         # the propagated variance alone claims far more certainty than the data allow
         assert np.median(np.sqrt(run.latent_var[:, q])) < 0.5 * noise
+
+
+def test_calibration_recordings_are_free_run_whole_by_the_chain_that_ships() -> None:
+    """``calibration_runs``: σ comes from the shipped chain's own free run over each
+    recording, from its first rows, so the calibration holds exactly the conformal share of
+    those rows (nothing else calibrated it) and, on recordings of their kind, about 95 %."""
+    chain = small_chain()
+    exo, wb, out = noisy_signals(3000, seed=4)
+    runs = [RecordedRun(*noisy_signals(n, seed)) for n, seed in ((1500, 5), (1200, 6))]
+    chain.fit(exo, wb, out, calibration_runs=runs)
+    h = chain.history
+    residual = np.concatenate(
+        [
+            r.outputs[h:] - chain.free_run_variances(r.exo, r.y_wb, r.outputs, h - 1).mean
+            for r in runs
+        ]
+    )
+    std = np.concatenate(
+        [np.sqrt(chain.free_run_variances(r.exo, r.y_wb, r.outputs, h - 1).var) for r in runs]
+    )
+    m = residual.shape[0]
+    assert m == 1500 + 1200 - 2 * h
+    for q, name in enumerate(chain.stage_names):
+        check = chain.calibration_check_[name]
+        assert (check["source"], check["free_runs"], check["rows"]) == ("recordings", 2, m)
+        assert check["rmse"] == pytest.approx(np.sqrt(np.mean(residual[:, q] ** 2)), rel=1e-12)
+        conformal = math.ceil((m + 1) * 0.95) / m  # the rank the quantile takes (± rounding)
+        assert coverage(residual[:, q], std[:, q], Z95) == pytest.approx(conformal, abs=1.5 / m)
+    unseen = RecordedRun(*noisy_signals(6000, seed=7))
+    run = chain.free_run_variances(unseen.exo, unseen.y_wb, unseen.outputs, h - 1)
+    for q in range(3):
+        share = coverage(unseen.outputs[h:, q] - run.mean[:, q], np.sqrt(run.var[:, q]), Z95)
+        assert 0.92 <= share <= 0.98, (q, share)
+    # without them, the halves of the training rows, two free runs by half-trained chains
+    chain.fit(exo, wb, out)
+    assert {c["source"] for c in chain.calibration_check_.values()} == {"halves"}
+    assert chain.calibration_check_["EHV"]["rows"] == 3000 - h
 
 
 def test_a_free_run_says_where_the_correctors_leave_their_domain() -> None:

@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 
 from fmu_greybox.cli import main
-from fmu_greybox.data.recording import save_recording
+from fmu_greybox.data.recording import Recording, save_recording
 from fmu_greybox.errors import ModelFormatError
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.chain import GreyBoxChain
@@ -292,7 +292,9 @@ def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
             "median_latent_std",
             "calibration_rmse",
             "calibration_independent_rows",
+            "calibration_recordings",
         }
+        assert metrics["stages"][stage]["calibration_recordings"] == 0  # the halves
         row = metrics["stages"][stage]
         # the error the band was calibrated on, and what its rows were worth, as stored
         stored = json.loads((tmp_path / "model" / "model.json").read_text())
@@ -394,6 +396,57 @@ def test_validate_pools_the_coverage_of_several_recordings(
     assert badges == [metrics["acceptance"]["verdict"]] + [c["verdict"] for c in checks.values()]
     for folder, part in zip(folders, parts, strict=True):
         assert_validation_report(out / folder, part, tmp_path, tmp_path / "model")
+
+
+def test_train_calibrates_on_the_recordings_given(
+    recording, whitebox_fmu: Path, truth_fmu: Path, tmp_path: Path
+) -> None:
+    """``train --calibrate-on``: σ is calibrated on those recordings, one free run each, which
+    the model names by hash; ``validate`` does not score their rows; a recording too short or
+    sampled at another step is refused, naming it."""
+    with open_fmu(truth_fmu) as truth, open_fmu(whitebox_fmu) as whitebox:
+        others = [
+            synthesise(truth, whitebox, SynthRequest({"gain_error": 0.1}, seed, 0.0, profile))
+            for seed, profile in ((4, FlightTestProfile(duration=2.0)), (5, FlightTestProfile()))
+        ]
+    rec = save_recording(recording, tmp_path / "rec.csv")
+    paths = [save_recording(r, tmp_path / f"cal{i}.csv") for i, r in enumerate(others)]
+    train = ["-q", "train", str(REFERENCE), "--recording", str(rec), "--inducing", "30"]
+    train += ["--max-iter", "20"]
+    calibrate_on = [arg for path in paths for arg in ("--calibrate-on", str(path))]
+    runner = CliRunner()
+    result = runner.invoke(main, [*train, *calibrate_on, "--out", str(tmp_path / "model")])
+    assert result.exit_code == 0, result.output
+    training = json.loads((tmp_path / "model" / "model.json").read_text())["training"]
+    assert [r["sha256"] for r in training["calibration_recordings"]] == [r.sha256() for r in others]
+    history = load_model(tmp_path / "model").chain.history
+    for check in training["calibration_check"].values():
+        assert (check["source"], check["free_runs"]) == ("recordings", 2)
+        assert check["rows"] == sum(r.n_samples for r in others) - 2 * history
+    validate = ["validate", str(REFERENCE), "--model", str(tmp_path / "model")]
+    result = runner.invoke(main, [*validate, "--recording", str(paths[0])])
+    assert result.exit_code != 0
+    assert "not used in training or in calibrating σ" in result.output
+    result = runner.invoke(main, [*validate, "--recording", str(rec), "--out", str(tmp_path / "v")])
+    assert result.exit_code == 0, result.output
+    metrics = json.loads((tmp_path / "v" / "metrics.json").read_text())
+    assert {row["calibration_recordings"] for row in metrics["stages"].values()} == {2}
+    page = (tmp_path / "v" / REPORT).read_text(encoding="utf-8")
+    assert "What σ was calibrated on: 2 calibration recordings, each free-run whole" in page
+    short = save_recording(recording.slice_time(0.0, 0.05), tmp_path / "short.csv")
+    result = runner.invoke(
+        main, [*train, "--calibrate-on", str(short), "--out", str(tmp_path / "x")]
+    )
+    assert result.exit_code != 0
+    assert "short.csv" in result.output and "--calibrate-on" in result.output
+    every_other = {name: values[::2] for name, values in recording.signals.items()}
+    coarse = Recording(recording.time[::2], every_other, recording.units)
+    coarse = save_recording(coarse, tmp_path / "coarse.csv")
+    result = runner.invoke(
+        main, [*train, "--calibrate-on", str(coarse), "--out", str(tmp_path / "y")]
+    )
+    assert result.exit_code != 0
+    assert "coarse.csv" in result.output and "rec.csv" in result.output
 
 
 @pytest.mark.parametrize("experiment", ["experiment1", "experiment2"])

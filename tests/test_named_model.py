@@ -240,6 +240,22 @@ def test_train_with_terms_compares_its_parts_forward_in_time(termed) -> None:
         assert alone.training["calibration_check"][stage]["rmse"] == pytest.approx(
             np.sqrt(np.mean(residual**2)), rel=1e-9
         )
+    # calibrated on a recording instead: the same, over that recording's named run
+    other = termed["validation"]
+    on_other = train_model(
+        termed["config"], recording, terms=terms(), ship="terms", calibration_recordings=[other]
+    )
+    with open_fmu(model.whitebox_fmu) as archive:
+        other_run = simulate_with_terms(
+            archive, INPUTS, input_rows(other), DT, STAGE_OUTPUTS, terms(), stages=[0, 1, 2]
+        )
+    for q, stage in enumerate(on_other.chain.stage_names):
+        column = config.signals[on_other.chain.target_signals[q]].column
+        residual = other[column][on_other.chain.history :] - other_run[on_other.chain.history :, q]
+        sigma = np.sqrt(on_other.chain.calibration_[q].residual_variance)
+        inside = np.mean(np.abs(residual) <= 1.959963984540054 * sigma)
+        assert inside == pytest.approx(0.95, abs=2e-3), stage
+        assert on_other.training["calibration_check"][stage]["source"] == "recordings"
     plain = train_model(termed["config"], recording, terms=terms(), ship="correctors")
     assert plain.terms == [] and plain.training["parts"]["shipped"] == "correctors"
     with pytest.raises(ConfigError, match="'all' is not a part to ship"):

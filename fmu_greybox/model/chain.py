@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,7 +82,9 @@ class GreyBoxChain:
         :data:`~fmu_greybox.model.calibration.UNCALIBRATED` until fitted.
     calibration_check_ : dict
         Stage -> rows, the held-out residual's RMSE and the shipped chain's median propagated
-        standard deviation on the rows the calibration was estimated on (empty without it).
+        standard deviation on the rows the calibration was estimated on, what those rows are
+        worth in independent ones, how many free runs they came from and their ``source``
+        (``"halves"`` of the training rows or calibration ``"recordings"``); empty without it.
     """
 
     def __init__(
@@ -170,6 +172,7 @@ class GreyBoxChain:
         y_wb: np.ndarray,
         outputs: np.ndarray,
         progress: ProgressCallback | None = None,
+        calibration_runs: Sequence[RecordedRun] = (),
     ) -> GreyBoxChain:
         """Train every stage, in chain order.
 
@@ -193,8 +196,12 @@ class GreyBoxChain:
         trained on half the rows usually reports a larger one. The pairs of both halves give
         ``a`` and ``b`` (:func:`~fmu_greybox.model.calibration.fit_calibration`), stage by
         stage in chain order (a stage's propagated variance holds the calibrated variances of
-        the stages feeding it). The settings given to the constructor are not changed: a
-        refit chooses ``"auto"`` targets again.
+        the stages feeding it). Given ``calibration_runs``, recordings no corrector is trained
+        on, the calibration takes their residuals instead: each is free-run from its first
+        rows by this chain, the one that ships, so its residuals and variances are those a
+        bench will see and no half-trained corrector biases them; and every one is a separate
+        free run, so a drift that lasts seconds is repeated once per recording. The settings
+        given to the constructor are not changed: a refit chooses ``"auto"`` targets again.
 
         Parameters
         ----------
@@ -208,6 +215,9 @@ class GreyBoxChain:
             Called as ``progress(corrector, iteration, bound)`` during optimisation;
             ``corrector`` names the fit in words (``"EHV corrector"``, or with what a fit on
             the leading rows is for).
+        calibration_runs : sequence of RecordedRun
+            Recordings to calibrate the uncertainty on, instead of the two halves of the
+            training rows (each longer than :attr:`history` rows).
 
         Returns
         -------
@@ -230,7 +240,7 @@ class GreyBoxChain:
         if self.check_tail is not None:
             self.free_run_check_ = self._check_free_run(exo, y_wb, outputs, self.check_tail)
         if self.calibrate:
-            self._calibrate(exo, y_wb, outputs, progress)
+            self._calibrate(RecordedRun(exo, y_wb, outputs), progress, calibration_runs)
         return self
 
     def pass_through(
@@ -239,6 +249,7 @@ class GreyBoxChain:
         y_wb: np.ndarray,
         outputs: np.ndarray,
         progress: ProgressCallback | None = None,
+        calibration_runs: Sequence[RecordedRun] = (),
     ) -> GreyBoxChain:
         """Pass every stage through (the chain then reports the model it corrects; the
         correctors are kept, unused) and, with ``calibrate``, estimate :attr:`calibration_`
@@ -253,6 +264,7 @@ class GreyBoxChain:
         exo, y_wb, outputs : ndarray
             The training rows, as given to :meth:`fit`.
         progress : callable, optional
+        calibration_runs : sequence of RecordedRun
             As for :meth:`fit`.
 
         Returns
@@ -262,7 +274,7 @@ class GreyBoxChain:
         """
         self.active_[:] = False
         if self.calibrate:
-            self._calibrate(exo, y_wb, outputs, progress)
+            self._calibrate(RecordedRun(exo, y_wb, outputs), progress, calibration_runs)
         return self
 
     def _fit_stage(
@@ -343,38 +355,37 @@ class GreyBoxChain:
 
     def _calibrate(
         self,
-        exo: np.ndarray,
-        y_wb: np.ndarray,
-        outputs: np.ndarray,
+        training: RecordedRun,
         progress: ProgressCallback | None,
+        calibration_runs: Sequence[RecordedRun] = (),
     ) -> None:
         """Set :attr:`calibration_` and :attr:`calibration_check_` (see :meth:`fit`).
 
         Parameters
         ----------
-        exo, y_wb, outputs : ndarray
+        training : RecordedRun
             The training rows, as given to :meth:`fit`.
         progress : callable, optional
+        calibration_runs : sequence of RecordedRun
             As for :meth:`fit`.
         """
-        n = exo.shape[0]
-        middle = max(self.history + 2, n // 2)
-        halves = [(self.history, middle), (middle, n)]
-        trained_on = [slice(middle, n), slice(0, middle)]  # the other half
-        chains = [
-            self._trained_on(exo[rows], y_wb[rows], outputs[rows], progress, f"{other} half")
-            for rows, other in zip(trained_on, reversed(CALIBRATION_HALVES), strict=True)
-        ]
+        if calibration_runs:
+            folds = [(self, run, self.history, run.rows) for run in calibration_runs]
+        else:
+            folds = self._halves(training, progress)
         calibration = [UNCALIBRATED] * len(self.stages)
         for q, name in enumerate(self.stage_names):
             residual, latent_var = [], []
-            for chain, (first, stop) in zip(chains, halves, strict=True):
-                known = first - 1
+            for chain, run, first, stop in folds:
                 for run_by in (chain, self):  # the stages before q already calibrated
                     run_by.calibration_ = calibration
-                held_out = chain.free_run_variances(exo[:stop], y_wb[:stop], outputs[:stop], known)
-                shipped = self.free_run_variances(exo[:stop], y_wb[:stop], outputs[:stop], known)
-                residual.append(outputs[first:stop, q] - held_out.mean[:, q])
+                shipped = self.free_run_variances(*run.head(stop), first - 1)
+                held_out = (
+                    shipped
+                    if chain is self
+                    else chain.free_run_variances(*run.head(stop), first - 1)
+                )
+                residual.append(run.outputs[first:stop, q] - held_out.mean[:, q])
                 latent_var.append(shipped.latent_var[:, q])
             residual, latent_var = np.concatenate(residual), np.concatenate(latent_var)
             calibration[q] = fit_calibration(residual, latent_var)
@@ -383,8 +394,33 @@ class GreyBoxChain:
                 "rmse": float(np.sqrt(np.mean(residual**2))),
                 "median_latent_std": float(np.median(np.sqrt(latent_var))),
                 "independent_rows": error_independent_rows(residual),
+                "free_runs": len(folds),
+                "source": "recordings" if calibration_runs else "halves",
             }
         self.calibration_ = calibration
+
+    def _halves(
+        self, training: RecordedRun, progress: ProgressCallback | None
+    ) -> list[tuple[GreyBoxChain, RecordedRun, int, int]]:
+        """The two folds of a calibration on the training rows: each half, with a chain
+        trained on the other half only (see :meth:`fit`).
+
+        Returns
+        -------
+        list of (GreyBoxChain, RecordedRun, int, int)
+            The chain that predicts the fold, the rows, its first and its stop row.
+        """
+        n = training.rows
+        middle = max(self.history + 2, n // 2)
+        halves = [(self.history, middle), (middle, n)]
+        trained_on = [slice(middle, n), slice(0, middle)]  # the other half
+        folds = []
+        for (first, stop), rows, other in zip(
+            halves, trained_on, reversed(CALIBRATION_HALVES), strict=True
+        ):
+            chain = self._trained_on(*training.slice(rows), progress, f"{other} half")
+            folds.append((chain, training, first, stop))
+        return folds
 
     def _trained_on(
         self,
@@ -544,6 +580,38 @@ class GreyBoxChain:
             latent_var[i] = state.latent_var
             in_domain[i] = not out_of_domain(score, state)
         return FreeRun(mean=mean, var=var, latent_var=latent_var, in_domain=in_domain)
+
+
+@dataclass(frozen=True)
+class RecordedRun:
+    """Rows of one recording, arranged for a chain.
+
+    Attributes
+    ----------
+    exo : ndarray, shape (n, n_exo)
+        Exogenous inputs (columns as :attr:`GreyBoxChain.exo_names`).
+    y_wb : ndarray, shape (n, Q)
+        White-box predictions of the stage outputs.
+    outputs : ndarray, shape (n, Q)
+        Recorded stage outputs.
+    """
+
+    exo: np.ndarray
+    y_wb: np.ndarray
+    outputs: np.ndarray
+
+    @property
+    def rows(self) -> int:
+        """``n``."""
+        return int(self.exo.shape[0])
+
+    def head(self, stop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(exo, y_wb, outputs)`` of the rows before ``stop``."""
+        return self.slice(slice(0, stop))
+
+    def slice(self, rows: slice) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(exo, y_wb, outputs)`` of ``rows``."""
+        return self.exo[rows], self.y_wb[rows], self.outputs[rows]
 
 
 @dataclass(frozen=True)

@@ -85,7 +85,8 @@ class GreyBoxModel:
     substeps : int
         FMU steps per communication step while a feedback term is active.
     trained_rows : ndarray of uint64, shape (m,), or None
-        Sorted digests of the rows the correctors were trained on
+        Sorted digests of the rows the correctors were trained on, and of the calibration
+        recordings' rows σ was calibrated on
         (:func:`~fmu_greybox.project.fingerprint.row_digests`); ``None`` for a folder written
         before they were kept (format versions 1 and 2).
     """

@@ -238,7 +238,7 @@ def acceptance_section(acceptance: Acceptance, source: str) -> str:
 
 #: What the independent-recording table's last column says.
 RATIO_NOTE = (
-    "k: this RMSE over that of the training free runs σ was calibrated on; "
+    "k: this RMSE over that of the free runs σ was calibrated on; "
     "±1.96σ then holds about erf(1.96 / k / √2) of Gaussian errors."
 )
 
@@ -273,7 +273,7 @@ def validation_rows(validation: Validation, units: list[str]) -> list[tuple]:
 
 
 def calibration_worth_rows(validation: Validation, units: list[str]) -> list[tuple]:
-    """Per stage, what its σ was calibrated on: the training free runs' RMSE, what they are
+    """Per stage, what its σ was calibrated on: the calibration free runs' RMSE, what they are
     worth in independent rows, and where they put ±1.96σ on recordings like them
     (:func:`~fmu_greybox.model.calibration.calibration_spread`); [] when the model does not
     say (stored before ``independent_rows`` was kept)."""
@@ -411,16 +411,22 @@ def _calibration_worth_section(validation: Validation, units: list[str]) -> list
     rows = calibration_worth_rows(validation, units)
     if not rows:
         return []
+    recordings = {int(row.get("calibration_recordings", 0)) for row in validation.table.values()}
+    count = recordings.pop() if len(recordings) == 1 else 0
+    runs = (
+        f"{count} calibration recordings, each free-run whole by the model that ships"
+        if count
+        else "the training rows free-run by correctors trained on the other half"
+    )
     return [
-        "<p>What σ was calibrated on: the training rows free-run by correctors trained on the "
-        "other half. A slow error repeats few times in them, and a band calibrated on few "
-        "independent rows holds anywhere in a wide range on recordings of the same kind "
-        "(95 % range, docs/greybox.md).</p>",
+        f"<p>What σ was calibrated on: {runs}. A slow error repeats few times in a free run, "
+        "and a band calibrated on few independent rows holds anywhere in a wide range on "
+        "recordings of the same kind (95 % range, docs/greybox.md).</p>",
         table(
             (
                 "stage",
                 "unit",
-                "RMSE of the training free runs",
+                "RMSE of the calibration free runs",
                 "independent rows",
                 "±1.96σ holds on recordings like them",
             ),

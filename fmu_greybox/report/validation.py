@@ -121,7 +121,7 @@ def pooled_report_html(
         ),
         "<h2>Shares inside the band, pooled</h2>",
         f"<p>Each recording's share weighted by its independent rows; {INTERVAL_NOTE}. k: the "
-        "grey-box's RMSE over all the scored rows over its RMSE on the training free runs σ was "
+        "grey-box's RMSE over all the scored rows over its RMSE on the free runs σ was "
         "calibrated on.</p>",
         table(
             ("stage", "inside ±1σ", "inside ±1.96σ", "independent rows", "k"),

@@ -18,7 +18,11 @@ from typing import Any
 from fmu_greybox.model.calibration import Z95, calibration_spread, rows_to_vouch
 from fmu_greybox.project.config import AcceptanceConfig, Criteria
 from fmu_greybox.report.spectra import FrequencyResponse
-from fmu_greybox.workflow.metrics import calibration_worth_text, error_ratio
+from fmu_greybox.workflow.metrics import (
+    calibration_free_runs,
+    calibration_worth_text,
+    error_ratio,
+)
 
 PASS, FAIL, UNDECIDED = "PASS", "FAIL", "UNDECIDED"
 
@@ -249,7 +253,7 @@ def _error_size(
 ) -> list[str]:
     """Why a band that was calibrated may miss on a recording: its grey-box errors
     (``gb_rmse``) are not the size of those the band was calibrated on (``calibration_rmse``,
-    the held-out free runs of training). Said when that alone puts the expected share outside
+    the held-out free runs of its calibration). Said when that alone puts the expected share outside
     ``bounds`` on the side of the miss (``narrow``: below them); [] otherwise, or when the row
     does not say."""
     ratio = error_ratio(row)
@@ -261,14 +265,14 @@ def _error_size(
     size = "larger" if narrow else "smaller"
     return [
         f"errors {ratio:.3g} times those the band was calibrated on (RMSE "
-        f"{row['calibration_rmse']:.3g} on the training free runs), where it holds about "
+        f"{row['calibration_rmse']:.3g} on the calibration free runs), where it holds about "
         f"{100 * expected:.3g} %: this recording's errors are {size} than the training one's"
         + ("; train on a recording that excites the stage as much" if narrow else "")
     ]
 
 
 def _calibration_worth(row: Mapping[str, float], bounds: tuple[float, float]) -> list[str]:
-    """Why no recording may find a band within ``bounds``: the training free runs its σ was
+    """Why no recording may find a band within ``bounds``: the free runs its σ was
     calibrated on are worth too few independent rows (``calibration_independent_rows``) to
     vouch for them, even on recordings of their kind
     (:func:`~fmu_greybox.model.calibration.calibration_spread`). Said when that range reaches
@@ -287,10 +291,13 @@ def _calibration_worth(row: Mapping[str, float], bounds: tuple[float, float]) ->
         return []
     needed = rows_to_vouch((float(bounds[0]), float(bounds[1])))
     if needed is not None and needed > rows:
+        runs = calibration_free_runs(row)
+        more = math.ceil((needed - rows) / (rows / runs))
         text += (
             f"; about {needed} would vouch for {bounds[0]:g}-{bounds[1]:g}: a training "
             f"recording about {needed / rows:.2g} times as long, unless its errors "
-            "grow with the run (a drift's do)"
+            f"grow with the run (a drift's do), or about {more} more free runs like the "
+            f"{runs} it was calibrated on (train --calibrate-on: one per recording)"
         )
     return [text]
 

@@ -16,6 +16,7 @@ from fmu_greybox.model.calibration import (
     independent_rows,
     pooled_coverage,
 )
+from fmu_greybox.model.chain import CALIBRATION_HALVES
 
 
 def rmse(predicted: np.ndarray, recorded: np.ndarray) -> float:
@@ -151,9 +152,9 @@ def pooled_row(
         pooled["gb_rmse"] = float(np.sqrt(weights @ errors**2 / weights.sum()))
         if None not in calibrated:
             pooled["calibration_rmse"] = calibrated.pop()
-            worth = rows[0].get("calibration_independent_rows")
-            if worth is not None:  # one model: one calibration
-                pooled["calibration_independent_rows"] = worth
+            for key in ("calibration_independent_rows", "calibration_recordings"):
+                if key in rows[0]:  # one model: one calibration
+                    pooled[key] = rows[0][key]
     for key in ("coverage95", "coverage68"):
         if not all(f"{key}_low" in r and f"{key}_high" in r for r in rows):
             continue
@@ -170,7 +171,7 @@ def pooled_row(
 
 def error_ratio(row: Mapping[str, float]) -> float | None:
     """The grey-box's RMSE on a validation's scored rows (``gb_rmse``) as a multiple of its RMSE
-    on the training free runs its σ was calibrated on (``calibration_rmse``); ``None`` when the
+    on the free runs its σ was calibrated on (``calibration_rmse``); ``None`` when the
     row lacks either (a model stored before it kept the latter)."""
     scored, calibrated = row.get("gb_rmse"), row.get("calibration_rmse")
     return scored / calibrated if scored is not None and calibrated else None
@@ -216,17 +217,26 @@ INTERVAL_NOTE = (
 
 def calibration_worth_text(row: Mapping[str, float]) -> str | None:
     """What a stage's σ rests on, in words: ``σ rests on about 23 independent training rows:
-    ±1.96σ holds 84.6-99.9 % on recordings like them``
-    (:func:`~fmu_greybox.model.calibration.calibration_spread` of the row's
-    ``calibration_independent_rows``); ``None`` when the row does not say, or says less than one
-    row (no residual to calibrate on)."""
+    ±1.96σ holds 84.6-99.9 % on recordings like them``, or ``... independent rows of 3
+    calibration recordings: ...`` (``train --calibrate-on``; the row's
+    ``calibration_recordings``) (:func:`~fmu_greybox.model.calibration.calibration_spread` of
+    the row's ``calibration_independent_rows``); ``None`` when the row does not say, or says
+    less than one row (no residual to calibrate on)."""
     rows = row.get("calibration_independent_rows")
     if rows is None or rows < 1.0:
         return None
+    recordings = int(row.get("calibration_recordings", 0))
+    where = f"rows of {recordings} calibration recordings" if recordings else "training rows"
     return (
-        f"σ rests on about {rows:.0f} independent training rows: ±1.96σ holds "
+        f"σ rests on about {rows:.0f} independent {where}: ±1.96σ holds "
         f"{spread_text(rows)} on recordings like them"
     )
+
+
+def calibration_free_runs(row: Mapping[str, float]) -> int:
+    """How many free runs a stage's σ was calibrated on: one per calibration recording
+    (``calibration_recordings``), else the two halves of the training rows."""
+    return int(row.get("calibration_recordings", 0)) or len(CALIBRATION_HALVES)
 
 
 def _vouched_text(rows: float) -> str:

@@ -27,6 +27,7 @@ from fmu_greybox.errors import ConfigError
 from fmu_greybox.workflow.metrics import rmse
 
 if TYPE_CHECKING:
+    from fmu_greybox.model.chain import RecordedRun
     from fmu_greybox.model.store import GreyBoxModel
     from fmu_greybox.project.data import ProjectData
 
@@ -192,20 +193,30 @@ class FittedModel:
         The recording arranged for its chain (``y_wb``: the white-box with its terms).
     split : int
         Last training row; the rows after it are held out.
+    calibration_runs : tuple of RecordedRun
+        The calibration recordings σ is calibrated on (empty: the halves of the training
+        rows).
     """
 
     model: GreyBoxModel
     data: ProjectData
     split: int
+    calibration_runs: tuple[RecordedRun, ...] = ()
 
     def pass_through(self) -> None:
         """Make the model the white-box with its terms: every stage passed through, and its
-        uncertainty calibrated again on the training rows for the chain as it now runs
+        uncertainty calibrated again, on what it was calibrated on, for the chain as it now
+        runs
         (:meth:`~fmu_greybox.model.chain.GreyBoxChain.pass_through`; ``training``'s
         ``calibration_check`` follows)."""
         data, rows = self.data, slice(0, self.split + 1)
         chain = self.model.chain
-        chain.pass_through(data.exo[rows], data.y_wb[rows], data.outputs[rows])
+        chain.pass_through(
+            data.exo[rows],
+            data.y_wb[rows],
+            data.outputs[rows],
+            calibration_runs=self.calibration_runs,
+        )
         self.model.training["calibration_check"] = chain.calibration_check_
 
     def bench_run(self) -> np.ndarray:

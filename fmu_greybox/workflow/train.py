@@ -12,13 +12,13 @@ from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.export.domain import training_ranges
 from fmu_greybox.fmi.archive import open_fmu
-from fmu_greybox.model.chain import GreyBoxChain
+from fmu_greybox.model.chain import GreyBoxChain, RecordedRun
 from fmu_greybox.model.store import GreyBoxModel, file_sha256
 from fmu_greybox.model.terms import Term
 from fmu_greybox.model.whitebox import check_terms
 from fmu_greybox.progress import Progress
 from fmu_greybox.project.config import ProjectConfig
-from fmu_greybox.project.data import prepare, split_row, whitebox_path
+from fmu_greybox.project.data import check_sample_time, prepare, split_row, whitebox_path
 from fmu_greybox.project.fingerprint import data_rows, row_digests
 from fmu_greybox.workflow.parts import FittedModel, PartsComparison, check_ship, compare_fitted
 
@@ -43,12 +43,16 @@ def train_model(
     target_mode: str | None = None,
     terms: Sequence[Term] = (),
     ship: str = "best",
+    calibration_recordings: Sequence[Recording] = (),
 ) -> GreyBoxModel:
     """Simulate the white-box over the recording and fit every stage's corrector.
 
     The leading ``config.train_fraction`` of the recording trains; the rest stays held out for
-    ``validate``. With named ``terms``, the correctors alone, the terms alone and both are
-    first compared forward in time (:func:`compare_parts_forward`); the model is the part
+    ``validate``. The uncertainty is calibrated on ``calibration_recordings`` when given, else
+    on the two halves of the training rows
+    (:meth:`~fmu_greybox.model.chain.GreyBoxChain.fit`). With named ``terms``, the
+    correctors alone, the terms alone and both are first compared forward in time
+    (:func:`compare_parts_forward`); the model is the part
     ``ship`` names, by default the best, trained on all the training rows, and
     ``training["parts"]`` keeps the comparison.
 
@@ -65,6 +69,9 @@ def train_model(
         correctors then learn what white-box + terms leave, and the model carries the terms.
     ship : str
         One of :data:`~fmu_greybox.workflow.parts.SHIP_CHOICES` (used with ``terms`` only).
+    calibration_recordings : sequence of Recording
+        Recordings no corrector is trained on, each free-run whole by the model that ships to
+        calibrate its σ. Their rows are not scored by ``validate`` (``trained_rows``).
 
     Returns
     -------
@@ -75,17 +82,28 @@ def train_model(
     ConfigError
         Fewer than :data:`MIN_TRAIN_ROWS` training rows, or more inducing points than
         training rows per stage (the message names the field to change), or an unknown
-        ``ship``.
+        ``ship``, or a calibration recording of fewer than :data:`MIN_TRAIN_ROWS` rows.
+    RecordingError
+        A calibration recording sampled at another step than the training recording.
     """
     check_ship(ship)
+    for other in calibration_recordings:
+        check_calibration_recording(recording, other)
     if not terms:
-        return fit_model(config, recording, progress, target_mode, terms).model
+        return fit_model(
+            config, recording, progress, target_mode, terms, calibrate_on=calibration_recordings
+        ).model
     comparison, seconds = compare_parts_forward(
         config, recording, progress, target_mode, terms, ship
     )
     shipped = comparison.shipped
     fitted = fit_model(
-        config, recording, progress, target_mode, () if shipped == "correctors" else terms
+        config,
+        recording,
+        progress,
+        target_mode,
+        () if shipped == "correctors" else terms,
+        calibrate_on=calibration_recordings,
     )
     if shipped == "terms":
         fitted.pass_through()  # its σ then describes the terms alone, not the correctors
@@ -145,9 +163,12 @@ def fit_model(
     target_mode: str | None,
     terms: Sequence[Term],
     calibrate: bool = True,
+    calibrate_on: Sequence[Recording] = (),
 ) -> FittedModel:
     """One chain of correctors on the white-box with ``terms`` (see :func:`train_model`);
-    without ``calibrate``, its σ is the propagated variance (a chain used for its mean only)."""
+    without ``calibrate``, its σ is the propagated variance (a chain used for its mean only).
+    ``calibrate_on``: the calibration recordings (``train_model``'s
+    ``calibration_recordings``)."""
     started = time.perf_counter()
     fmu_path = whitebox_path(config)
     chain = GreyBoxChain(config, target_mode, calibrate=calibrate)
@@ -156,6 +177,8 @@ def fit_model(
         config.check_against_fmu(archive)
         check_terms(terms, archive, len(chain.stages))
         data = prepare(config, chain, archive, recording, progress, terms)
+        calibration = [prepare(config, chain, archive, r, progress, terms) for r in calibrate_on]
+    runs = [RecordedRun(d.exo, d.y_wb, d.outputs) for d in calibration]
     split = split_row(config, data.n_samples)
     rows = slice(0, split + 1)
     shown: list[Progress] = []
@@ -169,7 +192,9 @@ def fit_model(
             )
         shown[-1].update(bound=f"{bound:.4g}")
 
-    chain.fit(data.exo[rows], data.y_wb[rows], data.outputs[rows], progress=report)
+    chain.fit(
+        data.exo[rows], data.y_wb[rows], data.outputs[rows], progress=report, calibration_runs=runs
+    )
     if shown:
         shown[-1].close()
     training = {
@@ -190,6 +215,10 @@ def fit_model(
         "free_run_check": chain.free_run_check_,
         "target_selection": chain.selection_,
         "calibration_check": chain.calibration_check_,
+        "calibration_recordings": [
+            {"sha256": r.sha256(), "source": str(r.source), "n_samples": r.n_samples}
+            for r in calibrate_on
+        ],
         "whitebox_source": str(fmu_path),
         "whitebox_sha256": file_sha256(fmu_path),
         "seconds": round(time.perf_counter() - started, 2),
@@ -201,9 +230,30 @@ def fit_model(
         dt=recording.dt,
         training=training,
         terms=list(terms),
-        trained_rows=row_digests(data_rows(data)[rows]),
+        trained_rows=np.concatenate(
+            [row_digests(data_rows(d)) for d in calibration] + [row_digests(data_rows(data)[rows])]
+        ),
     )
-    return FittedModel(model, data, split)
+    return FittedModel(model, data, split, tuple(runs))
+
+
+def check_calibration_recording(training: Recording, other: Recording) -> None:
+    """A calibration recording must be sampled as the training one and long enough.
+
+    Raises
+    ------
+    RecordingError
+        Another sample time (both named, and how to resample).
+    ConfigError
+        Fewer than :data:`MIN_TRAIN_ROWS` rows.
+    """
+    check_sample_time(other, training.dt, f"the training recording {training.source}")
+    if other.n_samples < MIN_TRAIN_ROWS:
+        raise ConfigError(
+            f"calibration recording {other.source} has {other.n_samples} rows; a calibration "
+            f"free run needs at least {MIN_TRAIN_ROWS}. Give a longer recording",
+            field="--calibrate-on",
+        )
 
 
 def check_training_size(config: ProjectConfig, chain: GreyBoxChain, recording: Recording) -> None:

@@ -153,8 +153,9 @@ def validate_model(
     unseen = int((~trained[start + 1 :]).sum())
     if unseen < MIN_SCORED_ROWS:
         raise RecordingError(
-            f"only {unseen} of its {data.n_samples} rows were not used in training (training "
-            f"rows are recognised by their values); validation needs at least {MIN_SCORED_ROWS}."
+            f"only {unseen} of its {data.n_samples} rows were not used in training or in "
+            "calibrating σ (such rows are recognised by their values); validation needs at "
+            f"least {MIN_SCORED_ROWS}."
             " Validate on held-out data: the tail of the training recording after its "
             "train_fraction, or another recording",
             path=recording.source,
@@ -191,6 +192,9 @@ def validate_model(
         table[name]["calibration_rmse"] = check["rmse"]
         if "independent_rows" in check:  # kept since 2026-11-27
             table[name]["calibration_independent_rows"] = check["independent_rows"]
+        if "source" in check:  # kept since 2026-11-27 (train --calibrate-on)
+            recordings = check["free_runs"] if check["source"] == "recordings" else 0
+            table[name]["calibration_recordings"] = recordings
     criteria = acceptance if acceptance is not None else model.config.acceptance
     responses = validation_responses(model, data, run, scored, criteria)
     return Validation(
