@@ -51,13 +51,16 @@ recording of the same truth model (seed + 1 000 003); per stage the share of its
 the share whose ±1.96σ coverage lies in the target 0.90 .. 0.99, and the share whose interval
 reaches it (the recording cannot tell those from calibrated). Each case's ``--json`` line
 also says which of the model's parts shipped (``shipped``: the terms, the correctors or both).
+``--calibrate-on C`` calibrates σ on C more recordings of the same truth model, each as long
+as the independent one (seeds + 2 000 001, + 2 000 002, ...), instead of the halves of the
+training recording (``train --calibrate-on``): one free run of the bench test's length each.
 
 Per stage name (EHV, RAM, ...) the shares are also pooled over the cases
 (:func:`~fmu_greybox.model.calibration.pooled_coverage`: each weighted by its independent rows,
 with the interval of their sum): a drifting position stage's recording is worth a handful of
 independent rows, too few to decide alone whether its band is wide or narrow; the cases
 together can. Bands decidedly too narrow are counted, with how many of them were scored on
-a recording whose grey-box errors are larger than those of the training free runs their σ was
+a recording whose grey-box errors are larger than those of the free runs their σ was
 calibrated on by enough to account for the miss (``validate`` notes those in its acceptance
 table).
 
@@ -337,9 +340,11 @@ def run_case(
     workers: int,
     duration: float,
     coverage: tuple[int, int] | None = None,
+    calibrate_on: int = 0,
 ) -> dict:
     """Record, diagnose and score one case; with ``coverage`` (inducing points, iterations)
-    also train and validate the grey-box (see the module docstring)."""
+    also train and validate the grey-box, its σ calibrated on ``calibrate_on`` more
+    recordings when not 0 (see the module docstring)."""
     config, truth_path, inputs, noise = case_setting(case, paths)
     with open_fmu(truth_path) as truth, open_fmu(paths[case.whitebox]) as whitebox:
         recording = record(case, truth, whitebox, case.seed, duration)
@@ -360,8 +365,12 @@ def run_case(
             independent = record(
                 case, truth, whitebox, case.seed + VALIDATION_SEED_OFFSET, VALIDATION_DURATION
             )
+            calibration = [
+                record(case, truth, whitebox, seed, VALIDATION_DURATION)
+                for seed in calibration_seeds(case, calibrate_on)
+            ]
     checked, shipped = (
-        uncertainty_coverage(config, findings, recording, independent, coverage)
+        uncertainty_coverage(config, findings, recording, independent, coverage, calibration)
         if coverage is not None
         else (None, None)
     )
@@ -399,22 +408,38 @@ def run_case(
 #: The independent validation recording of a case: its length [s] (the demo's); its seed is the
 #: case's plus the demo's VALIDATION_SEED_OFFSET.
 VALIDATION_DURATION = 8.0
+#: The seeds of a case's calibration recordings are its own plus this plus 1, 2, ...
+CALIBRATION_SEED_OFFSET = 2_000_000
+
+
+def calibration_seeds(case: Case, count: int) -> list[int]:
+    """The seeds of the case's ``count`` calibration recordings (``--calibrate-on``)."""
+    return [case.seed + CALIBRATION_SEED_OFFSET + c for c in range(1, count + 1)]
 
 
 def uncertainty_coverage(
-    config, findings: list, recording, independent, sizes: tuple[int, int]
+    config,
+    findings: list,
+    recording,
+    independent,
+    sizes: tuple[int, int],
+    calibration: list = (),
 ) -> tuple[dict[str, dict[str, float]], str]:
-    """Train the grey-box on the case's recording (named terms first), free-run it on the
-    independent recording; per stage ``coverage68``, ``coverage95`` with its interval, RMSE,
-    median σ and the RMSE of the training free runs σ was calibrated on, and which of the
-    model's parts shipped (``terms``, ``correctors`` or ``terms+correctors``; ``correctors``
-    when nothing was named)."""
+    """Train the grey-box on the case's recording (named terms first; σ calibrated on the
+    ``calibration`` recordings when given), free-run it on the independent recording; per
+    stage ``coverage68``, ``coverage95`` with its interval, RMSE, median σ and the RMSE of the
+    free runs σ was calibrated on, and which of the model's parts shipped (``terms``,
+    ``correctors`` or ``terms+correctors``; ``correctors`` when nothing was named)."""
     model = train_model(
-        with_inducing(config, *sizes), recording, terms=terms_from_findings(findings)
+        with_inducing(config, *sizes),
+        recording,
+        terms=terms_from_findings(findings),
+        calibration_recordings=calibration,
     )
     table = validate_model(model, independent).table
     keys = ("coverage68", "coverage95", "coverage95_low", "coverage95_high", "gb_rmse")
     keys += ("median_std", "independent_rows", "calibration_rmse", "calibration_independent_rows")
+    keys += ("calibration_recordings",)
     shipped = model.training.get("parts", {}).get("shipped", "correctors")
     return {stage: {k: row[k] for k in keys} for stage, row in table.items()}, shipped
 
@@ -638,6 +663,14 @@ def main() -> None:
     parser.add_argument("--inducing", type=int, default=150, help="With --coverage (150).")
     parser.add_argument("--max-iter", type=int, default=100, help="With --coverage (100).")
     parser.add_argument(
+        "--calibrate-on",
+        type=int,
+        default=0,
+        metavar="C",
+        help="With --coverage: calibrate σ on C more recordings of the independent one's length "
+        "(default 0: the halves of the training recording).",
+    )
+    parser.add_argument(
         "--case",
         action="append",
         default=[],
@@ -684,7 +717,7 @@ def main() -> None:
         paths = fmu_paths(Path(folder))
         for case in (chosen or cases(args.quick, suites))[args.start - 1 : args.stop]:
             sizes = (args.inducing, args.max_iter) if args.coverage else None
-            row = run_case(case, paths, args.workers, duration, sizes)
+            row = run_case(case, paths, args.workers, duration, sizes, args.calibrate_on)
             rows.append(row)
             print_row(row)
             if args.coverage:
