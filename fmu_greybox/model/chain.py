@@ -23,6 +23,7 @@ from fmu_greybox.model.calibration import (
     VarianceCalibration,
     error_independent_rows,
     fit_calibration,
+    left_out_shares,
 )
 from fmu_greybox.model.chain_step import ChainPlan, ChainState, out_of_domain
 from fmu_greybox.model.stage import TARGET_MODES, SourceLayout, StageLayout
@@ -84,7 +85,10 @@ class GreyBoxChain:
         Stage -> rows, the held-out residual's RMSE and the shipped chain's median propagated
         standard deviation on the rows the calibration was estimated on, what those rows are
         worth in independent ones, how many free runs they came from and their ``source``
-        (``"halves"`` of the training rows or calibration ``"recordings"``); empty without it.
+        (``"halves"`` of the training rows or calibration ``"recordings"``), and each free
+        run's share inside ±1.96σ with σ calibrated on the others
+        (``free_run_shares``, :func:`~fmu_greybox.model.calibration.left_out_shares`); empty
+        without it.
     """
 
     def __init__(
@@ -387,6 +391,7 @@ class GreyBoxChain:
                 )
                 residual.append(run.outputs[first:stop, q] - held_out.mean[:, q])
                 latent_var.append(shipped.latent_var[:, q])
+            shares = left_out_shares(residual, latent_var)
             residual, latent_var = np.concatenate(residual), np.concatenate(latent_var)
             calibration[q] = fit_calibration(residual, latent_var)
             self.calibration_check_[name] = {
@@ -396,6 +401,7 @@ class GreyBoxChain:
                 "independent_rows": error_independent_rows(residual),
                 "free_runs": len(folds),
                 "source": "recordings" if calibration_runs else "halves",
+                "free_run_shares": shares,
             }
         self.calibration_ = calibration
 
