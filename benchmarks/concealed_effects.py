@@ -439,9 +439,9 @@ def uncertainty_coverage(
     table = validate_model(model, independent).table
     keys = ("coverage68", "coverage95", "coverage95_low", "coverage95_high", "gb_rmse")
     keys += ("median_std", "independent_rows", "calibration_rmse", "calibration_independent_rows")
-    keys += ("calibration_recordings",)
+    keys += ("calibration_recordings", "calibration_share_low", "calibration_share_high")
     shipped = model.training.get("parts", {}).get("shipped", "correctors")
-    return {stage: {k: row[k] for k in keys} for stage, row in table.items()}, shipped
+    return {stage: {k: row[k] for k in keys if k in row} for stage, row in table.items()}, shipped
 
 
 def print_coverage(row: dict) -> None:

@@ -222,6 +222,8 @@ def stage_rows(table: dict) -> dict:
         "calibration_rmse",
         "calibration_independent_rows",
         "calibration_recordings",
+        "calibration_share_low",
+        "calibration_share_high",
     )
     return {stage: {k: row[k] for k in keys if k in row} for stage, row in table.items()}
 

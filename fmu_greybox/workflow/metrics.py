@@ -152,7 +152,8 @@ def pooled_row(
         pooled["gb_rmse"] = float(np.sqrt(weights @ errors**2 / weights.sum()))
         if None not in calibrated:
             pooled["calibration_rmse"] = calibrated.pop()
-            for key in ("calibration_independent_rows", "calibration_recordings"):
+            calibration = ("independent_rows", "recordings", "share_low", "share_high")
+            for key in (f"calibration_{name}" for name in calibration):
                 if key in rows[0]:  # one model: one calibration
                     pooled[key] = rows[0][key]
     for key in ("coverage95", "coverage68"):

@@ -195,6 +195,10 @@ def validate_model(
         if "source" in check:  # kept since 2026-11-27 (train --calibrate-on)
             recordings = check["free_runs"] if check["source"] == "recordings" else 0
             table[name]["calibration_recordings"] = recordings
+        shares = [s for s in check.get("free_run_shares", []) if s == s]  # kept since 2026-11-27
+        if shares:
+            table[name]["calibration_share_low"] = min(shares)
+            table[name]["calibration_share_high"] = max(shares)
     criteria = acceptance if acceptance is not None else model.config.acceptance
     responses = validation_responses(model, data, run, scored, criteria)
     return Validation(
