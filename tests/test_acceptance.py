@@ -240,6 +240,29 @@ def test_a_band_calibrated_on_few_independent_rows_says_it_cannot_vouch_for_the_
     assert "independent training rows" not in empty[f"{SHARE_INSIDE} ±1.96σ"]
 
 
+def test_a_missed_share_is_set_against_what_the_calibration_free_runs_held() -> None:
+    """The calibration's free runs, each scored with σ calibrated on the others, held 30-100 %
+    of their rows (20 recordings): a recording holding 42 % says it is a share such recordings
+    show; one holding 10 % says it lies outside; a row that does not say gets no such note."""
+    criteria = parsed({"band": [600.0, 900.0], "max_nrmse": False})
+    row = {**ROW, "coverage95": 0.42, "coverage95_low": 0.05, "coverage95_high": 0.85}
+    row |= {"calibration_recordings": 20, "calibration_share_low": 0.3}
+    row |= {"calibration_share_high": 1.0}
+
+    def note(row: dict) -> str:
+        checks = evaluate(criteria, {"RAM": row}, []).checks
+        return next(c.note for c in checks if c.criterion == f"{SHARE_INSIDE} ±1.96σ")
+
+    assert (
+        "each of the 20 free runs σ was calibrated on, scored with σ calibrated on the others, "
+        "held 30-100 %: this share is one such recordings show" in note(row)
+    )
+    low = {**row, "coverage95": 0.1, "coverage95_high": 0.3}
+    assert "held 30-100 %: this recording's share lies outside what they show" in note(low)
+    silent = {k: v for k, v in row.items() if not k.startswith("calibration_share")}
+    assert "free runs σ was calibrated on" not in note(silent)
+
+
 def test_several_recordings_decide_a_coverage_no_single_one_can() -> None:
     """Three recordings whose RAM band held every row, each worth 150 independent rows: each
     alone is UNDECIDED (its interval reaches 0.99); pooled (450 rows) the band is decidedly too

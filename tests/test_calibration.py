@@ -28,6 +28,7 @@ from fmu_greybox.model.calibration import (
     coverage_interval,
     error_independent_rows,
     fit_calibration,
+    left_out_shares,
     pooled_coverage,
 )
 from fmu_greybox.model.chain import GreyBoxChain, RecordedRun
@@ -85,6 +86,23 @@ def test_a_slow_wave_is_covered_at_95_percent_not_at_100() -> None:
     std = np.sqrt(found.variance(np.zeros(wave.size)))
     assert coverage(wave, std, Z95) == pytest.approx(0.95, abs=1e-3)
     assert coverage(wave, np.full(wave.size, wave.std()), Z95) == 1.0
+
+
+def test_a_left_out_free_run_shows_what_one_recording_can_hold() -> None:
+    """``left_out_shares``: each run scored with σ calibrated on the others alone. White
+    errors of one size give about 95 % each; a run whose error is three times the others'
+    holds far less, and they more (σ calibrated with it)."""
+    rng = np.random.default_rng(11)
+    runs = [rng.standard_normal(4000) for _ in range(6)]
+    latent = [np.zeros(4000)] * 6
+    shares = left_out_shares(runs, latent)
+    assert len(shares) == 6 and all(0.93 <= s <= 0.97 for s in shares), shares
+    runs[2] = 3.0 * runs[2]
+    shares = left_out_shares(runs, latent)
+    alone = fit_calibration(np.concatenate(runs[:2] + runs[3:]), np.zeros(20000))
+    assert shares[2] == coverage(runs[2], np.sqrt(alone.variance(latent[2])), Z95)
+    assert shares[2] < 0.6 and min(shares[:2] + shares[3:]) > 0.97, shares
+    assert left_out_shares(runs[:1], latent[:1]) == []  # nothing to leave out
 
 
 def test_without_a_residual_nothing_is_calibrated() -> None:

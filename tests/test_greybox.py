@@ -293,6 +293,8 @@ def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
             "calibration_rmse",
             "calibration_independent_rows",
             "calibration_recordings",
+            "calibration_share_low",
+            "calibration_share_high",
         }
         assert metrics["stages"][stage]["calibration_recordings"] == 0  # the halves
         row = metrics["stages"][stage]
@@ -301,6 +303,10 @@ def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
         check = stored["training"]["calibration_check"][stage]
         assert row["calibration_rmse"] == check["rmse"]
         assert row["calibration_independent_rows"] == check["independent_rows"]
+        # each half scored with σ calibrated on the other alone
+        assert len(check["free_run_shares"]) == 2
+        assert row["calibration_share_low"] == min(check["free_run_shares"])
+        assert row["calibration_share_high"] == max(check["free_run_shares"])
         assert 1.0 <= check["independent_rows"] <= check["rows"]
         assert 0.0 <= row["coverage68"] <= row["coverage95"] <= 1.0
         assert row["coverage95_low"] <= row["coverage95"] <= row["coverage95_high"]
@@ -433,6 +439,13 @@ def test_train_calibrates_on_the_recordings_given(
     assert {row["calibration_recordings"] for row in metrics["stages"].values()} == {2}
     page = (tmp_path / "v" / REPORT).read_text(encoding="utf-8")
     assert "What σ was calibrated on: 2 calibration recordings, each free-run whole" in page
+    for name, row in metrics["stages"].items():  # each recording scored with σ from the other
+        shares = training["calibration_check"][name]["free_run_shares"]
+        assert (row["calibration_share_low"], row["calibration_share_high"]) == (
+            min(shares),
+            max(shares),
+        )
+        assert f"{100 * min(shares):.3g}-{100 * max(shares):.3g} % (2 runs)" in page
     short = save_recording(recording.slice_time(0.0, 0.05), tmp_path / "short.csv")
     result = runner.invoke(
         main, [*train, "--calibrate-on", str(short), "--out", str(tmp_path / "x")]

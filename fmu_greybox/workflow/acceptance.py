@@ -238,6 +238,7 @@ def _share_inside(
     notes += _error_size(row, z, bounds, narrow=check.value < bounds[0])
     if key == "coverage95":
         notes += _calibration_worth(row, bounds)
+        notes += _free_run_spread(row, check.value)
     return replace(check, verdict=UNDECIDED if undecided else FAIL, note="; ".join(notes))
 
 
@@ -300,6 +301,27 @@ def _calibration_worth(row: Mapping[str, float], bounds: tuple[float, float]) ->
             f"{runs} it was calibrated on (train --calibrate-on: one per recording)"
         )
     return [text]
+
+
+def _free_run_spread(row: Mapping[str, float], share: float) -> list[str]:
+    """What one recording's share can be for this band: the range of the calibration's own
+    free runs, each scored with σ calibrated on the others (``calibration_share_low`` ..
+    ``_high``, :func:`~fmu_greybox.model.calibration.left_out_shares`), and whether ``share``
+    lies in it; [] when the row does not say."""
+    low, high = row.get("calibration_share_low"), row.get("calibration_share_high")
+    if low is None or high is None:
+        return []
+    runs = calibration_free_runs(row)
+    inside = low <= share <= high
+    return [
+        f"each of the {runs} free runs σ was calibrated on, scored with σ calibrated on the "
+        f"others, held {100 * low:.3g}-{100 * high:.3g} %: "
+        + (
+            "this share is one such recordings show"
+            if inside
+            else "this recording's share lies outside what they show"
+        )
+    ]
 
 
 def _frequency_checks(
