@@ -67,8 +67,8 @@ table).
 With ``--json`` each case is also printed as one JSON line when it is done, and the last line
 is one JSON object: the summary figures (with ``--coverage`` also ``coverage95_in_target``,
 ``coverage95_consistent``, ``coverage95_median``, ``coverage95_range``,
-``coverage95_pooled``, ``coverage95_narrow``, ``coverage95_by_size`` and
-``coverage95_by_worth``) and the cases.
+``coverage95_pooled``, ``coverage95_narrow``, ``coverage95_by_size``,
+``coverage95_by_worth`` and ``coverage95_by_free_runs``) and the cases.
 ``--summarise LOG [LOG ...]`` runs nothing: it reads the cases such runs printed (a suite run
 in parts, or stopped part way) and prints their summary.
 """
@@ -590,6 +590,26 @@ def _by_worth(stages: list[dict]) -> dict[str, float]:
     return counts
 
 
+def _by_free_runs(stages: list[dict]) -> dict[str, int]:
+    """Of the stages whose model says what its calibration's free runs held, each scored with
+    σ calibrated on the others (``calibration_share_low`` .. ``_high``), how many have their
+    independent recording's ±1.96σ share in that range (``in_range`` of ``stages``), and how
+    many of those missing the target do (``misses_in_range`` of ``misses``)."""
+    told = [c for c in stages if "calibration_share_low" in c and "calibration_share_high" in c]
+    in_range = [
+        c["calibration_share_low"] <= c["coverage95"] <= c["calibration_share_high"] for c in told
+    ]
+    missed = [
+        inside for c, inside in zip(told, in_range, strict=True) if not _in_target(c["coverage95"])
+    ]
+    return {
+        "stages": len(told),
+        "in_range": sum(in_range),
+        "misses": len(missed),
+        "misses_in_range": sum(missed),
+    }
+
+
 def pooled_by_stage(rows: list[dict]) -> dict[str, dict[str, float]]:
     """Per stage name, its ±1.96σ shares over the cases pooled by their independent rows."""
     by_stage: dict[str, list[dict]] = {}
@@ -615,6 +635,7 @@ def summary(rows: list[dict]) -> dict:
             "coverage95_narrow": _narrow(rows),
             "coverage95_by_size": _by_size(stages),
             "coverage95_by_worth": _by_worth(stages),
+            "coverage95_by_free_runs": _by_free_runs(stages),
         }
         if covered
         else {}
@@ -793,6 +814,13 @@ def print_summary(result: dict, as_json: bool) -> None:
                 f"({worth['expected_of_vouched']:.1f} expected from their rows), "
                 f"{worth['in_of_unvouched']} of the {worth['unvouched']} whose rows are too few "
                 f"({worth['expected_of_unvouched']:.1f} expected)"
+            )
+        runs = result.get("coverage95_by_free_runs", {})
+        if runs.get("stages"):
+            print(
+                f"  in the range of shares the calibration's free runs held (each with σ from "
+                f"the others): {runs['in_range']} of {runs['stages']} stages, "
+                f"{runs['misses_in_range']} of the {runs['misses']} outside {TARGET_TEXT}"
             )
         for item in narrow.get("stages", []):
             ratio = (

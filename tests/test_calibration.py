@@ -451,3 +451,17 @@ def test_the_suite_pools_its_parts_logs(tmp_path: Path, capsys: pytest.CaptureFi
         "like them (1.0 expected from their rows), 0 of the 1 whose rows are too few (0.7 "
         "expected)"
     ) in capsys.readouterr().out
+    # stages that say what their calibration's free runs held (each with σ from the others):
+    # the narrow one's 60 % lies in 30-100 %, the other's 93 % not in 95-99 %
+    narrow[0]["coverage"]["RAM"] |= {"calibration_share_low": 0.3, "calibration_share_high": 1.0}
+    in_target["coverage"]["RAM"] |= {"calibration_share_low": 0.95, "calibration_share_high": 0.99}
+    by_runs = summary([*cases, narrow[0], in_target])["coverage95_by_free_runs"]
+    assert by_runs == {"stages": 2, "in_range": 1, "misses": 1, "misses_in_range": 1}
+    log.write_text("".join(json.dumps(c) + "\n" for c in (narrow[0], in_target)), "utf-8")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("sys.argv", ["concealed_effects.py", "--summarise", str(log)])
+        main()
+    assert (
+        "in the range of shares the calibration's free runs held (each with σ from the others): "
+        "1 of 2 stages, 1 of the 1 outside 0.90..0.99"
+    ) in capsys.readouterr().out
