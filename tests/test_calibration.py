@@ -442,26 +442,29 @@ def test_the_suite_pools_its_parts_logs(tmp_path: Path, capsys: pytest.CaptureFi
     assert by_worth["expected_of_unvouched"] == pytest.approx(0.99**20 - 0.9**20)
     assert by_worth["expected_of_vouched"] == pytest.approx(1.0)
     log = tmp_path / "worth.log"
-    log.write_text("".join(json.dumps(c) + "\n" for c in (narrow[0], in_target)), "utf-8")
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr("sys.argv", ["concealed_effects.py", "--summarise", str(log)])
-        main()
     assert (
         "in 0.90..0.99: 1 of the 1 stages whose calibration rows vouch for it on recordings "
         "like them (1.0 expected from their rows), 0 of the 1 whose rows are too few (0.7 "
         "expected)"
-    ) in capsys.readouterr().out
+    ) in _summarised(log, [narrow[0], in_target], capsys)
     # stages that say what their calibration's free runs held (each with σ from the others):
     # the narrow one's 60 % lies in 30-100 %, the other's 93 % not in 95-99 %
     narrow[0]["coverage"]["RAM"] |= {"calibration_share_low": 0.3, "calibration_share_high": 1.0}
     in_target["coverage"]["RAM"] |= {"calibration_share_low": 0.95, "calibration_share_high": 0.99}
     by_runs = summary([*cases, narrow[0], in_target])["coverage95_by_free_runs"]
     assert by_runs == {"stages": 2, "in_range": 1, "misses": 1, "misses_in_range": 1}
-    log.write_text("".join(json.dumps(c) + "\n" for c in (narrow[0], in_target)), "utf-8")
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr("sys.argv", ["concealed_effects.py", "--summarise", str(log)])
-        main()
     assert (
         "in the range of shares the calibration's free runs held (each with σ from the others): "
         "1 of 2 stages, 1 of the 1 outside 0.90..0.99"
-    ) in capsys.readouterr().out
+    ) in _summarised(log, [narrow[0], in_target], capsys)
+
+
+def _summarised(log: Path, cases: list[dict], capsys: pytest.CaptureFixture) -> str:
+    """What ``concealed_effects.py --summarise`` prints for these cases, written to ``log``."""
+    from concealed_effects import main
+
+    log.write_text("".join(json.dumps(c) + "\n" for c in cases), "utf-8")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("sys.argv", ["concealed_effects.py", "--summarise", str(log)])
+        main()
+    return capsys.readouterr().out
