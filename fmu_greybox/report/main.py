@@ -62,6 +62,8 @@ def summary(result: DemoResult) -> dict[str, Any]:
         "median_std",
         "calibration_rmse",
         "calibration_independent_rows",
+        "calibration_share_low",
+        "calibration_share_high",
     )
     return {
         "acceptance": validation.acceptance.to_dict() if validation.acceptance else None,
