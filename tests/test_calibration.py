@@ -22,6 +22,7 @@ from fmu_greybox.model.calibration import (
     UNCALIBRATED,
     Z95,
     autocorrelation_time,
+    calibration_rows,
     calibration_spread,
     conformal_quantile,
     coverage,
@@ -303,6 +304,43 @@ def test_the_calibration_spread_holds_where_its_band_holds_on_recordings_of_its_
     assert held >= 138, held
     lowest, highest = {0.0: (0.94, 0.95), 0.99: (0.88, 0.93), 0.999: (0.6, 0.88)}[phi]
     assert lowest <= np.median(lows) <= highest
+
+
+def manoeuvre_errors(rng: np.random.Generator, rows: int) -> np.ndarray:
+    """White errors whose size switches between 0.5 and 2 (equally likely) every 1 000-3 000
+    rows: a valve's error that follows the manoeuvre, with a sign that changes every row."""
+    size = np.empty(rows)
+    start = 0
+    while start < rows:
+        stop = start + int(rng.uniform(1000, 3000))
+        size[start:stop] = rng.choice((0.5, 2.0))
+        start = stop
+    return size * rng.standard_normal(rows)
+
+
+def test_the_calibration_counts_the_memory_of_its_errors_size_too() -> None:
+    """On errors that look white but whose size follows the manoeuvre, the error's own count
+    (``error_independent_rows``) takes 19 000 rows for 19 000 independent ones, and the range
+    it gives holds the calibrated band's share on an endless recording of that kind in few of
+    150 calibrations. ``calibration_rows``, the fewer of that count and the size's, must hold
+    it in at least 92 %, like the AR(1) errors' count above."""
+    rng = np.random.default_rng(23)
+    held = {"error": 0, "calibration": 0}
+    for _ in range(150):
+        residual = manoeuvre_errors(rng, 19000)
+        sigma = math.sqrt(fit_calibration(residual, np.zeros(19000)).residual_variance)
+        # half the time at each size, on an endless recording
+        share = sum(0.5 * math.erf(Z95 * sigma / size / math.sqrt(2.0)) for size in (0.5, 2.0))
+        counts = {
+            "error": error_independent_rows(residual),
+            "calibration": calibration_rows(residual, np.full(19000, sigma)),
+        }
+        assert counts["calibration"] <= counts["error"]
+        for name, rows in counts.items():
+            low, high = calibration_spread(rows)
+            held[name] += low <= share <= high
+    assert held["calibration"] >= 138, held
+    assert held["error"] <= 75, held
 
 
 def test_the_calibration_spread_is_the_conformal_beta_law() -> None:

@@ -21,7 +21,7 @@ from fmu_greybox.gp import SparseGPR
 from fmu_greybox.model.calibration import (
     UNCALIBRATED,
     VarianceCalibration,
-    error_independent_rows,
+    calibration_rows,
     fit_calibration,
     left_out_shares,
 )
@@ -394,11 +394,12 @@ class GreyBoxChain:
             shares = left_out_shares(residual, latent_var)
             residual, latent_var = np.concatenate(residual), np.concatenate(latent_var)
             calibration[q] = fit_calibration(residual, latent_var)
+            std = np.sqrt(calibration[q].variance(latent_var))
             self.calibration_check_[name] = {
                 "rows": int(residual.size),
                 "rmse": float(np.sqrt(np.mean(residual**2))),
                 "median_latent_std": float(np.median(np.sqrt(latent_var))),
-                "independent_rows": error_independent_rows(residual),
+                "independent_rows": calibration_rows(residual, std),
                 "free_runs": len(folds),
                 "source": "recordings" if calibration_runs else "halves",
                 "free_run_shares": shares,

@@ -51,7 +51,7 @@ class Validation:
         all over the scored rows; and ``calibration_rmse``, the grey-box's RMSE on the
         training rows its uncertainty was calibrated on (held-out free runs), and
         ``calibration_independent_rows``, what those rows are worth for the band
-        (:func:`~fmu_greybox.model.calibration.error_independent_rows`), when the model stores
+        (:func:`~fmu_greybox.model.calibration.calibration_rows`), when the model stores
         them.
     held_out : str
         Which rows were scored, in words.
