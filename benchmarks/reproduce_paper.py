@@ -9,7 +9,7 @@ noise, 3000 training samples, fewer than 50 inducing points, 1300 validation sam
 Usage::
 
     python benchmarks/reproduce_paper.py [--json] [--scale S] [--only NAME] [--diagnose]
-                                         [--independent K] [--calibrate-on C]
+                                         [--independent K] [--calibrate-on C] [--by-time]
 
 ``--scale`` shrinks both experiments' sample counts (for CI smoke runs); the default 1.0 is the
 paper's size. ``--diagnose`` runs the whole tool instead of the paper's method alone: the
@@ -33,11 +33,16 @@ by their independent rows (:func:`~fmu_greybox.workflow.metrics.pooled_row`) und
 ``--calibrate-on C`` calibrates each grey-box's σ on C more recordings of the same truth model
 and length (seeds ``seed + 50 + 100 c``, never an independent one's) instead of the two halves
 of its training rows (``train --calibrate-on``): the chain that ships free-runs each whole.
+
+``--by-time`` prints, for every free run scored, each stage's share inside ±1.96σ in windows of
+time since the run started (0-0.1, 0.1-0.3, 0.3-1, 1-3, 3-10 and 10-30 s): whether a band sized
+on the calibration's runs is wider early in a run than late.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import sys
 import time
@@ -48,6 +53,7 @@ from fmu_greybox.diagnosis import Diagnosis
 from fmu_greybox.diagnosis.report import diagnosis_payload
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import reference_fmus
+from fmu_greybox.model.calibration import Z95, coverage
 from fmu_greybox.model.whitebox import terms_from_findings
 from fmu_greybox.project.config import ProjectConfig, parse_config
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
@@ -58,7 +64,7 @@ from fmu_greybox.workflow.metrics import (
     pooled_row,
 )
 from fmu_greybox.workflow.train import train_model
-from fmu_greybox.workflow.validate import validate_model
+from fmu_greybox.workflow.validate import Validation, validate_model
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "bench_configs" / "hydraulic_actuator.toml"
@@ -68,6 +74,9 @@ PAPER = {
     "experiment1": {"EHV": -0.999, "ITFV": -0.622, "RAM": -0.897},
     "experiment2": {"EHV": -0.485, "ITFV": -0.907, "RAM": -0.837},
 }
+
+#: Windows of time since a free run started [s] (``--by-time``).
+TIME_WINDOWS = (0.0, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0)
 
 EXPERIMENTS = {
     "experiment1": {
@@ -146,10 +155,12 @@ def run_experiment(
     diagnose: bool = False,
     independent: int = 0,
     calibrate_on: int = 0,
+    by_time: bool = False,
 ) -> dict:
     """Synthesise, (diagnose,) train (σ calibrated on ``calibrate_on`` more recordings when
     not 0), validate; returns the stage table (with ``independent`` K > 0: ``{name: table,
-    "<name>/seed <s>": table, ...}``, the tables of K more recordings)."""
+    "<name>/seed <s>": table, ...}``, the tables of K more recordings). ``by_time`` prints each
+    free run's shares inside ±1.96σ by time since it started (:func:`shares_by_time`)."""
     config = project(*sizes(spec, scale))
     started = time.perf_counter()
     recording, _ = synthesise_experiment(spec, scale)
@@ -178,6 +189,8 @@ def run_experiment(
         print(format_table(result.table, model.training["target_unit"]))
         paper = ", ".join(f"{k} {100 * v:.1f}%" for k, v in PAPER[name].items())
         print(f"paper: {paper}", flush=True)
+    if by_time and not quiet:
+        print(shares_by_time(f"{name}, its validation rows", result))
     if not independent:
         return stage_rows(result.table)
     tables = {name: stage_rows(result.table)}
@@ -189,6 +202,8 @@ def run_experiment(
         if not quiet:
             print(f"{name}, independent recording (seed {seed}): {checked.held_out}")
             print(format_table(checked.table, model.training["target_unit"]), flush=True)
+            if by_time:
+                print(shares_by_time(f"{name}, seed {seed}", checked))
         tables[f"{name}/seed {seed}"] = stage_rows(checked.table)
         scored.append(checked.scored.size)
     pooled = {
@@ -203,6 +218,25 @@ def run_experiment(
                 print(f"{name}, {stage}: {worth}")
     tables[f"{name}/pooled"] = pooled
     return tables
+
+
+def shares_by_time(label: str, result: Validation) -> str:
+    """Per stage, the share of a free run's rows inside ±1.96σ in each window of time since
+    the run started (:data:`TIME_WINDOWS`): a band sized for long runs would hold more of
+    the first windows than of the last if the error grew with the run."""
+    run = result.run
+    residual = result.data.outputs[run.rows] - run.mean
+    since = run.time - run.time[0]
+    lines = [f"{label}, inside ±1.96σ by time since the free run started:"]
+    for q, stage in enumerate(result.table):
+        cells = []
+        for start, stop in itertools.pairwise(TIME_WINDOWS):
+            rows = (since >= start) & (since < stop)
+            if rows.any():
+                share = coverage(residual[rows, q], run.std[rows, q], Z95)
+                cells.append(f"{start:g}-{stop:g} s {100 * share:.1f} %")
+        lines.append(f"  {stage}: " + ", ".join(cells))
+    return "\n".join(lines)
 
 
 def stage_rows(table: dict) -> dict:
@@ -250,13 +284,25 @@ def main(argv: list[str] | None = None) -> int:
         metavar="C",
         help="calibrate σ on C more recordings instead of the training halves (default 0)",
     )
+    parser.add_argument(
+        "--by-time",
+        action="store_true",
+        help="print each free run's shares inside ±1.96σ by time since it started",
+    )
     args = parser.parse_args(argv)
     results = {}
     for name, spec in EXPERIMENTS.items():
         if args.only and name != args.only:
             continue
         found = run_experiment(
-            name, spec, args.scale, False, args.diagnose, args.independent, args.calibrate_on
+            name,
+            spec,
+            args.scale,
+            False,
+            args.diagnose,
+            args.independent,
+            args.calibrate_on,
+            args.by_time,
         )
         results.update(found if args.independent else {name: found})
     if args.json:
