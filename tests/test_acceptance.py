@@ -195,6 +195,14 @@ def test_a_band_missed_on_a_recording_unlike_the_training_one_says_so() -> None:
     assert "times those the band" not in share(wide).note  # larger errors do not widen a band
     gentle = share({**wide, "gb_rmse": 4e-5})
     assert gentle.verdict == FAIL and "0.4 times" in gentle.note and "smaller" in gentle.note
+    # a band set on the halves' free runs (correctors trained on half the rows) names the
+    # remedy that calibrates the chain that ships; one set on recordings, or a model that
+    # does not say, does not
+    halves = share({**wide, "gb_rmse": 4e-5, "calibration_recordings": 0})
+    assert "halves" in halves.note and "train --calibrate-on" in halves.note
+    assert "halves" not in share({**wide, "gb_rmse": 4e-5, "calibration_recordings": 20}).note
+    assert "halves" not in gentle.note
+    assert "halves" not in share({**row, "calibration_recordings": 0}).note  # too narrow
 
 
 def test_a_band_calibrated_on_few_independent_rows_says_it_cannot_vouch_for_the_limits() -> None:
