@@ -263,9 +263,11 @@ def _error_size(
 ) -> list[str]:
     """Why a band that was calibrated may miss on a recording: its grey-box errors
     (``gb_rmse``) are not the size of those the band was calibrated on (``calibration_rmse``,
-    the held-out free runs of its calibration). Said when that alone puts the expected share outside
-    ``bounds`` on the side of the miss (``narrow``: below them); [] otherwise, or when the row
-    does not say."""
+    the held-out free runs of its calibration). Said when that alone puts the expected share
+    outside ``bounds`` on the side of the miss (``narrow``: below them), with the remedy: a
+    training recording that excites the stage as much (too narrow), or calibration recordings
+    when σ came from the training rows' halves (too wide, :data:`HALVES_ERR_MORE`); [] otherwise,
+    or when the row does not say."""
     ratio = error_ratio(row)
     if not ratio:
         return []
