@@ -334,3 +334,50 @@ def test_object_arrays_are_never_unpickled(fitted, tmp_path):
     js.write_text(json.dumps(meta))
     with pytest.raises(ModelFormatError, match=r"m\.npz"):
         SparseGPR.load(tmp_path / "m")
+
+
+# ------------------------------------------------- warm starts, given hyperparameters
+
+
+def test_given_hyperparameters_give_the_fits_posterior_without_optimising(fitted):
+    """``max_iter = 0`` with ``start`` at a fit's hyperparameters (original units) gives that
+    fit's posterior on the same data: one bound evaluation, no iteration; the data's other
+    standardisation (a subset) is converted, so the posterior is at the same kernel."""
+    X, y = toy_data(n=300, d=3, seed=12)
+    X, y = X * [1.0, 10.0, 0.1] + 3.0, 5.0 * y - 2.0
+    again = SparseGPR(n_inducing=25, max_iter=0).fit(X, y, start=fitted.hyperparameters_)
+    assert (again.n_iter_, again.n_eval_) == (0, 1)
+    assert again.bound_ == pytest.approx(fitted.bound_, rel=1e-10)
+    Xt = X[::7] + 0.01
+    np.testing.assert_allclose(again.predict(Xt)[0], fitted.predict(Xt)[0], rtol=1e-8, atol=1e-8)
+    half = SparseGPR(n_inducing=25, max_iter=0).fit(X[:150], y[:150], start=fitted.hyperparameters_)
+    np.testing.assert_allclose(half.lengthscales_, fitted.lengthscales_, rtol=1e-12)
+    assert half.noise_variance_ == pytest.approx(fitted.noise_variance_, rel=1e-12)
+
+
+def test_a_warm_start_at_the_optimum_stops_at_once(fitted):
+    """Started at its own optimum, the optimiser has almost nothing left to do."""
+    X, y = toy_data(n=300, d=3, seed=12)
+    X, y = X * [1.0, 10.0, 0.1] + 3.0, 5.0 * y - 2.0
+    warm = SparseGPR(n_inducing=25, max_iter=80).fit(X, y, start=fitted.hyperparameters_)
+    assert warm.n_iter_ <= 3 < fitted.n_iter_
+    assert warm.bound_ >= fitted.bound_ - 1e-6 * abs(fitted.bound_)
+
+
+def test_hyperparameters_optimised_on_spread_rows_condition_on_every_row():
+    """``optimise_rows``: the optimisation sees that many rows evenly spread; the posterior
+    and the bound are those of every row at the hyperparameters found (what a fit with those
+    hyperparameters given gives); at least N rows is a plain fit."""
+    X, y = toy_data(n=2000, d=2, seed=5)
+    thinned = SparseGPR(n_inducing=30, max_iter=60, optimise_rows=400).fit(X, y)
+    rows = np.linspace(0, 1999, 400).round().astype(int)
+    # (standardised and given inducing points with every row, hence not bit for bit)
+    on_rows = SparseGPR(n_inducing=30, max_iter=60).fit(X[rows], y[rows])
+    np.testing.assert_allclose(thinned.lengthscales_, on_rows.lengthscales_, rtol=0.05)
+    given = SparseGPR(n_inducing=30, max_iter=0).fit(X, y, start=thinned.hyperparameters_)
+    assert thinned.bound_ == pytest.approx(given.bound_, rel=1e-10)
+    Xt = X[::50] + 0.01
+    np.testing.assert_allclose(thinned.predict(Xt)[0], given.predict(Xt)[0], atol=1e-10)
+    plain = SparseGPR(n_inducing=30, max_iter=60).fit(X, y)
+    everything = SparseGPR(n_inducing=30, max_iter=60, optimise_rows=2000).fit(X, y)
+    assert everything.bound_ == plain.bound_ and everything.n_eval_ == plain.n_eval_

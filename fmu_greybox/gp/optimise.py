@@ -129,7 +129,8 @@ def maximise_bound(
     optimise_inducing : bool
         Also move the inducing points.
     max_iter : int
-        L-BFGS-B iteration cap.
+        L-BFGS-B iteration cap; ``0`` takes ``start`` as it is (clipped to the bounds) and
+        evaluates the bound there once, without its gradient.
     min_noise_variance : float
         Lower bound on σ².
     ftol, gtol : float
@@ -156,6 +157,16 @@ def maximise_bound(
     lower = [-np.inf if lo is None else lo for lo, _ in bounds]
     upper = [np.inf if hi is None else hi for _, hi in bounds]
     theta0 = np.clip(theta0, lower, upper)
+    if max_iter == 0:
+        hyp, Z_at = objective.unpack(theta0)
+        return OptimisationResult(
+            hyperparameters=hyp,
+            inducing_points=np.array(Z_at),
+            bound=bound.evaluate(hyp, Z_at, gradient=False),
+            n_iter=0,
+            n_eval=1,
+            message="hyperparameters given, not optimised (max_iter = 0)",
+        )
     iteration = 0
 
     def on_iteration(intermediate_result: OptimizeResult) -> None:
