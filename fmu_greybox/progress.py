@@ -88,6 +88,15 @@ class Progress:
         self.close()
 
 
+def announce(message: str, enabled: bool = True, stream: TextIO | None = None) -> None:
+    """One line saying what starts now (nothing when not ``enabled``), on standard error by
+    default, as the :class:`Progress` lines are."""
+    if enabled:
+        out = stream if stream is not None else sys.stderr
+        out.write(message + "\n")
+        out.flush()
+
+
 def track(
     items: Iterable[T], label: str, total: int | None, enabled: bool, unit: str = "step"
 ) -> Iterator[T]:

@@ -30,6 +30,7 @@ from fmu_greybox.errors import ConfigError
 from fmu_greybox.export.fmu import export_greybox
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.simulate import simulate_with_terms
+from fmu_greybox.gp import SparseGPR
 from fmu_greybox.model.store import load_model, save_model
 from fmu_greybox.model.terms import CoulombForce, InputDelay, InputGain, SensorDelay
 from fmu_greybox.model.whitebox import NamedModel, check_terms, read_terms
@@ -350,3 +351,29 @@ def test_train_command_folds_a_diagnosis_terms(termed, tmp_path: Path) -> None:
     assert ("equally good within" in result.output) == bool(parts["equally_good"])
     assert model.terms == ([] if parts["best"] == "correctors" else [terms()[1]])
     assert ("named terms: coulomb_friction" in result.output) == bool(model.terms)
+
+
+def test_train_with_terms_optimises_each_choice_once(termed, monkeypatch) -> None:
+    """The optimisations ``train --terms`` runs: per comparison chain and stage one per
+    candidate target (residual, increment); per stage of the model that ships one more,
+    started from the comparison chain's hyperparameters. Everything else (the chosen target's
+    corrector on all the rows, the calibration's halves) is a posterior at hyperparameters
+    already found, not an optimisation."""
+    calls: list[tuple[int, bool]] = []
+    fit = SparseGPR.fit
+
+    def counted(self, X, y, progress=None, start=None):
+        calls.append((self.max_iter, start is not None))
+        return fit(self, X, y, progress=progress, start=start)
+
+    monkeypatch.setattr(SparseGPR, "fit", counted)
+    recording = termed["recording"]
+    model = train_model(termed["config"], recording, terms=terms(), ship="terms+correctors")
+    stages = len(model.chain.stages)
+    optimised = [warm for max_iter, warm in calls if max_iter > 0]
+    assert len(optimised) == 2 * stages * 2 + stages
+    assert sum(optimised) == stages  # the shipped chain's, all warm
+    given = [warm for max_iter, warm in calls if max_iter == 0]
+    assert all(given)
+    # the chosen targets of the two comparison chains; two halves per active stage
+    assert len(given) == 2 * stages + 2 * int(model.chain.active_.sum())

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import functools
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
@@ -18,6 +19,7 @@ import numpy as np
 
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.gp import SparseGPR
+from fmu_greybox.gp.bound import Hyperparameters
 from fmu_greybox.model.calibration import (
     UNCALIBRATED,
     VarianceCalibration,
@@ -28,8 +30,13 @@ from fmu_greybox.model.calibration import (
 from fmu_greybox.model.chain_step import ChainPlan, ChainState, out_of_domain
 from fmu_greybox.model.stage import TARGET_MODES, SourceLayout, StageLayout
 from fmu_greybox.project.config import AUTO, ProjectConfig
+from fmu_greybox.side_by_side import run_side_by_side
 
 ProgressCallback = Callable[[str, int, float], None]
+"""Called as ``progress(corrector, iteration, bound)`` after each optimiser iteration of a fit,
+``corrector`` naming the fit in words, and once more with ``iteration = 0`` when that fit is
+done. Fits may run side by side (:func:`~fmu_greybox.side_by_side.run_side_by_side`), so calls
+for two fits can interleave, from two threads."""
 
 #: Features are clipped to their training range widened by this share of the range.
 RANGE_MARGIN = 0.05
@@ -177,6 +184,7 @@ class GreyBoxChain:
         outputs: np.ndarray,
         progress: ProgressCallback | None = None,
         calibration_runs: Sequence[RecordedRun] = (),
+        warm: GreyBoxChain | None = None,
     ) -> GreyBoxChain:
         """Train every stage, in chain order.
 
@@ -187,17 +195,23 @@ class GreyBoxChain:
         trained both as ``residual`` and ``increment`` on the leading rows, each free-run with
         the stages before it over the last :data:`SELECTION_TAIL` of the rows, and takes
         ``increment`` only where that free run's RMSE is lower by more than
-        :data:`SELECTION_MARGIN`; then it is trained on all rows. Last, unless ``check_tail``
+        :data:`SELECTION_MARGIN`; its corrector is then the posterior on all rows at the
+        hyperparameters of the candidate chosen (the leading rows are most of the rows). Given
+        ``warm``, a chain already fitted to the same stages (on other rows of the same
+        recording), every stage takes its target mode instead, and its optimisation starts at
+        its hyperparameters. Last, unless ``check_tail``
         is ``None``, the chain is free-run over that share of the rows and every stage that
         does not beat its white-box there is passed through (:attr:`active_`), so the grey-box
         is never knowingly worse than the model it corrects. Then, with ``calibrate``, each
         stage's reported variance is estimated (:attr:`calibration_`) by two-fold
         cross-validation: each half of the rows is free-run by a chain whose correctors were
-        trained (hyperparameters and all) on the other half only, so no corrector has seen
-        the rows it predicts. Each of those residuals is paired with the propagated variance
-        that this chain, trained on all rows, reports at the same row (its own free run over
-        the half): that is the variance ``a`` will scale when the chain ships, and a corrector
-        trained on half the rows usually reports a larger one. The pairs of both halves give
+        trained on the other half only, so no corrector's posterior has seen the rows it
+        predicts (their hyperparameters, a few numbers per stage, are this chain's: the
+        half-trained correctors are posteriors at them, not new optimisations). Each of those
+        residuals is paired with the propagated variance that this chain, trained on all
+        rows, reports at the same row (its own free run over the half): that is the variance
+        ``a`` will scale when the chain ships, and a corrector trained on half the rows
+        usually reports a larger one. The pairs of both halves give
         ``a`` and ``b`` (:func:`~fmu_greybox.model.calibration.fit_calibration`), stage by
         stage in chain order (a stage's propagated variance holds the calibrated variances of
         the stages feeding it). Given ``calibration_runs``, recordings no corrector is trained
@@ -222,6 +236,9 @@ class GreyBoxChain:
         calibration_runs : sequence of RecordedRun
             Recordings to calibrate the uncertainty on, instead of the two halves of the
             training rows (each longer than :attr:`history` rows).
+        warm : GreyBoxChain, optional
+            A fitted chain of the same project whose stages' target modes and
+            hyperparameters this fit starts from.
 
         Returns
         -------
@@ -237,10 +254,20 @@ class GreyBoxChain:
         self.free_run_check_ = {}
         self.calibration_ = [UNCALIBRATED] * q_count
         self.calibration_check_ = {}
+        if warm is not None:
+            self.selection_ = dict(warm.selection_)
         for q, stage in enumerate(self.stages):
-            if stage.target_mode == AUTO:
-                stage.target_mode = self._choose_target(q, exo, y_wb, outputs, progress)
-            self._fit_stage(q, exo, y_wb, outputs, progress, f"{stage.name} corrector")
+            if warm is not None:
+                stage.target_mode = warm.stages[q].target_mode
+                start = warm.correctors_[q].hyperparameters_
+                label = f"{stage.name} corrector, from the warm start's"
+                self._fit_stage(q, exo, y_wb, outputs, progress, label, start)
+            elif stage.target_mode == AUTO:
+                stage.target_mode, start = self._choose_target(q, exo, y_wb, outputs, progress)
+                # the candidate's hyperparameters, its posterior on every row
+                self._fit_stage(q, exo, y_wb, outputs, progress, "", start, max_iter=0)
+            else:
+                self._fit_stage(q, exo, y_wb, outputs, progress, f"{stage.name} corrector")
         if self.check_tail is not None:
             self.free_run_check_ = self._check_free_run(exo, y_wb, outputs, self.check_tail)
         if self.calibrate:
@@ -289,8 +316,12 @@ class GreyBoxChain:
         outputs: np.ndarray,
         progress: ProgressCallback | None,
         label: str,
+        start: Hyperparameters | None = None,
+        max_iter: int | None = None,
     ) -> None:
-        """Fit stage ``q``'s corrector on the rows given (the stages before it are fitted)."""
+        """Fit stage ``q``'s corrector on the rows given (the stages before it are fitted),
+        from ``start`` (see :meth:`SparseGPR.fit <fmu_greybox.gp.SparseGPR.fit>`) with at most
+        ``max_iter`` iterations (``None``: the project's ``gp.max_iter``)."""
         gp = self.config.gp
         stage = self.stages[q]
         fed = self._fed(q, exo, y_wb, outputs) if gp.feeds == "free_run" and q else None
@@ -300,11 +331,14 @@ class GreyBoxChain:
         corrector = SparseGPR(
             n_inducing=min(gp.inducing, t.size),
             inducing=gp.inducing_method,
-            max_iter=gp.max_iter,
+            max_iter=gp.max_iter if max_iter is None else max_iter,
+            optimise_rows=gp.optimise_rows,
             seed=gp.seed,
         )
         callback = _stage_progress(progress, label) if progress is not None else None
-        self.correctors_[q] = corrector.fit(X, t, progress=callback)
+        self.correctors_[q] = corrector.fit(X, t, progress=callback, start=start)
+        if progress is not None:
+            progress(label, 0, self.correctors_[q].bound_)  # this fit is done
 
     @contextlib.contextmanager
     def _correcting_first(self, count: int) -> Iterator[None]:
@@ -333,29 +367,58 @@ class GreyBoxChain:
         y_wb: np.ndarray,
         outputs: np.ndarray,
         progress: ProgressCallback | None,
-    ) -> str:
-        """``residual`` or ``increment`` for stage ``q`` (see :meth:`fit`)."""
+    ) -> tuple[str, Hyperparameters]:
+        """``residual`` or ``increment`` for stage ``q`` (see :meth:`fit`), and the
+        hyperparameters of that candidate's corrector."""
         stage = self.stages[q]
         split = max(self.history + 2, int((1.0 - SELECTION_TAIL) * exo.shape[0]))
-        head = slice(0, split)
-        errors = {}
-        with self._correcting_first(q + 1):
-            for mode in ("residual", "increment"):
-                stage.target_mode = mode
-                self._fit_stage(
-                    q,
-                    exo[head],
-                    y_wb[head],
-                    outputs[head],
-                    progress,
-                    f"{stage.name} corrector on the leading rows, {mode} target (to choose it)",
-                )
-                mean, _ = self.free_run(exo, y_wb, outputs, split - 1)
-                errors[mode] = float(np.sqrt(np.mean((mean[:, q] - outputs[split:, q]) ** 2)))
+        modes = ("residual", "increment")
+        tried = run_side_by_side(
+            [
+                functools.partial(self._candidate, q, mode, exo, y_wb, outputs, split, progress)
+                for mode in modes
+            ]
+        )
+        errors = {mode: error for mode, (error, _) in zip(modes, tried, strict=True)}
+        found = {mode: hyp for mode, (_, hyp) in zip(modes, tried, strict=True)}
         better = errors["increment"] < (1.0 - SELECTION_MARGIN) * errors["residual"]
         chosen = "increment" if better else "residual"
         self.selection_[stage.name] = {**errors, "chosen": chosen}
-        return chosen
+        return chosen, found[chosen]
+
+    def _candidate(
+        self,
+        q: int,
+        mode: str,
+        exo: np.ndarray,
+        y_wb: np.ndarray,
+        outputs: np.ndarray,
+        split: int,
+        progress: ProgressCallback | None,
+    ) -> tuple[float, Hyperparameters]:
+        """Stage ``q`` with target ``mode`` trained on the rows before ``split`` and free-run
+        with the stages before it over the rest: that free run's RMSE, and the corrector's
+        hyperparameters. Works on a copy of the chain, so candidates can run side by side."""
+        chain = self._copy()
+        chain.stages = list(self.stages)
+        chain.stages[q] = copy.copy(self.stages[q])
+        chain.stages[q].target_mode = mode
+        head = slice(0, split)
+        label = f"{self.stages[q].name} corrector on the leading rows, {mode} target (to choose it)"
+        chain._fit_stage(q, exo[head], y_wb[head], outputs[head], progress, label)
+        with chain._correcting_first(q + 1):
+            mean, _ = chain.free_run(exo, y_wb, outputs, split - 1)
+        error = float(np.sqrt(np.mean((mean[:, q] - outputs[split:, q]) ** 2)))
+        return error, chain.correctors_[q].hyperparameters_
+
+    def _copy(self) -> GreyBoxChain:
+        """A copy whose correctors, feature ranges and active stages can change on their own
+        (the fitted correctors themselves are shared, not copied)."""
+        chain = copy.copy(self)
+        chain.correctors_ = list(self.correctors_)
+        chain.feature_bounds_ = list(self.feature_bounds_)
+        chain.active_ = self.active_.copy()
+        return chain
 
     def _calibrate(
         self,
@@ -438,7 +501,8 @@ class GreyBoxChain:
         rows: str,
     ) -> GreyBoxChain:
         """A copy of the chain (its stages' target modes, the stages it passes through) with
-        every other corrector trained on the rows given only.
+        every other corrector's posterior computed on the rows given only, at the
+        hyperparameters of this chain's.
 
         Parameters
         ----------
@@ -447,14 +511,12 @@ class GreyBoxChain:
         rows : str
             Which rows, in words (for ``progress``).
         """
-        chain = copy.copy(self)
-        chain.correctors_ = list(self.correctors_)
-        chain.feature_bounds_ = list(self.feature_bounds_)
-        chain.active_ = self.active_.copy()
+        chain = self._copy()
         for q, stage in enumerate(self.stages):
             if self.active_[q]:  # a stage passed through has nothing to train
                 label = f"{stage.name} corrector on the {rows} (to calibrate its uncertainty)"
-                chain._fit_stage(q, exo, y_wb, outputs, progress, label)
+                hyp = self.correctors_[q].hyperparameters_
+                chain._fit_stage(q, exo, y_wb, outputs, progress, label, hyp, max_iter=0)
         return chain
 
     # ------------------------------------------------------------------ running

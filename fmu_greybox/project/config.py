@@ -133,6 +133,10 @@ class GPConfig:
         over the training rows, as the stage will see them when running).
     max_train_samples : int
         Training rows used per stage at most (evenly thinned beyond that).
+    optimise_rows : int
+        Rows the hyperparameters are optimised on at most (evenly thinned beyond that); the
+        posterior is then conditioned on every training row
+        (:class:`~fmu_greybox.gp.SparseGPR`'s ``optimise_rows``).
     seed : int
         Seed of every random choice in training.
     """
@@ -143,6 +147,7 @@ class GPConfig:
     target: str = "residual"
     feeds: str = "recorded"
     max_train_samples: int = 30000
+    optimise_rows: int = 5000
     seed: int = 0
 
 
@@ -654,6 +659,7 @@ def _gp(reader: _Reader, table: Mapping[str, Any]) -> GPConfig:
             "target",
             "feeds",
             "max_train_samples",
+            "optimise_rows",
             "seed",
             "kernel",
         },
@@ -674,6 +680,7 @@ def _gp(reader: _Reader, table: Mapping[str, Any]) -> GPConfig:
         max_train_samples=reader.get(
             table, "max_train_samples", int, GPConfig.max_train_samples, "gp."
         ),
+        optimise_rows=reader.get(table, "optimise_rows", int, GPConfig.optimise_rows, "gp."),
         seed=reader.get(table, "seed", int, GPConfig.seed, "gp."),
     )
     if gp.inducing < 1:
@@ -682,6 +689,12 @@ def _gp(reader: _Reader, table: Mapping[str, Any]) -> GPConfig:
         reader.fail("gp.max_iter", f"{gp.max_iter} must be >= 0")
     if gp.max_train_samples < 10:
         reader.fail("gp.max_train_samples", f"{gp.max_train_samples} must be at least 10")
+    if gp.optimise_rows < gp.inducing:
+        reader.fail(
+            "gp.optimise_rows",
+            f"{gp.optimise_rows} is fewer than gp.inducing = {gp.inducing}; the hyperparameters "
+            "need at least as many rows as inducing points",
+        )
     if gp.inducing_method not in INDUCING_METHODS:
         reader.fail(
             "gp.inducing_method",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 from collections.abc import Sequence
 
@@ -16,7 +17,7 @@ from fmu_greybox.model.chain import GreyBoxChain, RecordedRun
 from fmu_greybox.model.store import GreyBoxModel, file_sha256
 from fmu_greybox.model.terms import Term
 from fmu_greybox.model.whitebox import check_terms
-from fmu_greybox.progress import Progress
+from fmu_greybox.progress import Progress, announce
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import check_sample_time, prepare, split_row, whitebox_path
 from fmu_greybox.project.fingerprint import data_rows, row_digests
@@ -93,10 +94,16 @@ def train_model(
         return fit_model(
             config, recording, progress, target_mode, terms, calibrate_on=calibration_recordings
         ).model
-    comparison, seconds = compare_parts_forward(
+    comparison, seconds, compared = compare_parts_forward(
         config, recording, progress, target_mode, terms, ship
     )
     shipped = comparison.shipped
+    announce(
+        f"Training pass 3 of 3: the model that ships ({comparison.shipped}), on all the "
+        f"training rows, from pass {2 if shipped == 'correctors' else 1}'s hyperparameters "
+        f"(about {seconds / 4:.0f} s or less left)",
+        progress,
+    )
     fitted = fit_model(
         config,
         recording,
@@ -104,6 +111,7 @@ def train_model(
         target_mode,
         () if shipped == "correctors" else terms,
         calibrate_on=calibration_recordings,
+        warm=compared["correctors" if shipped == "correctors" else "terms"].model.chain,
     )
     if shipped == "terms":
         fitted.pass_through()  # its σ then describes the terms alone, not the correctors
@@ -120,7 +128,7 @@ def compare_parts_forward(
     target_mode: str | None,
     terms: Sequence[Term],
     ship: str,
-) -> tuple[PartsComparison, float]:
+) -> tuple[PartsComparison, float, dict[str, FittedModel]]:
     """Correctors alone, ``terms`` alone and both, compared forward in time: correctors
     trained on the first half of the training rows (:func:`comparison_config`), every part
     free-run from the first row and scored on every later row
@@ -134,13 +142,29 @@ def compare_parts_forward(
         when the data cannot decide).
     float
         Seconds the two comparison chains took to train.
+    dict of str to FittedModel
+        The two chains: ``"terms"`` (correctors on the white-box with ``terms``) and
+        ``"correctors"`` (on the plain white-box); the model shipped starts from one of them
+        (``fit_model``'s ``warm``).
     """
     early = comparison_config(config, GreyBoxChain(config, target_mode), recording.n_samples)
+    rows = "the first half of the training rows"
+    announce(
+        f"Training pass 1 of 3: correctors on the white-box with named terms, on {rows} "
+        "(to compare the parts)",
+        progress,
+    )
     # the parts are compared by their means: no σ to calibrate
     named = fit_model(early, recording, progress, target_mode, terms, calibrate=False)
+    took = named.model.training["seconds"]
+    announce(
+        f"Training pass 2 of 3: correctors on the plain white-box, on {rows} (to compare the "
+        f"parts; pass 1 took {took:.0f} s, about {1.25 * took:.0f} s left)",
+        progress,
+    )
     plain = fit_model(early, recording, progress, target_mode, (), calibrate=False)
     seconds = named.model.training["seconds"] + plain.model.training["seconds"]
-    return compare_fitted(named, plain, ship), seconds
+    return compare_fitted(named, plain, ship), seconds, {"terms": named, "correctors": plain}
 
 
 def comparison_config(config: ProjectConfig, chain: GreyBoxChain, n: int) -> ProjectConfig:
@@ -164,11 +188,14 @@ def fit_model(
     terms: Sequence[Term],
     calibrate: bool = True,
     calibrate_on: Sequence[Recording] = (),
+    warm: GreyBoxChain | None = None,
 ) -> FittedModel:
     """One chain of correctors on the white-box with ``terms`` (see :func:`train_model`);
     without ``calibrate``, its σ is the propagated variance (a chain used for its mean only).
     ``calibrate_on``: the calibration recordings (``train_model``'s
-    ``calibration_recordings``)."""
+    ``calibration_recordings``); ``warm``: a chain fitted on part of the same rows whose
+    target modes and hyperparameters the fit starts from
+    (:meth:`~fmu_greybox.model.chain.GreyBoxChain.fit`)."""
     started = time.perf_counter()
     fmu_path = whitebox_path(config)
     chain = GreyBoxChain(config, target_mode, calibrate=calibrate)
@@ -181,22 +208,16 @@ def fit_model(
     runs = [RecordedRun(d.exo, d.y_wb, d.outputs) for d in calibration]
     split = split_row(config, data.n_samples)
     rows = slice(0, split + 1)
-    shown: list[Progress] = []
-
-    def report(corrector: str, iteration: int, bound: float) -> None:
-        if not shown or shown[-1].label != f"Fitting the {corrector}":
-            if shown:
-                shown[-1].close()  # fits run one after the other
-            shown.append(
-                Progress(f"Fitting the {corrector}", config.gp.max_iter, progress, "iteration")
-            )
-        shown[-1].update(bound=f"{bound:.4g}")
-
+    report = FitProgress(config.gp.max_iter, progress)
     chain.fit(
-        data.exo[rows], data.y_wb[rows], data.outputs[rows], progress=report, calibration_runs=runs
+        data.exo[rows],
+        data.y_wb[rows],
+        data.outputs[rows],
+        progress=report,
+        calibration_runs=runs,
+        warm=warm,
     )
-    if shown:
-        shown[-1].close()
+    report.close()
     training = {
         "recording_sha256": recording.sha256(),
         "recording_source": str(recording.source),
@@ -235,6 +256,47 @@ def fit_model(
         ),
     )
     return FittedModel(model, data, split, tuple(runs))
+
+
+class FitProgress:
+    """The progress of a chain's fits, one :class:`~fmu_greybox.progress.Progress` per fit,
+    for :meth:`~fmu_greybox.model.chain.GreyBoxChain.fit`'s ``progress`` (fits that run side
+    by side each keep their own).
+
+    Parameters
+    ----------
+    max_iter : int
+        Iterations a fit takes at most.
+    enabled : bool
+        Show anything.
+    """
+
+    def __init__(self, max_iter: int, enabled: bool) -> None:
+        self.max_iter = max_iter
+        self.enabled = enabled
+        self._open: dict[str, Progress] = {}
+        self._lock = threading.Lock()
+
+    def __call__(self, corrector: str, iteration: int, bound: float) -> None:
+        label = f"Fitting the {corrector}"
+        with self._lock:
+            if iteration == 0:  # the fit is done
+                shown = self._open.pop(label, None)
+                if shown is not None:
+                    shown.close()
+                return
+            shown = self._open.get(label)
+            if shown is None:
+                shown = Progress(label, self.max_iter, self.enabled, "iteration")
+                self._open[label] = shown
+            shown.update(bound=f"{bound:.4g}")
+
+    def close(self) -> None:
+        """Close what is still shown."""
+        with self._lock:
+            for shown in self._open.values():
+                shown.close()
+            self._open.clear()
 
 
 def check_calibration_recording(training: Recording, other: Recording) -> None:
