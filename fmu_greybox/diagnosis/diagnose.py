@@ -38,6 +38,7 @@ from fmu_greybox.diagnosis.locate import Locator, regime_signals
 from fmu_greybox.diagnosis.runner import Experiment, SimulationCluster, Simulator
 from fmu_greybox.diagnosis.select import ForwardSelection
 from fmu_greybox.diagnosis.signals import SignalMap
+from fmu_greybox.diagnosis.window import MAX_ROWS, most_excited
 from fmu_greybox.errors import ConfigError, RecordingError
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu, real_outputs
 from fmu_greybox.model.chain import GreyBoxChain
@@ -90,9 +91,15 @@ class Diagnosis:
     cluster : SimulationCluster, optional
         Run the hypothesis simulations on this cluster's workers instead of ``workers`` local
         processes (``diagnose --scheduler``).
+    max_rows : int
+        Most rows diagnosed: a longer recording is diagnosed on its stretch of this many rows
+        with the most input excitation (:mod:`~fmu_greybox.diagnosis.window`).
 
     Attributes
     ----------
+    window_ : Window or None
+        The stretch diagnosed, when the recording is longer than ``max_rows`` (``None``: all
+        of it). Every row index below counts from its first row.
     signals_ : SignalMap
     experiment_ : Experiment
     locator_ : Locator
@@ -129,6 +136,7 @@ class Diagnosis:
         greybox: GreyBoxSettings | None = GreyBoxSettings(),
         progress: Progress | None = None,
         cluster: SimulationCluster | None = None,
+        max_rows: int = MAX_ROWS,
     ) -> None:
         self.config = config
         self.workers = workers
@@ -137,6 +145,7 @@ class Diagnosis:
         self.greybox = greybox
         self.progress = progress or (lambda message: None)
         self.cluster = cluster
+        self.max_rows = max_rows
 
     # ------------------------------------------------------------------ fit
     def fit(self, recording: Recording) -> Diagnosis:
@@ -169,6 +178,7 @@ class Diagnosis:
             config.check_against_fmu(archive)
             targets = [config.signals[s.target].column for s in config.stages]
             recording.require(targets, context=f"project {config.name}")
+            recording = self._window(recording)
             signals = SignalMap.from_project(config, archive, recording)
             if not signals.observed:
                 raise ConfigError(
@@ -205,6 +215,26 @@ class Diagnosis:
         self._tick("model", started)
         self.timings_["total"] = round(time.perf_counter() - started, 2)
         return self
+
+    def _window(self, recording: Recording) -> Recording:
+        """The recording, or its most excited stretch of :attr:`max_rows` rows (sets
+        :attr:`window_`)."""
+        columns = sorted(
+            {self.config.signals[i].column for s in self.config.stages for i in s.inputs}
+        )
+        present = [c for c in columns if c in recording.names]
+        self.window_ = (
+            most_excited([recording[c] for c in present], self.max_rows) if present else None
+        )
+        if self.window_ is None:
+            return recording
+        self.progress(
+            f"diagnosing rows {self.window_.first}-{self.window_.last} of {recording.n_samples} "
+            f"(the stretch whose inputs vary most; {self.window_.share_of_excitation:.0%} of the "
+            "recording's excitation)"
+        )
+        time = recording.time
+        return recording.slice_time(time[self.window_.first], time[self.window_.last])
 
     def _tick(self, step: str, started: float) -> None:
         done = sum(v for k, v in self.timings_.items())

@@ -59,6 +59,8 @@ def diagnosis_payload(diagnosis, recording) -> dict:
             "dt": recording.dt,
             "train_rows": exp.train_rows,
             "heldout_rows": exp.n_samples - exp.train_rows,
+            # a long recording is diagnosed on one stretch; the rows above count from its first
+            "window": None if diagnosis.window_ is None else diagnosis.window_.to_dict(),
         },
         "verdict": verdict_lines(diagnosis),
         "origin_stage": origin,
@@ -225,7 +227,17 @@ def diagnosis_sections(diagnosis, payload: dict) -> list[str]:
         for stage in payload["stages"]
         for sig in stage["signals"]
     ]
+    window = payload["recording"].get("window")
+    stretch = (
+        []
+        if window is None
+        else [
+            f"<p>Diagnosed on rows {window['first_row']}-{window['last_row']} of "
+            f"{window['of_rows']}: {escape(window['how'])}.</p>"
+        ]
+    )
     return [
+        *stretch,
         "<h2>Findings</h2>",
         table(
             ("#", "stage", "effect", "magnitude", "95 % interval", "explained", "summary"), findings
