@@ -27,7 +27,7 @@ from fmu_greybox.model.calibration import (
     fit_calibration,
     left_out_shares,
 )
-from fmu_greybox.model.chain_step import ChainPlan, ChainState, out_of_domain
+from fmu_greybox.model.chain_step import ChainPlan, ChainState
 from fmu_greybox.model.stage import TARGET_MODES, SourceLayout, StageLayout
 from fmu_greybox.project.config import AUTO, ProjectConfig
 from fmu_greybox.side_by_side import run_side_by_side
@@ -184,42 +184,42 @@ class GreyBoxChain:
         outputs: np.ndarray,
         progress: ProgressCallback | None = None,
         calibration_runs: Sequence[RecordedRun] = (),
-        warm: GreyBoxChain | None = None,
+        targets_from: GreyBoxChain | None = None,
     ) -> GreyBoxChain:
         """Train every stage, in chain order.
 
         A stage's own memory and target come from the recorded outputs (teacher forcing). The
-        earlier stages' outputs in its features come from the recording, or with ``[gp] feeds
-        = "free_run"`` from the earlier (already trained) stages' own free run over the same
-        rows, as the stage will see them when it runs. A stage whose target is ``"auto"`` is
-        trained both as ``residual`` and ``increment`` on the leading rows, each free-run with
-        the stages before it over the last :data:`SELECTION_TAIL` of the rows, and takes
+        earlier stages' outputs in its features come from the recording, or with ``[gp] feeds =
+        "free_run"`` from the earlier (already trained) stages' own free run over the same rows,
+        as the stage will see them when it runs. A stage whose target is ``"auto"`` is trained
+        both as ``residual`` and ``increment`` on the leading rows, each free-run with the
+        stages before it over the last :data:`SELECTION_TAIL` of the rows, and takes
         ``increment`` only where that free run's RMSE is lower by more than
-        :data:`SELECTION_MARGIN`; its corrector is then the posterior on all rows at the
-        hyperparameters of the candidate chosen (the leading rows are most of the rows). Given
-        ``warm``, a chain already fitted to the same stages (on other rows of the same
-        recording), every stage takes its target mode instead, and its optimisation starts at
-        its hyperparameters. Last, unless ``check_tail``
-        is ``None``, the chain is free-run over that share of the rows and every stage that
-        does not beat its white-box there is passed through (:attr:`active_`), so the grey-box
-        is never knowingly worse than the model it corrects. Then, with ``calibrate``, each
-        stage's reported variance is estimated (:attr:`calibration_`) by two-fold
-        cross-validation: each half of the rows is free-run by a chain whose correctors were
-        trained on the other half only, so no corrector's posterior has seen the rows it
-        predicts (their hyperparameters, a few numbers per stage, are this chain's: the
-        half-trained correctors are posteriors at them, not new optimisations). Each of those
-        residuals is paired with the propagated variance that this chain, trained on all
-        rows, reports at the same row (its own free run over the half): that is the variance
-        ``a`` will scale when the chain ships, and a corrector trained on half the rows
-        usually reports a larger one. The pairs of both halves give
-        ``a`` and ``b`` (:func:`~fmu_greybox.model.calibration.fit_calibration`), stage by
-        stage in chain order (a stage's propagated variance holds the calibrated variances of
-        the stages feeding it). Given ``calibration_runs``, recordings no corrector is trained
-        on, the calibration takes their residuals instead: each is free-run from its first
-        rows by this chain, the one that ships, so its residuals and variances are those a
-        bench will see and no half-trained corrector biases them; and every one is a separate
-        free run, so a drift that lasts seconds is repeated once per recording. The settings
-        given to the constructor are not changed: a refit chooses ``"auto"`` targets again.
+        :data:`SELECTION_MARGIN`; then it is trained on all rows (from the usual start: a warm
+        start at the chosen candidate's hyperparameters changes which corrector passes the
+        free-run check below, measured in ``docs/speed.md``). The two candidates are trained
+        side by side. Given ``targets_from``, a chain already fitted to the same stages (on
+        other rows of the same recording), every stage takes its target mode instead. Last,
+        unless ``check_tail`` is ``None``, the chain is free-run over that share of the rows and
+        every stage that does not beat its white-box there is passed through (:attr:`active_`),
+        so the grey-box is never knowingly worse than the model it corrects. Then, with
+        ``calibrate``, each stage's reported variance is estimated (:attr:`calibration_`) by
+        two-fold cross-validation: each half of the rows is free-run by a chain whose correctors
+        were trained (hyperparameters and all, the two halves side by side) on the other half
+        only, so no corrector has seen the rows it predicts (hyperparameters taken from this
+        chain instead make the held-out residuals too small: measured in ``docs/speed.md``).
+        Each of those residuals is paired with the propagated variance that this chain, trained
+        on all rows, reports at the same row (its own free run over the half): that is the
+        variance ``a`` will scale when the chain ships, and a corrector trained on half the rows
+        usually reports a larger one. The pairs of both halves give ``a`` and ``b``
+        (:func:`~fmu_greybox.model.calibration.fit_calibration`), stage by stage in chain order
+        (a stage's propagated variance holds the calibrated variances of the stages feeding it).
+        Given ``calibration_runs``, recordings no corrector is trained on, the calibration takes
+        their residuals instead: each is free-run from its first rows by this chain, the one
+        that ships, so its residuals and variances are those a bench will see and no
+        half-trained corrector biases them; and every one is a separate free run, so a drift
+        that lasts seconds is repeated once per recording. The settings given to the constructor
+        are not changed: a refit chooses ``"auto"`` targets again.
 
         Parameters
         ----------
@@ -236,9 +236,8 @@ class GreyBoxChain:
         calibration_runs : sequence of RecordedRun
             Recordings to calibrate the uncertainty on, instead of the two halves of the
             training rows (each longer than :attr:`history` rows).
-        warm : GreyBoxChain, optional
-            A fitted chain of the same project whose stages' target modes and
-            hyperparameters this fit starts from.
+        targets_from : GreyBoxChain, optional
+            A fitted chain of the same project whose stages' target modes this fit takes.
 
         Returns
         -------
@@ -254,20 +253,14 @@ class GreyBoxChain:
         self.free_run_check_ = {}
         self.calibration_ = [UNCALIBRATED] * q_count
         self.calibration_check_ = {}
-        if warm is not None:
-            self.selection_ = dict(warm.selection_)
+        if targets_from is not None:
+            self.selection_ = dict(targets_from.selection_)
         for q, stage in enumerate(self.stages):
-            if warm is not None:
-                stage.target_mode = warm.stages[q].target_mode
-                start = warm.correctors_[q].hyperparameters_
-                label = f"{stage.name} corrector, from the warm start's"
-                self._fit_stage(q, exo, y_wb, outputs, progress, label, start)
+            if targets_from is not None:
+                stage.target_mode = targets_from.stages[q].target_mode
             elif stage.target_mode == AUTO:
-                stage.target_mode, start = self._choose_target(q, exo, y_wb, outputs, progress)
-                # the candidate's hyperparameters, its posterior on every row
-                self._fit_stage(q, exo, y_wb, outputs, progress, "", start, max_iter=0)
-            else:
-                self._fit_stage(q, exo, y_wb, outputs, progress, f"{stage.name} corrector")
+                stage.target_mode = self._choose_target(q, exo, y_wb, outputs, progress)
+            self._fit_stage(q, exo, y_wb, outputs, progress, f"{stage.name} corrector")
         if self.check_tail is not None:
             self.free_run_check_ = self._check_free_run(exo, y_wb, outputs, self.check_tail)
         if self.calibrate:
@@ -367,9 +360,8 @@ class GreyBoxChain:
         y_wb: np.ndarray,
         outputs: np.ndarray,
         progress: ProgressCallback | None,
-    ) -> tuple[str, Hyperparameters]:
-        """``residual`` or ``increment`` for stage ``q`` (see :meth:`fit`), and the
-        hyperparameters of that candidate's corrector."""
+    ) -> str:
+        """``residual`` or ``increment`` for stage ``q`` (see :meth:`fit`)."""
         stage = self.stages[q]
         split = max(self.history + 2, int((1.0 - SELECTION_TAIL) * exo.shape[0]))
         modes = ("residual", "increment")
@@ -379,12 +371,11 @@ class GreyBoxChain:
                 for mode in modes
             ]
         )
-        errors = {mode: error for mode, (error, _) in zip(modes, tried, strict=True)}
-        found = {mode: hyp for mode, (_, hyp) in zip(modes, tried, strict=True)}
+        errors = dict(zip(modes, tried, strict=True))
         better = errors["increment"] < (1.0 - SELECTION_MARGIN) * errors["residual"]
         chosen = "increment" if better else "residual"
         self.selection_[stage.name] = {**errors, "chosen": chosen}
-        return chosen, found[chosen]
+        return chosen
 
     def _candidate(
         self,
@@ -395,10 +386,10 @@ class GreyBoxChain:
         outputs: np.ndarray,
         split: int,
         progress: ProgressCallback | None,
-    ) -> tuple[float, Hyperparameters]:
+    ) -> float:
         """Stage ``q`` with target ``mode`` trained on the rows before ``split`` and free-run
-        with the stages before it over the rest: that free run's RMSE, and the corrector's
-        hyperparameters. Works on a copy of the chain, so candidates can run side by side."""
+        with the stages before it over the rest: that free run's RMSE. Works on a copy of
+        the chain, so candidates can run side by side."""
         chain = self._copy()
         chain.stages = list(self.stages)
         chain.stages[q] = copy.copy(self.stages[q])
@@ -408,8 +399,7 @@ class GreyBoxChain:
         chain._fit_stage(q, exo[head], y_wb[head], outputs[head], progress, label)
         with chain._correcting_first(q + 1):
             mean, _ = chain.free_run(exo, y_wb, outputs, split - 1)
-        error = float(np.sqrt(np.mean((mean[:, q] - outputs[split:, q]) ** 2)))
-        return error, chain.correctors_[q].hyperparameters_
+        return float(np.sqrt(np.mean((mean[:, q] - outputs[split:, q]) ** 2)))
 
     def _copy(self) -> GreyBoxChain:
         """A copy whose correctors, feature ranges and active stages can change on their own
@@ -484,13 +474,18 @@ class GreyBoxChain:
         middle = max(self.history + 2, n // 2)
         halves = [(self.history, middle), (middle, n)]
         trained_on = [slice(middle, n), slice(0, middle)]  # the other half
-        folds = []
-        for (first, stop), rows, other in zip(
-            halves, trained_on, reversed(CALIBRATION_HALVES), strict=True
-        ):
-            chain = self._trained_on(*training.slice(rows), progress, f"{other} half")
-            folds.append((chain, training, first, stop))
-        return folds
+        chains = run_side_by_side(
+            [
+                functools.partial(
+                    self._trained_on, *training.slice(rows), progress, f"{other} half"
+                )
+                for rows, other in zip(trained_on, reversed(CALIBRATION_HALVES), strict=True)
+            ]
+        )
+        return [
+            (chain, training, first, stop)
+            for chain, (first, stop) in zip(chains, halves, strict=True)
+        ]
 
     def _trained_on(
         self,
@@ -501,8 +496,7 @@ class GreyBoxChain:
         rows: str,
     ) -> GreyBoxChain:
         """A copy of the chain (its stages' target modes, the stages it passes through) with
-        every other corrector's posterior computed on the rows given only, at the
-        hyperparameters of this chain's.
+        every other corrector trained on the rows given only, hyperparameters and all.
 
         Parameters
         ----------
@@ -515,8 +509,7 @@ class GreyBoxChain:
         for q, stage in enumerate(self.stages):
             if self.active_[q]:  # a stage passed through has nothing to train
                 label = f"{stage.name} corrector on the {rows} (to calibrate its uncertainty)"
-                hyp = self.correctors_[q].hyperparameters_
-                chain._fit_stage(q, exo, y_wb, outputs, progress, label, hyp, max_iter=0)
+                chain._fit_stage(q, exo, y_wb, outputs, progress, label)
         return chain
 
     # ------------------------------------------------------------------ running
@@ -634,21 +627,10 @@ class GreyBoxChain:
         first = max(0, start - self.history + 1)
         known = slice(first, start + 1)
         state = self.start(outputs[known], y_wb[known], exo[known])
-        n = exo.shape[0]
-        exo = np.ascontiguousarray(exo, dtype=np.float64)
-        y_wb = np.ascontiguousarray(y_wb, dtype=np.float64)
-        mean = np.empty((n - start - 1, len(self.stages)))
-        var = np.empty_like(mean)
-        latent_var = np.empty_like(mean)
-        in_domain = np.empty(mean.shape[0], dtype=bool)
-        plan = self.plan()
-        for i, j in enumerate(range(start + 1, n)):
-            score = plan.step(state, exo[j - 1], y_wb[j])
-            mean[i] = state.out_mean
-            var[i] = state.out_var
-            latent_var[i] = state.latent_var
-            in_domain[i] = not out_of_domain(score, state)
-        return FreeRun(mean=mean, var=var, latent_var=latent_var, in_domain=in_domain)
+        rows = self.plan().run(state, exo, y_wb, start + 1)
+        return FreeRun(
+            mean=rows.mean, var=rows.var, latent_var=rows.latent_var, in_domain=rows.in_domain()
+        )
 
 
 @dataclass(frozen=True)

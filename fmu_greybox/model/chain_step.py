@@ -142,6 +142,17 @@ class ChainState:
         rows = self.values[: layout.exo(0, 0)].reshape(layout.depth + 1, 2, q)
         return rows[:, 0 if block == "wb" else 1]
 
+    def taps(self) -> np.ndarray:
+        """Offsets in :attr:`values` of each stage's output mean, calibrated variance,
+        propagated variance and out-of-range flag, shape (4 Q,), int64 (what
+        :meth:`ChainPlan.run` copies out row after row)."""
+        q, shared = self.layout.n_stages, self.layout.shared
+        stages = np.arange(q)
+        out = self.layout.out(0, 0)  # where out_mean starts
+        return np.concatenate(
+            [out + stages, shared + stages, self._newest_level_var, shared + q + stages]
+        ).astype(np.int64)
+
     def copy(self) -> ChainState:
         """An independent copy (for saving and restoring state)."""
         return ChainState(self.layout, self.memory_lengths, self.values.copy())
@@ -287,6 +298,56 @@ class ChainPlan:
         return _chainstep.step(
             self._plan, self._params, self._work, state.values, exo_prev, y_wb, enabled
         )
+
+    def run(self, state: ChainState, exo: np.ndarray, y_wb: np.ndarray, first: int) -> RunRows:
+        """:meth:`step` over rows ``first .. n - 1``, each given the previous row's inputs and
+        its own white-box outputs, every corrector enabled, in compiled code with no Python
+        between the rows (the GIL is released: runs of other chains go on beside it).
+
+        Parameters
+        ----------
+        state : ChainState
+            The state at row ``first - 1``; left at the last row.
+        exo : ndarray, shape (n, n_exo)
+        y_wb : ndarray, shape (n, Q)
+        first : int
+            First row stepped (``>= 1``).
+
+        Returns
+        -------
+        RunRows
+        """
+        exo = np.ascontiguousarray(exo, dtype=np.float64)
+        y_wb = np.ascontiguousarray(y_wb, dtype=np.float64)
+        q = self.layout.n_stages
+        table = np.empty((exo.shape[0] - first, 3 * q + 2))
+        work = np.zeros_like(self._work)  # its own scratch: runs may go on side by side
+        _chainstep.run(
+            self._plan, self._params, work, state.values, exo, y_wb, first, state.taps(), table
+        )
+        return RunRows(table, q)
+
+
+class RunRows:
+    """Per row of a :meth:`ChainPlan.run`: the stage outputs, their calibrated and propagated
+    variances, the domain score and whether some stage's features left their range.
+
+    Parameters
+    ----------
+    table : ndarray, shape (m, 3 Q + 2)
+        What the compiled run wrote.
+    n_stages : int
+    """
+
+    def __init__(self, table: np.ndarray, n_stages: int) -> None:
+        q = n_stages
+        self.mean, self.var = table[:, :q], table[:, q : 2 * q]
+        self.latent_var = table[:, 2 * q : 3 * q]
+        self.score, self.outside = table[:, 3 * q], table[:, 3 * q + 1] == 1.0
+
+    def in_domain(self, threshold: float = DEFAULT_OOD_THRESHOLD) -> np.ndarray:
+        """Rows the exported FMU would not flag ``out_of_domain`` (:func:`out_of_domain`)."""
+        return ~((self.score < threshold) | self.outside)
 
 
 def out_of_domain(

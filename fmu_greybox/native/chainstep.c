@@ -215,10 +215,90 @@ static PyObject *py_start(PyObject *self, PyObject *const *args, Py_ssize_t narg
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(run_doc,
+             "run(plan, params, work, state, exo, y_wb, first, taps, out)\n\n"
+             "Free-run the chain over rows first .. n - 1 of exo (n, n_exo) and y_wb (n, Q), "
+             "in place on state, with every corrector enabled: what step does row after row, "
+             "without Python between the rows (and without the GIL). taps: int64, the state's "
+             "offsets of each stage's output mean, calibrated variance, propagated variance "
+             "and out-of-range flag (4 Q values); out: writable float64 (n - first, 3 Q + 2) "
+             "receiving per row the Q means, Q calibrated variances, Q propagated variances, "
+             "the domain score and 1.0 where some stage's features left their range.");
+
+static PyObject *py_run(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    Buffer b[8];
+    const char *names[8] = {"plan", "params", "work", "state", "exo", "y_wb", "taps", "out"};
+    const char formats[8] = {'q', 'd', 'd', 'd', 'd', 'd', 'q', 'd'};
+    const int writable[8] = {0, 0, 1, 1, 0, 0, 0, 1};
+    const int slot[8] = {0, 1, 2, 3, 4, 5, 7, 8};
+    ChainSizes sizes;
+    Py_ssize_t first, rows, q, width;
+    (void)self;
+    if (nargs != 9) {
+        PyErr_SetString(PyExc_TypeError, "run takes 9 arguments");
+        return NULL;
+    }
+    first = PyLong_AsSsize_t(args[6]);
+    if (first == -1 && PyErr_Occurred()) return NULL;
+    if (take_plan(args[0], &b[0], &sizes)) {
+        release(b, 1);
+        return NULL;
+    }
+    for (int i = 1; i < 8; i++) {
+        if (take(args[slot[i]], &b[i], names[i], formats[i], writable[i])) {
+            release(b, i + 1);
+            return NULL;
+        }
+    }
+    q = sizes.n_stages;
+    width = 3 * q + 2;
+    rows = sizes.n_exo > 0 ? length(&b[4]) / sizes.n_exo : 0;
+    if (first < 1 || first > rows || length(&b[5]) != rows * q) {
+        PyErr_Format(PyExc_ValueError, "run needs 1 <= first <= n and y_wb of n x %zd values", q);
+        release(b, 8);
+        return NULL;
+    }
+    if (too_short(&b[1], sizes.params, "params") || too_short(&b[2], sizes.work, "work") ||
+        too_short(&b[3], sizes.state, "state") || too_short(&b[6], 4 * q, "taps") ||
+        too_short(&b[7], (rows - first) * width, "out")) {
+        release(b, 8);
+        return NULL;
+    }
+    {
+        const int64_t *taps = b[6].view.buf;
+        const double *exo = b[4].view.buf, *y_wb = b[5].view.buf;
+        double *state = b[3].view.buf, *out = b[7].view.buf;
+        for (Py_ssize_t k = 0; k < 4 * q; k++) {
+            if (taps[k] < 0 || taps[k] >= sizes.state) {
+                PyErr_SetString(PyExc_ValueError, "run: a tap lies outside the state");
+                release(b, 8);
+                return NULL;
+            }
+        }
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t j = first; j < rows; j++) {
+            double *row = out + (j - first) * width, outside = 0.0;
+            row[3 * q] = chain_step(b[0].view.buf, b[1].view.buf, b[2].view.buf, state,
+                                    exo + (j - 1) * sizes.n_exo, y_wb + j * q, 1);
+            for (Py_ssize_t s = 0; s < q; s++) {
+                row[s] = state[taps[s]];
+                row[q + s] = state[taps[q + s]];
+                row[2 * q + s] = state[taps[2 * q + s]];
+                if (state[taps[3 * q + s]] == 1.0) outside = 1.0;
+            }
+            row[3 * q + 1] = outside;
+        }
+        Py_END_ALLOW_THREADS
+    }
+    release(b, 8);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"predict", (PyCFunction)(void (*)(void))py_predict, METH_FASTCALL, predict_doc},
     {"step", (PyCFunction)(void (*)(void))py_step, METH_FASTCALL, step_doc},
     {"start", (PyCFunction)(void (*)(void))py_start, METH_FASTCALL, start_doc},
+    {"run", (PyCFunction)(void (*)(void))py_run, METH_FASTCALL, run_doc},
     {NULL, NULL, 0, NULL},
 };
 

@@ -100,8 +100,8 @@ def train_model(
     shipped = comparison.shipped
     announce(
         f"Training pass 3 of 3: the model that ships ({comparison.shipped}), on all the "
-        f"training rows, from pass {2 if shipped == 'correctors' else 1}'s hyperparameters "
-        f"(about {seconds / 4:.0f} s or less left)",
+        f"training rows, with pass {2 if shipped == 'correctors' else 1}'s choice of targets "
+        f"(about {seconds / 2:.0f} s left)",
         progress,
     )
     fitted = fit_model(
@@ -111,7 +111,7 @@ def train_model(
         target_mode,
         () if shipped == "correctors" else terms,
         calibrate_on=calibration_recordings,
-        warm=compared["correctors" if shipped == "correctors" else "terms"].model.chain,
+        targets_from=compared["correctors" if shipped == "correctors" else "terms"].model.chain,
     )
     if shipped == "terms":
         fitted.pass_through()  # its σ then describes the terms alone, not the correctors
@@ -144,8 +144,8 @@ def compare_parts_forward(
         Seconds the two comparison chains took to train.
     dict of str to FittedModel
         The two chains: ``"terms"`` (correctors on the white-box with ``terms``) and
-        ``"correctors"`` (on the plain white-box); the model shipped starts from one of them
-        (``fit_model``'s ``warm``).
+        ``"correctors"`` (on the plain white-box); the model shipped takes the target modes of one
+        of them (``fit_model``'s ``targets_from``).
     """
     early = comparison_config(config, GreyBoxChain(config, target_mode), recording.n_samples)
     rows = "the first half of the training rows"
@@ -188,14 +188,13 @@ def fit_model(
     terms: Sequence[Term],
     calibrate: bool = True,
     calibrate_on: Sequence[Recording] = (),
-    warm: GreyBoxChain | None = None,
+    targets_from: GreyBoxChain | None = None,
 ) -> FittedModel:
     """One chain of correctors on the white-box with ``terms`` (see :func:`train_model`);
     without ``calibrate``, its σ is the propagated variance (a chain used for its mean only).
     ``calibrate_on``: the calibration recordings (``train_model``'s
-    ``calibration_recordings``); ``warm``: a chain fitted on part of the same rows whose
-    target modes and hyperparameters the fit starts from
-    (:meth:`~fmu_greybox.model.chain.GreyBoxChain.fit`)."""
+    ``calibration_recordings``); ``targets_from``: a chain fitted on part of the same rows
+    whose target modes the fit takes (:meth:`~fmu_greybox.model.chain.GreyBoxChain.fit`)."""
     started = time.perf_counter()
     fmu_path = whitebox_path(config)
     chain = GreyBoxChain(config, target_mode, calibrate=calibrate)
@@ -215,7 +214,7 @@ def fit_model(
         data.outputs[rows],
         progress=report,
         calibration_runs=runs,
-        warm=warm,
+        targets_from=targets_from,
     )
     report.close()
     training = {
