@@ -680,6 +680,13 @@ def model_cases(tmp: Path, saved: Path) -> list[Case]:
         ),
         Case(
             "model",
+            "model: `manifest_sha256` deleted from a current `model.json` (issue 42, item 8: "
+            "it switched the tamper check off)",
+            tampered("unhashed", manifest_edit(lambda m: m.pop(MANIFEST_HASH))),
+            here + "test_a_current_manifest_without_its_own_hash_is_refused",
+        ),
+        Case(
+            "model",
             "model: `model.json` is a JSON list",
             tampered("list", lambda f: (f / MANIFEST).write_text("[]")),
             here + "test_manifest_that_is_not_an_object",
