@@ -109,7 +109,7 @@ def tidy(message: str, tmp: Path) -> str:
 # ---------------------------------------------------------------------------- FMU archives
 
 
-def archive_cases(tmp: Path, whitebox: Path) -> list[Case]:
+def archive_cases(tmp: Path, whitebox: Path, saved: Path) -> list[Case]:
     outside = tmp / "outside" / "evil.txt"
     outside.parent.mkdir()
     known = "test_fmu_archive.py::test_hostile_or_broken_archive_is_refused"
@@ -213,6 +213,14 @@ def archive_cases(tmp: Path, whitebox: Path) -> list[Case]:
         with open_fmu(whitebox) as archive:
             return archive.variable("ram_positon")
 
+    def without_slave_module() -> object:
+        from fmu_greybox.export.fmu import export_greybox
+
+        python_fmu = export_greybox(saved, tmp / "python.fmu", runtime="python").path
+        slave_module = "resources/slavemodule.txt"
+        target = rewrite(python_fmu, tmp / "incomplete.fmu", drop=lambda n: n == slave_module)
+        return open_fmu(target)
+
     cases += [
         Case(
             "archive",
@@ -308,6 +316,13 @@ def archive_cases(tmp: Path, whitebox: Path) -> list[Case]:
             "FMU: modelDescription.xml of another build (GUID)",
             foreign_guid,
             here + "test_model_description_of_another_build_is_refused_at_instantiation",
+        ),
+        Case(
+            "archive",
+            "FMU: a pythonfmu FMU without `resources/slavemodule.txt`, or naming a module it "
+            "lacks (issue 42, item 3: pythonfmu's binary segfaulted the host at instantiation)",
+            without_slave_module,
+            "test_export.py::test_python_fmu_without_its_slave_module_is_refused_before_loading",
         ),
         Case(
             "archive",
@@ -629,7 +644,7 @@ def model_cases(tmp: Path, saved: Path) -> list[Case]:
         ),
         Case(
             "model",
-            "model: format version 4",
+            "model: format version 5",
             tampered("version", manifest_edit(lambda m: m.update(format_version=5))),
             here + "test_valid_json_edits_of_the_manifest_are_refused",
         ),
@@ -662,6 +677,13 @@ def model_cases(tmp: Path, saved: Path) -> list[Case]:
             "model: unknown setting in `stage_ITFV.json`, hashes recomputed",
             tampered("setting", unknown_setting, rehash=True),
             here + "test_stage_file_edited_then_rehashed",
+        ),
+        Case(
+            "model",
+            "model: `manifest_sha256` deleted from a current `model.json` (issue 42, item 8: "
+            "it switched the tamper check off)",
+            tampered("unhashed", manifest_edit(lambda m: m.pop(MANIFEST_HASH))),
+            here + "test_a_current_manifest_without_its_own_hash_is_refused",
         ),
         Case(
             "model",
@@ -1050,7 +1072,7 @@ def main() -> None:
         whitebox, truth = Path(fmus["HydraulicActuator"]), Path(fmus["HydraulicActuatorTruth"])
         recording, saved, model = train_small(tmp, whitebox, truth)
         cases = [
-            *archive_cases(tmp, whitebox),
+            *archive_cases(tmp, whitebox, saved),
             *config_cases(tmp),
             *recording_cases(tmp, whitebox, recording),
             *model_cases(tmp, saved),

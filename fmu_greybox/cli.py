@@ -1,7 +1,8 @@
 """The ``fmu-greybox`` command line.
 
 Exit codes: 0 success, 1 user error (a message says what to mend), 2 usage error, 3 acceptance
-criteria not met (``validate --strict``). Tracebacks are shown only with ``--debug``.
+criteria not met (``validate --strict``), 130 interrupted (Ctrl-C: 128 + SIGINT, as shells
+report it). Tracebacks are shown only with ``--debug``.
 
 Conventions every command follows (through the option factories below, so that a new command
 or option gets them too): ``--out`` always has a default, named in the help; an option that two
@@ -34,13 +35,16 @@ SHIP_CHOICES = ("best", "correctors", "terms", "terms+correctors")
 
 EXIT_USER_ERROR = 1
 EXIT_NOT_ACCEPTED = 3
+#: Ctrl-C (SIGINT): 128 + the signal's number, what a shell reports for a process it ended.
+EXIT_INTERRUPTED = 130
 #: What an option factory returns: click's decorator of a command function.
 Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
 
 
 class _Group(click.Group):
-    """A click group that turns fmu-greybox errors into a message and exit code 1, and lists
-    its commands with their whole first sentence (click cuts it to the terminal's width)."""
+    """A click group that turns fmu-greybox errors into a message and exit code 1 (Ctrl-C into
+    exit code 130), and lists its commands with their whole first sentence (click cuts it to
+    the terminal's width)."""
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         rows = []
@@ -60,6 +64,13 @@ class _Group(click.Group):
                 raise
             click.secho(f"error: {exc}", fg="red", err=True)
             ctx.exit(EXIT_USER_ERROR)
+        except KeyboardInterrupt:
+            if ctx.obj and ctx.obj.get("debug"):
+                import traceback
+
+                traceback.print_exc()
+            click.secho("interrupted (Ctrl-C)", fg="red", err=True)
+            ctx.exit(EXIT_INTERRUPTED)
 
 
 def _pairs(items: tuple[str, ...], option: str, numeric: bool) -> dict:
@@ -157,7 +168,7 @@ def main(ctx: click.Context, debug: bool, quiet: bool, verbose: bool) -> None:
 
     Exit codes: 0 success, 1 an error in the input (the message says which file, column or
     variable and how to mend it), 2 a usage error, 3 acceptance criteria not met
-    (validate --strict).
+    (validate --strict), 130 interrupted (Ctrl-C).
 
     \b
     Examples:

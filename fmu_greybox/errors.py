@@ -107,6 +107,11 @@ class ModelFormatError(FmuGreyboxError):
     """A saved model directory is corrupt, tampered with, or of an unknown format version."""
 
 
+class DiagnosisFormatError(FmuGreyboxError):
+    """A saved ``diagnosis.json`` holds what no diagnosis writes (damaged or edited), so it cannot
+    be reused as it is."""
+
+
 class NumericalError(FmuGreyboxError):
     """A numerical procedure failed (e.g. a Cholesky factorisation beyond the jitter limit)."""
 

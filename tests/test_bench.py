@@ -7,6 +7,8 @@ once); tests taking ``bench`` run for a bench of each. Bench runs stop after abo
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import tempfile
 import threading
 import zipfile
@@ -31,8 +33,10 @@ from fmu_greybox.cli import main
 from fmu_greybox.data.recording import Recording, load_recording, save_recording
 from fmu_greybox.errors import BenchError, RecordingError
 from fmu_greybox.export.fmu import RUNTIMES
+from fmu_greybox.export.libcosim_run import libcosim_columns
 from fmu_greybox.export.slave import GreyBoxSlave
 from fmu_greybox.export.ssp import SSD_FILE, build_playback_fmu, make_bench, read_layout, run_bench
+from fmu_greybox.model.store import load_model
 
 #: 1024 steps: the recording's mean step (the master's) is then exactly libcosim's 1 ms, which
 #: it counts in integer nanoseconds
@@ -141,8 +145,10 @@ def test_libcosim_worker_threads_keep_their_python_state(python_bench: Path, mon
         return stepping(self, current_time, step_size)
 
     monkeypatch.setattr(GreyBoxSlave, "do_step", counting)
-    result = run_bench(python_bench, "libcosim", stop_time=0.1)
-    assert result.n_samples == 100
+    # in this process (run_bench runs libcosim in a child, out of the monkeypatch's reach)
+    layout = read_layout(python_bench)
+    result = libcosim_columns(python_bench, layout.outputs, layout.start, 1e-3, 100)
+    assert all(values.size == 100 for values in result.values())
     assert 1 <= len(new_states) <= 4, new_states  # one per worker thread, not one per step
 
 
@@ -226,6 +232,31 @@ def test_bench_refuses_another_sample_time(
 def test_a_failing_fmu_stops_libcosim_cleanly(bench: Path) -> None:
     with pytest.raises(BenchError, match="failed in libcosim"):
         run_bench(bench, "libcosim", stop_time=0.01, step=0.002)  # not the trained step
+
+
+def test_an_input_refused_at_the_start_stops_libcosim_with_the_fmus_message(
+    greybox_fmu: Path, model_dir: Path, validation: Recording, tmp_path: Path
+) -> None:
+    """Issue 42, item 2: a recording whose first row lies outside the grey-box's input domain
+    made the native grey-box refuse it during libcosim's initialisation, and libcosim aborted
+    the whole process (std::terminate on a cosim::error, exit 134). Now ``cosim`` exits 1
+    with the grey-box's refusal, which names the input, its value, the time and the domain."""
+    low, high = load_model(model_dir).training["input_ranges"]["valve_current"]
+    outside = high + 3.0 * max(high - low, abs(low), abs(high))  # the domain is 1 scale wider
+    part = first_rows(validation, 0.05)
+    current = part["valve_current"].copy()
+    current[0] = outside
+    ssp = make_bench(greybox_fmu, part.with_signals({"valve_current": current}), tmp_path / "b.ssp")
+    command = [sys.executable, "-c", "from fmu_greybox.cli import main; main()", "cosim"]
+    args = [str(ssp), "--engine", "libcosim", "--out", str(tmp_path / "r.csv")]
+    done = subprocess.run([*command, *args], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1, done.stderr
+    error = done.stderr.splitlines()[-1]
+    assert error.startswith("error: b.ssp failed in libcosim: "), done.stderr
+    assert f"input valve_current = {outside:.9g} at t = 0 s lies outside" in error
+    assert "input domain [" in error and "retrain with recordings that cover it" in error
+    assert "terminate called" not in done.stderr
+    assert not (tmp_path / "r.csv").exists()
 
 
 def test_a_failing_fmpy_bench_leaves_no_unpacked_fmus(

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -21,6 +22,7 @@ from click.testing import CliRunner
 from distributed import Client
 
 from fmu_greybox.campaign.cluster import worker_stats
+from fmu_greybox.campaign.page import trend_figure
 from fmu_greybox.campaign.run import RecordingOutcome, campaign_order
 from fmu_greybox.campaign.trends import Z95, campaign_trends, drift_test
 from fmu_greybox.cli import main
@@ -178,6 +180,37 @@ def test_a_rerun_reuses_every_diagnosis(campaign_run, dask_cluster):
     assert payload["trends"][0]["drift"] is True
 
 
+def test_an_edited_diagnosis_is_not_reused(campaign_run, dask_cluster, tmp_path):
+    """Issue 42, item 4: a diagnosis.json whose value was moved outside its own interval was
+    reused unchecked (trended as 4795 N), then the trend plot died in matplotlib ('yerr' must
+    not contain negative values). Now that recording fails, naming the file, the finding and
+    the remedy, and the campaign goes on with the others."""
+    args, out, _ = campaign_run
+    copy = tmp_path / "campaign"
+    shutil.copytree(out, copy)
+    (edited,) = copy.glob("recordings/flight_600-*/diagnosis.json")
+    diagnosis = json.loads(edited.read_text())
+    force = diagnosis["findings"][0]["magnitudes"]["force"]
+    assert force["ci95"][1] < 4795.0
+    force["value"] = 4795.0
+    edited.write_text(json.dumps(diagnosis))
+    rerun = [*args[:-1], str(copy), "--scheduler", dask_cluster[0], "--no-greybox"]
+    result = CliRunner().invoke(main, rerun)
+    assert result.exit_code == 1, result.output  # the error of a recording, no traceback
+    assert isinstance(result.exception, SystemExit), result.exception
+    assert "2 of 4 recordings failed" in result.output
+    payload = json.loads((copy / "campaign.json").read_text())
+    assert [r["status"] for r in payload["recordings"]] == ["reused", "failed", "reused", "failed"]
+    error = payload["recordings"][1]["error"]
+    assert error.startswith(f"{edited}: finding 1 (coulomb_friction), magnitude 'force': ")
+    assert "its value 4795.0 lies outside its own 95 % interval" in error
+    assert "Delete it (or its folder) and run the campaign again" in error
+    assert f"flight_600.parquet: FAILED: {edited}" in result.output
+    (trend,) = payload["trends"]
+    assert trend["values"][1] is None and 4795.0 not in trend["values"]
+    assert (copy / "campaign.html").is_file()
+
+
 def test_one_diagnosis_runs_its_simulations_on_the_cluster(
     campaign_run, dask_cluster, flights, tmp_path
 ):
@@ -308,6 +341,18 @@ def test_trends_follow_each_named_magnitude_and_leave_gaps() -> None:
     assert trends[0].values == [0.5, None, None, 0.5]
     assert trends[0].test.drift is False and trends[0].named_in == 2
     assert trends[1].values == [500.0, None, None, None] and trends[1].test.drift is None
+
+
+def test_the_trend_plot_draws_no_negative_error_bar() -> None:
+    """Before: a value outside its interval made matplotlib raise ('yerr' must not contain
+    negative values) and the campaign page was never written."""
+    trend = {"parameter": "force", "unit": "N", "slope": None, "intercept": None}
+    trend |= {"values": [300.0, 4795.0, None], "ci95": [[280.0, 320.0], [560.0, 640.0], None]}
+    figure = trend_figure(trend, ["a", "b", "c"])
+    (bars,) = figure.axes[0].collections  # the error bars: one segment per value
+    lows, highs = (np.array([s[k][1] for s in bars.get_segments()]) for k in (0, 1))
+    np.testing.assert_allclose(lows, [280.0, 560.0])
+    np.testing.assert_allclose(highs, [320.0, 4795.0])  # the bar stops at the value
 
 
 def test_recordings_are_ordered_by_start_time_only_when_all_carry_one() -> None:

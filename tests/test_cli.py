@@ -6,8 +6,10 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
+import time
 import zipfile
 from pathlib import Path
 
@@ -15,7 +17,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner, Result
 
-from fmu_greybox.cli import EXIT_NOT_ACCEPTED, main
+from fmu_greybox.cli import EXIT_INTERRUPTED, EXIT_NOT_ACCEPTED, main
 from fmu_greybox.data.recording import load_recording
 from fmu_greybox.fmi.builtin import sources_digest
 from fmu_greybox.synth.actuator import SENSOR_NOISE
@@ -226,6 +228,36 @@ def test_subprocess_user_error_and_debug_traceback(env: dict[str, str], tmp_path
     assert "Traceback (most recent call last)" in debug.stderr
     assert "fmu_greybox.errors.ConfigError" in debug.stderr
     assert not (tmp_path / "x.csv").exists()
+
+
+def test_ctrl_c_exits_130(env: dict[str, str], tmp_path: Path) -> None:
+    """Issue 42, item 10: Ctrl-C (SIGINT) ended a command with exit code 1, as click's
+    'Aborted!' does, where shells and schedulers expect 128 + 2."""
+    code = (
+        "import signal; signal.signal(signal.SIGINT, signal.default_int_handler)\n"  # even if
+        "from fmu_greybox.cli import main; print('ready', flush=True); main()"  # run in background
+    )
+    args = ["synth", "--duration", "3000", "--out", str(tmp_path / "long.csv")]
+    process = subprocess.Popen(
+        [sys.executable, "-c", code, *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, **env},
+    )
+    try:
+        assert process.stdout.readline() == "ready\n"
+        time.sleep(3.0)  # into the synthesis, which runs for minutes
+        assert process.poll() is None
+        process.send_signal(signal.SIGINT)
+        _, stderr = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert process.returncode == EXIT_INTERRUPTED == 130, stderr
+    assert stderr.strip().endswith("interrupted (Ctrl-C)") and "Traceback" not in stderr
+    assert not (tmp_path / "long.csv").exists()
 
 
 COMMANDS = [

@@ -13,6 +13,7 @@ import dataclasses
 import functools
 import json
 import logging
+import re
 import shutil
 import subprocess
 import sys
@@ -29,7 +30,7 @@ from lxml import etree
 
 from fmu_greybox.cli import main
 from fmu_greybox.data.recording import Recording
-from fmu_greybox.errors import FmuError
+from fmu_greybox.errors import FmuArchiveError, FmuError
 from fmu_greybox.export.fmu import RUNTIMES, export_greybox
 from fmu_greybox.export.runtime import LOGGER, runtime_message
 from fmu_greybox.export.slave import MODEL_FOLDER, check_python
@@ -527,6 +528,31 @@ def test_tampered_model_file_refuses_instantiation(
     with caplog.at_level(logging.ERROR, logger=LOGGER), pytest.raises(Exception, match="instan"):
         Slave(spaced, "tampered", np.zeros((1, 4)), logging_on=True)
     assert "stage_RAM.json" in caplog.text and "hash" in caplog.text
+
+
+@pytest.mark.parametrize(
+    ("change", "named"),
+    [
+        ("remove", "without its member 'resources/slavemodule.txt'"),
+        ("rename", "names the module 'absent'"),
+    ],
+)
+def test_python_fmu_without_its_slave_module_is_refused_before_loading(
+    python_fmu: Path, tmp_path: Path, change: str, named: str
+) -> None:
+    """pythonfmu's binary segfaulted the host at instantiation without the member."""
+    copy = tmp_path / "incomplete.fmu"
+    with zipfile.ZipFile(python_fmu) as zin, zipfile.ZipFile(copy, "w") as zout:
+        for item in zin.infolist():
+            if item.filename == "resources/slavemodule.txt":
+                if change == "remove":
+                    continue
+                zout.writestr(item, b"absent")
+            else:
+                zout.writestr(item, zin.read(item))
+    with pytest.raises(FmuArchiveError, match=re.escape(named)) as caught:
+        open_fmu(copy)
+    assert str(copy) in str(caught.value) and "Re-export" in str(caught.value)
 
 
 def test_missing_package_is_reported_not_crashed(python_fmu: Path, tmp_path: Path) -> None:

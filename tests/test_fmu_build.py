@@ -243,6 +243,7 @@ typedef struct { int steps; } ModelMemory;
 
 OSCILLATOR_MODEL = """
 #include <stddef.h>
+#include <stdio.h>
 #include "fmu_framework.h"
 const double model_state_nominal[N_STATES] = {1.0, 1.0};
 int model_check(const SimData *d, char *message, size_t size) {
@@ -259,6 +260,11 @@ void model_derivatives(const SimData *d, const double x[N_STATES], double dx[N_S
     dx[S_V] = (BOOLEAN(d, enabled) ? REAL(d, force) : 0.0) - REAL(d, stiffness) * x[S_X];
 }
 void model_project(const SimData *d, double x[N_STATES]) { (void)d, (void)x; }
+int model_check_memory(const SimData *d, char *message, size_t size) {
+    if (d->memory.steps >= 0) return 0;
+    snprintf(message, size, "steps = %d is negative", d->memory.steps);
+    return -1;
+}
 int model_after_step(SimData *d, char *message, size_t size) {
     (void)message, (void)size;
     d->memory.steps++;

@@ -2,13 +2,20 @@
 
 from __future__ import annotations
 
+import struct
+from hashlib import sha256
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import OUTPUTS
+import state_flips
+from conftest import INPUTS, OUTPUTS
 from fmpy import simulate_fmu
 from fmpy.fmi1 import FMICallException
+
+from fmu_greybox.errors import FmuError
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.instance import FmuInstance
 
 H = 1e-3  # communication step [s]
 EFFECTS = {"coulomb_friction": 500.0, "compliance": 0.1, "time_delay": 0.004}
@@ -53,6 +60,38 @@ def test_get_set_state_reproduces_bitwise(
     slave.freeFMUstate(restored)
     slave.terminate()
     slave.freeInstance()
+
+
+@pytest.mark.parametrize("model", ["whitebox", "truth"])
+def test_single_bit_flips_of_a_saved_state_are_refused_never_crash(
+    whitebox_fmu: Path, truth_fmu: Path, actuator_inputs: np.ndarray, tmp_path: Path, model: str
+) -> None:
+    """Every bit of the header, phase, flags and time (88 bytes) and 400 bits drawn from the
+    rest, flipped one at a time, in a process of its own: none crashes it, none is accepted."""
+    fmu = whitebox_fmu if model == "whitebox" else truth_fmu
+    counts = state_flips.sweep(fmu, list(INPUTS), actuator_inputs[:40], tmp_path, 88, 400)
+    assert counts["tried"] == 88 * 8 + 400
+    assert counts["refused"] == counts["tried"], counts
+
+
+@pytest.mark.parametrize(
+    ("offset", "packed", "named"),
+    [(64, struct.pack("<i", 7), "phase 7"), (80, struct.pack("<d", np.nan), "time = nan")],
+)
+def test_forged_state_with_a_valid_checksum_is_refused(
+    whitebox_fmu: Path, offset: int, packed: bytes, named: str
+) -> None:
+    """A state edited at its phase or time with its SHA-256 recomputed, as a forger would
+    (layout: fmi2_cosimulation.c, StateHeader then SimData), is refused naming the field."""
+    with open_fmu(whitebox_fmu) as archive, FmuInstance(archive, ["valve_current"]) as instance:
+        instance.step([1.0], H)
+        saved = instance.serialize_state()
+        body = bytearray(saved[:-64])
+        body[offset : offset + len(packed)] = packed
+        with pytest.raises(FmuError, match="fmi2DeSerializeFMUstate") as caught:
+            instance.deserialize_state(bytes(body) + sha256(body).hexdigest().encode(), H)
+        assert named in str(caught.value)
+        instance.deserialize_state(saved, H)  # the undamaged state still restores
 
 
 def test_serialized_state_moves_to_another_instance_of_the_same_fmu_only(

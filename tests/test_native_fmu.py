@@ -7,7 +7,9 @@ Uses the session's model and FMUs of ``test_export``. "Equal to 1e-9" as there: 
 
 from __future__ import annotations
 
+import hashlib
 import re
+import struct
 import subprocess
 import zipfile
 from pathlib import Path
@@ -15,6 +17,7 @@ from pathlib import Path
 import c_master as master
 import numpy as np
 import pytest
+import state_flips
 from fmpy import extract, read_model_description
 from fmpy.model_description import read_build_description
 from libcosimpy.CosimExecution import CosimExecution
@@ -172,6 +175,65 @@ def test_state_with_terms_memory_continues_identically(
     second.k = 150
     np.testing.assert_array_equal(second.run(u[150:]), reference)
     second.close()
+
+
+def test_single_bit_flips_of_a_saved_state_are_refused_never_crash(
+    native_fmu: Path, validation, tmp_path: Path
+) -> None:
+    """Every bit of the first 200 bytes (header, white-box state sizes, time, phase and flags,
+    the first interface values) and 600 bits drawn from the rest (the white-box's own state
+    bytes included), flipped one at a time, in a process of its own: none crashes it, none is
+    accepted (the state's SHA-256 trailer no longer matches)."""
+    rows = input_rows(validation)[:40]
+    counts = state_flips.sweep(native_fmu, list(INPUTS), rows, tmp_path, header=200, sample=600)
+    assert counts["tried"] == 200 * 8 + 600
+    assert counts["refused"] == counts["tried"], counts
+
+
+def forged(state: bytes, index: int, value: float) -> bytes:
+    """The serialised grey-box state with value ``index`` of its doubles replaced and its
+    SHA-256 trailer recomputed, as a forger would (layout: greybox_fmu.c, StateHeader)."""
+    n_parts = struct.unpack_from("<I", state, 12)[0]
+    body = bytearray(state[:-64])
+    struct.pack_into("<d", body, 72 + 8 * n_parts + 8 * index, value)
+    return bytes(body) + hashlib.sha256(body).hexdigest().encode()
+
+
+@pytest.mark.parametrize(
+    ("index", "value", "named"),
+    [
+        (1, 7.0, "phase"),
+        (1, 1e9, "phase"),
+        (1, -1.0, "phase"),
+        (1, 2.5, "phase"),
+        (0, float("nan"), "time"),
+        (0, float("inf"), "time"),
+        (2, 2.0, "running"),
+        (4, 0.5, "correction_enabled"),
+        (-1, float("nan"), "white-box"),
+    ],
+)
+def test_forged_state_with_a_valid_checksum_is_refused_field_by_field(
+    native_fmu: Path, validation, index: int, value: float, named: str
+) -> None:
+    u, dt = input_rows(validation)[:60], float(validation.dt)
+    with open_fmu(native_fmu) as archive:
+        start = dict(zip(INPUTS, u[0], strict=True))
+        instance = FmuInstance(archive, INPUTS, STAGE_OUTPUTS, start_values=start)
+        try:
+            for row in u[:30]:
+                instance.step(row, dt)
+            saved, at = instance.serialize_state(), instance.time
+            reference = np.array([instance.step(row, dt).copy() for row in u[30:]])
+            n_values = struct.unpack_from("<Q", saved, 64)[0]
+            with pytest.raises(FmuError, match="fmi2DeSerializeFMUstate") as caught:
+                instance.deserialize_state(forged(saved, index % n_values, value), at)
+            assert named in str(caught.value)
+            instance.deserialize_state(saved, at)  # the undamaged state still restores
+            again = np.array([instance.step(row, dt).copy() for row in u[30:]])
+            np.testing.assert_array_equal(again, reference)
+        finally:
+            instance.close()
 
 
 # ---------------------------------------------------------------------------- masters

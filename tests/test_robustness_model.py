@@ -154,11 +154,28 @@ def test_valid_json_edits_of_the_manifest_are_refused(
     assert str(folder / MANIFEST) in str(error)
 
 
-def test_manifest_without_its_own_hash_still_loads(saved: Path, tmp_path: Path) -> None:
-    """Folders written before ``manifest_sha256`` existed keep loading."""
+def test_a_current_manifest_without_its_own_hash_is_refused(saved: Path, tmp_path: Path) -> None:
+    """Issue 42, item 8: deleting ``manifest_sha256`` switched the tamper check off (factors
+    edited 100 times loaded, validated and exported). Every folder of format 2 on records it;
+    only one of format 1 (written before it existed) loads without it."""
     folder = copy_of(saved, tmp_path)
     manifest = read(folder)
     del manifest[MANIFEST_HASH]
+    manifest["stages"][0]["calibration"]["latent_scale"] *= 100.0  # the edit it would have hidden
+    (folder / MANIFEST).write_text(json.dumps(manifest), encoding="utf-8")
+    error = refused(
+        folder,
+        rf"model\.json: no 'manifest_sha256', which every model folder of "
+        rf"format version {FORMAT_VERSION} records; it was removed",
+    )
+    assert str(folder / MANIFEST) in str(error)
+    for version in range(2, FORMAT_VERSION):
+        manifest["format_version"] = version
+        (folder / MANIFEST).write_text(json.dumps(manifest), encoding="utf-8")
+        refused(
+            folder, rf"no 'manifest_sha256', which every model folder of format version {version}"
+        )
+    manifest["format_version"] = 1
     (folder / MANIFEST).write_text(json.dumps(manifest), encoding="utf-8")
     assert load_model(folder).dt == manifest["dt"]
 

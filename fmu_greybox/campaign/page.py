@@ -61,7 +61,9 @@ def trend_figure(trend: dict, labels: list[str]) -> plt.Figure:
     y = np.array([trend["values"][i] for i in named], dtype=float)
     low = np.array([(trend["ci95"][i] or [v, v])[0] for i, v in zip(named, y, strict=True)])
     high = np.array([(trend["ci95"][i] or [v, v])[1] for i, v in zip(named, y, strict=True)])
-    ax.errorbar(named, y, yerr=[y - low, high - y], fmt="o", capsize=4, color="tab:blue")
+    # never a negative error bar (matplotlib refuses one), whatever an interval holds
+    below, above = np.clip(y - low, 0.0, None), np.clip(high - y, 0.0, None)
+    ax.errorbar(named, y, yerr=[below, above], fmt="o", capsize=4, color="tab:blue")
     if trend["slope"] is not None:
         span = np.array([min(named), max(named)], dtype=float)
         line = trend["intercept"] + trend["slope"] * span

@@ -28,9 +28,9 @@ from fmu_greybox import __version__
 from fmu_greybox.campaign.cluster import FmuBlob, FmuOnWorkers
 from fmu_greybox.campaign.page import write_page
 from fmu_greybox.campaign.task import RecordingTask
-from fmu_greybox.campaign.trends import DRIFT_ALPHA, campaign_trends
+from fmu_greybox.campaign.trends import DRIFT_ALPHA, campaign_trends, magnitude_problem
 from fmu_greybox.diagnosis.report import write_json, write_report_files
-from fmu_greybox.errors import FmuGreyboxError
+from fmu_greybox.errors import DiagnosisFormatError, FmuGreyboxError
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import load_project_recording, whitebox_path
 
@@ -171,6 +171,51 @@ def reusable(earlier: dict[str, list[Path]], sha256: str, key: str) -> tuple[str
     return None
 
 
+def check_reused(payload: dict, path: Path) -> None:
+    """Refuse an earlier ``diagnosis.json`` holding what no diagnosis writes.
+
+    A reused diagnosis is trended as it stands, so every magnitude must be a finite number
+    inside its own 95 % interval (where it has one: finite and ordered), and the fields the
+    campaign reads must be there.
+
+    Parameters
+    ----------
+    payload : dict
+        The file's content.
+    path : Path
+        The file (named in the error).
+
+    Raises
+    ------
+    DiagnosisFormatError
+        Naming the file, the finding and what is wrong, with the remedy.
+    """
+
+    def refuse(what: str) -> DiagnosisFormatError:
+        return DiagnosisFormatError(
+            f"{path}: {what}; no diagnosis writes that, so the file was damaged or edited and "
+            "is not reused. Delete it (or its folder) and run the campaign again to diagnose "
+            "the recording afresh"
+        )
+
+    findings = payload.get("findings")
+    if not isinstance(findings, list) or not findings or "verdict" not in payload:
+        raise refuse("it holds no 'verdict' and list of 'findings'")
+    for number, finding in enumerate(findings, 1):
+        if not isinstance(finding, dict) or not isinstance(finding.get("effect"), str):
+            raise refuse(f"finding {number} is not an object with an 'effect'")
+        where = f"finding {number} ({finding['effect']})"
+        magnitudes = finding.get("magnitudes") or {}
+        if not isinstance(magnitudes, dict) or (magnitudes and "hypothesis" not in finding):
+            raise refuse(f"{where}: its 'magnitudes' are not an object under a 'hypothesis'")
+        if finding["effect"] not in ("none", "unexplained"):
+            magnitudes = {"magnitude": finding.get("magnitude"), **magnitudes}
+        for name, magnitude in magnitudes.items():
+            problem = magnitude_problem(magnitude)
+            if problem is not None:
+                raise refuse(f"{where}, magnitude {name!r}: {problem}")
+
+
 def in_flight(client: Client) -> int:
     """Recordings submitted at a time: two per worker thread (one running, one queued)."""
     threads = sum(client.nthreads().values())
@@ -281,8 +326,13 @@ class _Submissions:
         outcome.start_time = recording.metadata.get("time_origin")
         found = reusable(self.earlier, outcome.sha256, self.key)
         if found is not None:
-            outcome.folder, outcome.payload = found
-            outcome.status = "reused"
+            folder, payload = found
+            try:
+                check_reused(payload, self.out / folder / "diagnosis.json")
+            except DiagnosisFormatError as exc:
+                outcome.error = str(exc)
+                return None
+            outcome.folder, outcome.payload, outcome.status = folder, payload, "reused"
             return None
         name = folder_name(outcome.source, outcome.sha256)
         outcome.folder = f"{RECORDINGS}/{name}"

@@ -18,6 +18,7 @@ least-squares line through ``(recording index, magnitude)``, with its 95 % inter
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -71,6 +72,43 @@ class DriftTest:
             "p_value": self.p_value,
             "drift": self.drift,
         }
+
+
+def magnitude_problem(magnitude: object) -> str | None:
+    """What makes a magnitude of ``diagnosis.json`` one no diagnosis writes, or ``None``.
+
+    A diagnosis writes ``{"value": v, "unit": u, "ci95": [low, high] or null}`` with ``v`` a
+    finite number and, where there is an interval, ``low <= v <= high``, both finite.
+
+    Parameters
+    ----------
+    magnitude : object
+        The entry as read from the file.
+
+    Returns
+    -------
+    str or None
+        The problem, in words (the value and the interval as found).
+    """
+    if not isinstance(magnitude, dict):
+        return f"{magnitude!r} is not an object with a 'value'"
+    value, interval = magnitude.get("value"), magnitude.get("ci95")
+    if not _is_number(value) or not math.isfinite(value):
+        return f"its value {value!r} is not a finite number"
+    if interval is None:
+        return None
+    if not (isinstance(interval, list) and len(interval) == 2 and all(map(_is_number, interval))):
+        return f"its 95 % interval {interval!r} is not a pair of numbers [low, high]"
+    low, high = interval
+    if not (math.isfinite(low) and math.isfinite(high) and low <= high):
+        return f"its 95 % interval [{low!r}, {high!r}] is not finite and ordered (low <= high)"
+    if not low <= value <= high:
+        return f"its value {value!r} lies outside its own 95 % interval [{low!r}, {high!r}]"
+    return None
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
 
 
 def drift_test(values: Sequence[float | None], ci95: Sequence[Sequence[float] | None]) -> DriftTest:

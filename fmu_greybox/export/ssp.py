@@ -14,6 +14,8 @@ fixed step) and returns every FMU output as a :class:`~fmu_greybox.data.recordin
   the start consistent. Rows come at the end of each step (fmpy labels them with its start).
 * ``libcosim`` -- the Open Simulation Platform through libcosimpy: connections are passed on
   during initialisation and after every step, so the first step already sees the recording.
+  It runs in a child process (:mod:`fmu_greybox.export.libcosim_run`): an FMU error during
+  libcosim's initialisation would otherwise abort this one.
 """
 
 from __future__ import annotations
@@ -518,51 +520,9 @@ def _run_fmpy(ssp: Path, layout: BenchLayout, step: float, n_steps: int) -> dict
 def _run_libcosim(
     ssp: Path, layout: BenchLayout, step: float, n_steps: int
 ) -> dict[str, np.ndarray]:
-    from libcosimpy._internal import get_last_error_message
-    from libcosimpy.CosimEnums import CosimVariableType
-    from libcosimpy.CosimExecution import CosimExecution
-    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
-    from libcosimpy.CosimObserver import CosimObserver
+    from fmu_greybox.export.libcosim_run import run_libcosim
 
-    log_output_level(CosimLogLevel.ERROR)
-    try:
-        execution = CosimExecution.from_ssp_file(str(ssp), step_size=round(step * 1e9))
-    except AssertionError as exc:
-        raise BenchError(f"libcosim could not load {ssp}: {get_last_error_message()}") from exc
-    observer = CosimObserver.create_last_value()
-    execution.add_observer(observer)
-    reads = []  # (slave index, Real refs, Real names, Boolean refs, Boolean names)
-    for name, outs in layout.outputs.items():
-        index = execution.slave_index_from_instance_name(name)
-        described = {v.name.decode(): v for v in execution.slave_variables(index)}
-        reals = [n for n in outs if described[n].type == CosimVariableType.REAL.value]
-        bools = [n for n in outs if described[n].type == CosimVariableType.BOOLEAN.value]
-        reads.append(
-            (
-                index,
-                [described[n].reference for n in reals],
-                [f"{name}.{n}" for n in reals],
-                [described[n].reference for n in bools],
-                [f"{name}.{n}" for n in bools],
-            )
-        )
-    columns = {n: np.empty(n_steps) for *_, reals, _, bools in reads for n in (*reals, *bools)}
-    for k in range(n_steps):
-        if not execution.step():
-            raise BenchError(
-                f"{ssp.name} failed in libcosim at t = {layout.start + k * step:g} s: "
-                f"{get_last_error_message()} (the FMU's own message is logged above)"
-            )
-        for index, real_refs, real_names, bool_refs, bool_names in reads:
-            if real_refs:
-                values = observer.last_real_values(index, real_refs)
-                for n, v in zip(real_names, values, strict=True):
-                    columns[n][k] = v
-            if bool_refs:
-                values = observer.last_boolean_values(index, bool_refs)
-                for n, v in zip(bool_names, values, strict=True):
-                    columns[n][k] = float(v)
-    return columns
+    return run_libcosim(ssp, layout.outputs, layout.start, step, n_steps)
 
 
 @dataclass(frozen=True)

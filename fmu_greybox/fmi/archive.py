@@ -182,7 +182,8 @@ def open_fmu(path: str | Path) -> FmuArchive:
     FmuArchiveError
         If the file is missing, not a zip archive, hostile (a path escaping the folder, a link,
         an absurd declared size or compression ratio), encrypted or compressed in a way FMI does
-        not allow, damaged, not FMI 2.0 co-simulation, or lacks a binary for this platform.
+        not allow, damaged, not FMI 2.0 co-simulation, lacks a binary for this platform, or is
+        a pythonfmu FMU without the slave module its binary loads.
     """
     path = Path(path)
     if path.is_dir():
@@ -199,6 +200,7 @@ def open_fmu(path: str | Path) -> FmuArchive:
         _extract_checked(path, unzip_dir)
         description = _read_description(path, unzip_dir)
         _check_binary(path, unzip_dir, description)
+        _check_python_runtime(path, unzip_dir, description)
     except BaseException:
         shutil.rmtree(unzip_dir, ignore_errors=True)
         raise
@@ -347,6 +349,29 @@ def _check_binary(path: Path, unzip_dir: Path, description: object) -> None:
         raise FmuArchiveError(
             f"{path}: no binary for this platform ({fmpy_platform}); the FMU has "
             f"{found or 'no binaries'}. Rebuild or re-export it for {fmpy_platform}"
+        )
+
+
+def _check_python_runtime(path: Path, unzip_dir: Path, description: object) -> None:
+    """Require, in a pythonfmu FMU (its generation tool or its ``resources/pythonfmu``), the
+    member ``resources/slavemodule.txt`` naming a module under ``resources/``: pythonfmu's
+    binary reads it at instantiation and crashes the host without it."""
+    resources = unzip_dir / "resources"
+    tool = (getattr(description, "generationTool", None) or "").lower()
+    if "pythonfmu" not in tool and not (resources / "pythonfmu").is_dir():
+        return
+    member = resources / "slavemodule.txt"
+    if not member.is_file():
+        raise FmuArchiveError(
+            f"{path}: a pythonfmu FMU without its member 'resources/slavemodule.txt' (the name "
+            "of the Python module its binary loads); refused, as pythonfmu crashes without it. "
+            "Re-export the FMU"
+        )
+    module = member.read_text(encoding="utf-8", errors="replace").strip()
+    if not module or not (resources / f"{module}.py").is_file():
+        raise FmuArchiveError(
+            f"{path}: member 'resources/slavemodule.txt' names the module {module!r}, but the "
+            f"FMU holds no 'resources/{module}.py'; the FMU is incomplete. Re-export it"
         )
 
 

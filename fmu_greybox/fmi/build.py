@@ -47,6 +47,10 @@ SOURCES_DIR = data_path("fmu_sources")
 
 FRAMEWORK_DIR = SOURCES_DIR / "framework"
 """The generic FMI 2.0 co-simulation framework."""
+SHA256_SOURCES = tuple(
+    Path(__file__).resolve().parents[1] / "native" / n for n in ("sha256.c", "sha256.h")
+)
+"""SHA-256 of the native grey-box FMU, which the framework's serialised states carry too."""
 
 REFERENCE_MODEL_DIR = SOURCES_DIR / "HydraulicActuator"
 """The reference actuator: white-box ``HydraulicActuator`` and ``HydraulicActuatorTruth``."""
@@ -765,13 +769,14 @@ def c_compiler() -> str:
 def _compile(model_dir: Path, entry: ModelEntry, generated: Path, library: Path) -> None:
     sources = [
         *sorted(FRAMEWORK_DIR.glob("*.c")),
+        SHA256_SOURCES[0],
         *sorted(model_dir.glob("*.c")),
         generated / "fmu_variables.c",
     ]
     command = [c_compiler(), *CFLAGS, "-shared"]
     if not sys.platform.startswith("win"):
         command.append("-fPIC")
-    for folder in (generated, model_dir, FRAMEWORK_DIR, fmi2_headers()):
+    for folder in (generated, model_dir, FRAMEWORK_DIR, SHA256_SOURCES[0].parent, fmi2_headers()):
         command += ["-I", str(folder)]
     command += [f"-D{define}" for define in entry.defines]
     command += [str(s) for s in sources] + ["-o", str(library), "-lm"]
@@ -832,7 +837,7 @@ def build_fmu(model_dir: Path, out_dir: Path, identifier: str | None = None) -> 
     table = load_variable_table(model_dir / "variables.toml")
     entry = table.model(identifier)
     folder, extension = fmi2_platform()
-    c_files = sorted([*FRAMEWORK_DIR.glob("*.[ch]"), *model_dir.glob("*.[ch]")])
+    c_files = sorted([*FRAMEWORK_DIR.glob("*.[ch]"), *SHA256_SOURCES, *model_dir.glob("*.[ch]")])
     guid = _guid(table, entry.identifier, c_files)
     header, source = variables_c_sources(table, entry.identifier, guid)
     description = model_description(table, entry.identifier, guid)

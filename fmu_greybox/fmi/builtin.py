@@ -41,13 +41,14 @@ def cache_dir() -> Path:
 
 
 def sources_digest() -> str:
-    """SHA-256 over the C sources, variable tables and the builder."""
+    """SHA-256 over the C sources (SHA-256 of the native folder too), variable tables and the
+    builder."""
     from fmu_greybox.fmi import build as fmu_build
 
     digest = hashlib.sha256()
     root = sources_root()
     files = sorted(p for p in root.rglob("*") if p.is_file() and p.suffix != ".csv")
-    for path in [*files, Path(fmu_build.__file__)]:
+    for path in [*files, *fmu_build.SHA256_SOURCES, Path(fmu_build.__file__)]:
         digest.update(str(path.relative_to(path.parents[1])).encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()

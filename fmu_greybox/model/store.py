@@ -60,6 +60,9 @@ CALIBRATED_VERSION = 4
 TRAINING_ROWS = "training_rows.npz"
 #: Key of ``model.json`` holding the SHA-256 of the rest of its content.
 MANIFEST_HASH = "manifest_sha256"
+#: First version that always records :data:`MANIFEST_HASH` (it came late in version 1, so a
+#: version 1 folder may lack it; one of a later version without it was edited).
+HASHED_VERSION = 2
 _RETRAIN = "Retrain the model or restore the folder from a copy"
 
 
@@ -266,6 +269,12 @@ def read_manifest(model_dir: str | Path) -> dict[str, Any]:
             f"{', '.join(map(str, READABLE_VERSIONS))}. Retrain the model with this version"
         )
     recorded = manifest.get(MANIFEST_HASH)
+    if recorded is None and version >= HASHED_VERSION:
+        raise ModelFormatError(
+            f"{path}: no {MANIFEST_HASH!r}, which every model folder of format version "
+            f"{version} records; it was removed, so edits of the manifest could not be told. "
+            f"{_RETRAIN}"
+        )
     if recorded is not None and recorded != manifest_digest(manifest):
         raise ModelFormatError(
             f"{path}: content does not match the hash it recorded at training; the manifest "

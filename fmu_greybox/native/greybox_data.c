@@ -59,7 +59,6 @@ int data_read(GreyboxData *data, const char *path, const char *sha256,
               void *(*allocate)(size_t, size_t), char *message, size_t size) {
     const uint16_t probe = 1;
     char digest[65];
-    Sha256 hash;
     size_t at;
     memset(data, 0, sizeof *data);
     if (*(const unsigned char *)&probe != 1) {
@@ -68,9 +67,7 @@ int data_read(GreyboxData *data, const char *path, const char *sha256,
         return -1;
     }
     if (read_file(path, &data->bytes, &data->size, allocate, message, size) != 0) return -1;
-    sha256_begin(&hash);
-    sha256_add(&hash, data->bytes, data->size);
-    sha256_hex(&hash, digest);
+    sha256_bytes(data->bytes, data->size, digest);
     if (strcmp(digest, sha256) != 0) {
         snprintf(message, size, "%s has SHA-256 %.12s..., not the %.12s... recorded in the "
                  "binary at export; the file was modified or belongs to another export. "

@@ -24,13 +24,15 @@
 #include "fmi2Functions.h"
 #include "greybox_config.h"
 #include "greybox_data.h"
+#include "sha256.h"
 #include "whitebox.h"
 
 #define LOG_ERROR "logStatusError"
 #define LOG_ALL "logAll"
 #define MESSAGE_SIZE 1024
 #define STATE_MAGIC "FGBXSTAT"
-#define STATE_VERSION 1
+#define STATE_VERSION 2
+#define STATE_DIGEST 64 /* the serialised state's trailer: SHA-256 (hex) of the bytes before */
 
 typedef enum { INSTANTIATED, INITIALIZATION, STEPPING, TERMINATED, FAILED } Phase;
 static const char *const PHASES[] = {"instantiated", "initialization mode", "step complete",
@@ -697,6 +699,61 @@ fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
     return fmi2OK;
 }
 
+/* Whether a state's values are ones fmi2GetFMUstate could have written: time finite, a phase,
+ * flags 0 or 1, the computed outputs finite and, for a running state, the inputs it started
+ * with, the chain's memory and the white-box's (wb_values_fault) too. Inputs and the threshold
+ * may hold any value fmi2SetReal took (a step refuses those outside the domain). Returns 0, or
+ * -1 with what is wrong in message. */
+static int values_fault(const Instance *inst, const double *values, char *message) {
+    static const char *const flags[] = {"running", "out_of_domain", "correction_enabled"};
+    const double *reals = values + SNAPSHOT_HEAD, *started = reals + inst->n_reals;
+    const double *chain = started + inst->n_inputs;
+    if (!isfinite(values[0])) {
+        snprintf(message, MESSAGE_SIZE, "its time = %g s is not finite", values[0]);
+        return -1;
+    }
+    if (!(values[1] >= INSTANTIATED && values[1] <= FAILED && values[1] == floor(values[1]))) {
+        snprintf(message, MESSAGE_SIZE, "its phase = %g is none of 0 (%s) to %d (%s)", values[1],
+                 PHASES[INSTANTIATED], FAILED, PHASES[FAILED]);
+        return -1;
+    }
+    for (int k = 0; k < 3; k++) {
+        if (values[2 + k] != 0.0 && values[2 + k] != 1.0) {
+            snprintf(message, MESSAGE_SIZE, "its flag %s = %g is neither 0 nor 1", flags[k],
+                     values[2 + k]);
+            return -1;
+        }
+    }
+    for (ptrdiff_t i = inst->n_inputs; i < inst->n_reals - 1; i++) {
+        if (!isfinite(reals[i])) {
+            snprintf(message, MESSAGE_SIZE, "its output (value reference %td) = %g is not "
+                     "finite", i, reals[i]);
+            return -1;
+        }
+    }
+    if (values[2] == 0.0) return 0; /* no run: the rest is not restored */
+    for (ptrdiff_t i = 0; i < inst->n_inputs + inst->sizes.state; i++) {
+        if (!isfinite(started[i])) {
+            snprintf(message, MESSAGE_SIZE, "its %s %td = %g is not finite",
+                     i < inst->n_inputs ? "start input" : "corrector memory value",
+                     i < inst->n_inputs ? i : i - inst->n_inputs, started[i]);
+            return -1;
+        }
+    }
+    return wb_values_fault(&inst->wb, chain + inst->sizes.state, values[0], message,
+                           MESSAGE_SIZE);
+}
+
+/* values_fault, the remedy appended to its message. */
+static int state_fault(const Instance *inst, const double *values, char *message) {
+    size_t n;
+    if (values_fault(inst, values, message) == 0) return 0;
+    n = strlen(message);
+    snprintf(message + n, MESSAGE_SIZE - n, "; not a state this grey-box saved (damaged or "
+             "forged): restore one it saved");
+    return -1;
+}
+
 fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
     static const char *const call = "fmi2SetFMUstate";
     Instance *inst = c;
@@ -706,6 +763,9 @@ fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
     if (inst == NULL || !allowed(inst, call, ANY_PHASE)) return fmi2Error;
     if (s == NULL || s->n_values != snapshot_values(inst)) {
         return refuse(inst, call, "not an FMU state of this grey-box");
+    }
+    if (state_fault(inst, s->values, message) != 0) {
+        return refuse(inst, call, "%s", message);
     }
     v = s->values + SNAPSHOT_HEAD;
     if (s->values[2] != 0.0) { /* the run it saved: the white-box goes back to its states */
@@ -742,7 +802,8 @@ fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
 }
 
 /* Serialised: this header, the white-box states' sizes (uint64 each), the values, the
- * white-box states' bytes. Valid for the binary that wrote it (same GUID). */
+ * white-box states' bytes, and the SHA-256 of all these as 64 hex digits (STATE_DIGEST).
+ * Valid for the binary that wrote it (same GUID). */
 typedef struct {
     char magic[8];
     uint32_t version, n_parts;
@@ -752,7 +813,7 @@ typedef struct {
 
 static size_t serialized_size(const Instance *inst, const size_t *sizes) {
     size_t n = sizeof(StateHeader) + (size_t)inst->wb.n_parts * 8 +
-               (size_t)snapshot_values(inst) * sizeof(double);
+               (size_t)snapshot_values(inst) * sizeof(double) + STATE_DIGEST;
     for (ptrdiff_t k = 0; k < inst->wb.n_parts; k++) n += sizes[k];
     return n;
 }
@@ -821,6 +882,12 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate,
             status = wb_serialize(&inst->wb, s->wb_states, at, sizes, message, sizeof message);
         }
     }
+    if (status == 0) {
+        const size_t body = serialized_size(inst, sizes) - STATE_DIGEST;
+        char digest[65];
+        sha256_bytes(serializedState, body, digest);
+        memcpy(serializedState + body, digest, STATE_DIGEST);
+    }
     free(sizes);
     return status == 0 ? fmi2OK : refuse(inst, call, "%s", message);
 }
@@ -836,7 +903,16 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
     size_t *sizes, expected;
     int status = 0;
     if (inst == NULL) return fmi2Error;
-    if (size < sizeof header) return refuse(inst, call, "%zu bytes are no grey-box state", size);
+    char digest[65];
+    if (size < sizeof header + STATE_DIGEST) {
+        return refuse(inst, call, "%zu bytes are no grey-box state", size);
+    }
+    sha256_bytes(serializedState, size - STATE_DIGEST, digest);
+    if (memcmp(digest, serializedState + size - STATE_DIGEST, STATE_DIGEST) != 0) {
+        return refuse(inst, call, "the state's bytes do not match their SHA-256: they were "
+                      "damaged or edited after fmi2SerializeFMUstate wrote them; restore an "
+                      "undamaged copy");
+    }
     memcpy(&header, at, sizeof header);
     if (memcmp(header.magic, STATE_MAGIC, 8) != 0 || header.version != STATE_VERSION ||
         strncmp(header.guid, GREYBOX_GUID, sizeof header.guid) != 0 ||
@@ -856,7 +932,7 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
     for (ptrdiff_t k = 0; k < inst->wb.n_parts; k++, at += 8) {
         uint64_t n;
         memcpy(&n, at, 8);
-        sizes[k] = (size_t)n;
+        sizes[k] = n <= size ? (size_t)n : size + 1; /* too large either way, no overflow */
     }
     expected = serialized_size(inst, sizes);
     if (size != expected) {
@@ -865,7 +941,8 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
     } else {
         memcpy(s->values, at, (size_t)s->n_values * sizeof(double));
         at += (size_t)s->n_values * sizeof(double);
-        if (s->values[2] != 0.0) {
+        status = state_fault(inst, s->values, message);
+        if (status == 0 && s->values[2] != 0.0) {
             status = wb_deserialize(&inst->wb, at, sizes, s->wb_states, message, sizeof message);
         }
     }

@@ -91,6 +91,13 @@ void sha256_hex(Sha256 *s, char hex[65]) {
     hex[64] = '\0';
 }
 
+void sha256_bytes(const void *data, size_t size, char hex[65]) {
+    Sha256 s;
+    sha256_begin(&s);
+    sha256_add(&s, data, size);
+    sha256_hex(&s, hex);
+}
+
 int sha256_file(const char *path, char hex[65]) {
     unsigned char buffer[1 << 16];
     size_t got;

@@ -228,3 +228,20 @@ void term_load(Term *t, const double *memory) {
         memcpy(t->line.buffer, memory + 4, (size_t)(t->line.size * t->line.width) * 8);
     }
 }
+
+const char *term_memory_fault(const Term *t, const double *memory) {
+    const double count = memory[2], head = memory[3];
+    const ptrdiff_t rows = has_line(t->kind) ? t->line.size : 0;
+    if (isinf(memory[0]) || isinf(memory[1])) return "a play, lag or rate memory is infinite";
+    if (!(count >= 0.0 && count <= 9007199254740992.0 && count == floor(count))) {
+        return "its delay line's sample count is not a whole number of samples";
+    }
+    if (!(head >= -1.0 && head < (double)rows && head == floor(head))) {
+        return "its delay line's head lies outside the line";
+    }
+    if ((count == 0.0) != (head == -1.0)) return "its delay line's head and count disagree";
+    for (ptrdiff_t i = 0; i < rows * t->line.width; i++) {
+        if (!isfinite(memory[4 + i])) return "a delay line sample is not finite";
+    }
+    return NULL;
+}

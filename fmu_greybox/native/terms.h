@@ -64,5 +64,10 @@ void term_output(Term *t, double *y);
 ptrdiff_t term_memory_size(const Term *t);
 void term_save(const Term *t, double *memory);
 void term_load(Term *t, const double *memory);
+/* What is wrong with memory (term_memory_size doubles) as this term's, or NULL if it is one
+ * the term could have saved: its play, lag or rate NaN (not started) or finite, its delay
+ * line's head a row of the line (or -1 before the first push, with no sample yet), its
+ * sample count a whole number, its samples finite. */
+const char *term_memory_fault(const Term *t, const double *memory);
 
 #endif /* GREYBOX_TERMS_H */

@@ -8,6 +8,7 @@
 #include "whitebox.h"
 
 #include <dlfcn.h>
+#include <math.h>
 #include <stdio.h>
 #include <string.h>
 
@@ -487,6 +488,36 @@ int wb_save(Whitebox *w, fmi2FMUstate *states, double *values, char *message, si
         values += 2 * p->n_bound;
         for (ptrdiff_t i = 0; i < p->n_terms; i++) {
             term_save(&p->terms[i], values);
+            values += term_memory_size(&p->terms[i]);
+        }
+    }
+    return 0;
+}
+
+int wb_values_fault(const Whitebox *w, const double *values, double time, char *message,
+                    size_t size) {
+    for (ptrdiff_t k = 0; k < w->n_parts; k++) {
+        const WbPart *p = &w->parts[k];
+        if (!(fabs(values[0] - time) <= w->dt)) {
+            snprintf(message, size, "white-box part %s is at t = %g s, not within a step of the "
+                     "grey-box's %g s", p->name, values[0], time);
+            return -1;
+        }
+        values++;
+        for (ptrdiff_t i = 0; i < 2 * p->n_bound; i++) {
+            if (!isfinite(values[i])) {
+                snprintf(message, size, "white-box part %s: output value %td is %g, not finite",
+                         p->name, i % p->n_bound, values[i]);
+                return -1;
+            }
+        }
+        values += 2 * p->n_bound;
+        for (ptrdiff_t i = 0; i < p->n_terms; i++) {
+            const char *fault = term_memory_fault(&p->terms[i], values);
+            if (fault != NULL) {
+                snprintf(message, size, "white-box part %s, term %td: %s", p->name, i, fault);
+                return -1;
+            }
             values += term_memory_size(&p->terms[i]);
         }
     }

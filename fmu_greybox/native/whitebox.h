@@ -96,6 +96,11 @@ void wb_close(Whitebox *w);
  * outputs and terms' memory (wb_values doubles in values). */
 ptrdiff_t wb_values(const Whitebox *w);
 int wb_save(Whitebox *w, fmi2FMUstate *states, double *values, char *message, size_t size);
+/* Whether values (wb_values doubles) are ones wb_save could have written at grey-box time
+ * `time`: each part within a step of it, its outputs finite, its terms' memory whole
+ * (term_memory_fault). Returns 0, or -1 with what is wrong (naming the part) in message. */
+int wb_values_fault(const Whitebox *w, const double *values, double time, char *message,
+                    size_t size);
 int wb_restore(Whitebox *w, fmi2FMUstate *states, const double *values, char *message,
                size_t size);
 void wb_free_states(Whitebox *w, fmi2FMUstate *states);

@@ -265,6 +265,28 @@ static void delayed(const ModelMemory *m, double t, double y[N_SENSED]) {
 }
 #endif
 
+#ifdef TRUTH_MODEL
+int model_check_memory(const SimData *d, char *message, size_t size) {
+    const ModelMemory *m = &d->memory;
+    if (m->newest < 0 || m->newest >= HISTORY_CAPACITY || m->count < 0 ||
+        m->count > HISTORY_CAPACITY) {
+        snprintf(message, size, "history ring index %d or count %d outside 0..%d", m->newest,
+                 m->count, HISTORY_CAPACITY);
+        return -1;
+    }
+    for (int j = 0; j < m->count; j++) {
+        const int k = ring(m, j);
+        int finite = isfinite(m->time[k]);
+        for (int s = 0; s < N_SENSED; s++) finite = finite && isfinite(m->value[k][s]);
+        if (!finite) {
+            snprintf(message, size, "history sample %d is not finite", j);
+            return -1;
+        }
+    }
+    return 0;
+}
+#endif
+
 void model_initialize(SimData *d) {
     const double mid = 0.5 * (REAL(d, supply_pressure) + REAL(d, return_pressure));
     for (int i = 0; i < N_STATES; i++) d->x[i] = 0.0;

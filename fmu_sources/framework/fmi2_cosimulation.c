@@ -14,6 +14,7 @@
 
 #include "fmi2Functions.h"
 #include "fmu_framework.h"
+#include "sha256.h"
 
 /* The log category declared in modelDescription.xml: every message is an error saying what
  * failed and how to mend it. */
@@ -35,9 +36,10 @@ typedef struct {
     SimData data;
 } Instance;
 
-/* Serialised FMU state: this header followed by the SimData bytes. Valid only for the binary
- * that wrote it (same GUID, same SimData layout). */
-#define STATE_MAGIC "FGBXST01"
+/* Serialised FMU state: this header, the SimData bytes, and the SHA-256 of both as 64 hex
+ * digits (STATE_DIGEST). Valid only for the binary that wrote it (same GUID, same layout). */
+#define STATE_MAGIC "FGBXST02"
+#define STATE_DIGEST 64
 typedef struct {
     char magic[8];
     char guid[48];
@@ -130,25 +132,33 @@ static void load_start_values(SimData *d) {
     d->parameters_changed = 1;
 }
 
-/* Check the parameters (framework's own first, then the model's) if any changed. */
-static fmi2Status check_parameters(Instance *inst, const char *call) {
-    char message[512];
-    SimData *d = &inst->data;
-    if (!d->parameters_changed) return fmi2OK;
+/* Whether the parameters are valid (the framework's ranges first, then the model's check):
+ * 0, or -1 with what is wrong in message. */
+static int parameters_fault(const SimData *d, char *message, size_t size) {
     for (int vr = 0; vr < N_VALUE_REFERENCES; vr++) {
         const FwVariable *v = &fw_variables[vr];
         double value;
         if (v->type != FW_REAL || v->causality != FW_PARAMETER) continue;
         value = d->real[v->index];
         if (value < fw_real_min[v->index] || value > fw_real_max[v->index]) {
-            return fail(inst, call, "%s = %g is outside its range [%g, %g].", v->name, value,
-                        fw_real_min[v->index], fw_real_max[v->index]);
+            snprintf(message, size, "%s = %g is outside its range [%g, %g].", v->name, value,
+                     fw_real_min[v->index], fw_real_max[v->index]);
+            return -1;
         }
     }
     if (!(d->real[FW_SOLVER_STEP] > 0.0)) {
-        return fail(inst, call, "solver_step = %g s must be positive.", d->real[FW_SOLVER_STEP]);
+        snprintf(message, size, "solver_step = %g s must be positive.", d->real[FW_SOLVER_STEP]);
+        return -1;
     }
-    if (model_check(d, message, sizeof message) != 0) return fail(inst, call, "%s", message);
+    return model_check(d, message, size);
+}
+
+/* Check the parameters if any changed. */
+static fmi2Status check_parameters(Instance *inst, const char *call) {
+    char message[512];
+    SimData *d = &inst->data;
+    if (!d->parameters_changed) return fmi2OK;
+    if (parameters_fault(d, message, sizeof message) != 0) return fail(inst, call, "%s", message);
     d->parameters_changed = 0;
     return fmi2OK;
 }
@@ -461,6 +471,64 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 /* FMU state: get, set, free, serialise                                                        */
 /* ------------------------------------------------------------------------------------------ */
 
+/* Whether d is a state this FMU could have saved: a phase, flags 0 or 1, time, Reals and
+ * continuous states finite, Booleans 0 or 1, Strings ended within their capacity, parameters
+ * valid once checked, the model's memory whole (model_check_memory). 0, or -1 with what is
+ * wrong in message. */
+static int state_fault(const SimData *d, char *message, size_t size) {
+    if (d->phase < FW_INSTANTIATED || d->phase > FW_ERROR) {
+        snprintf(message, size, "phase %d is none of %d to %d", d->phase, FW_INSTANTIATED,
+                 FW_ERROR);
+        return -1;
+    }
+    if ((d->parameters_changed | d->outputs_valid) & ~1) {
+        snprintf(message, size, "a flag (parameters_changed %d, outputs_valid %d) is neither 0 "
+                 "nor 1", d->parameters_changed, d->outputs_valid);
+        return -1;
+    }
+    if (!isfinite(d->time)) {
+        snprintf(message, size, "time = %g s is not finite", d->time);
+        return -1;
+    }
+    for (int i = 0; i < N_REAL; i++) {
+        if (!isfinite(d->real[i])) {
+            snprintf(message, size, "Real %d = %g is not finite", i, d->real[i]);
+            return -1;
+        }
+    }
+    for (int i = 0; i < N_STATES; i++) {
+        if (!isfinite(d->x[i])) {
+            snprintf(message, size, "continuous state %d = %g is not finite", i, d->x[i]);
+            return -1;
+        }
+    }
+    for (int i = 0; i < N_BOOLEAN; i++) {
+        if (d->boolean[i] & ~1) {
+            snprintf(message, size, "Boolean %d = %d is neither 0 nor 1", i, d->boolean[i]);
+            return -1;
+        }
+    }
+    for (int i = 0; i < N_STRING; i++) {
+        if (memchr(d->string[i], '\0', FW_STRING_SIZE) == NULL) {
+            snprintf(message, size, "String %d has no end within %d bytes", i, FW_STRING_SIZE);
+            return -1;
+        }
+    }
+    if (!d->parameters_changed && parameters_fault(d, message, size) != 0) return -1;
+#ifdef MODEL_HAS_MEMORY
+    if (model_check_memory(d, message, size) != 0) return -1;
+#endif
+    return 0;
+}
+
+/* Refuse a state that state_fault finds wrong (the instance is unchanged). */
+static fmi2Status check_state(Instance *inst, const char *call, const SimData *d) {
+    char message[512];
+    if (state_fault(d, message, sizeof message) == 0) return fmi2OK;
+    return refuse(inst, call, "%s; not a state this FMU saved (damaged or forged): restore one "
+                  "it saved.", message);
+}
+
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
     Instance *inst = (Instance *)c;
     if (!inst || !allowed(inst, "fmi2GetFMUstate", MASK_FMU_STATE)) return fmi2Error;
@@ -476,6 +544,7 @@ fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
     Instance *inst = (Instance *)c;
     if (!inst || !allowed(inst, "fmi2SetFMUstate", MASK_FMU_STATE)) return fmi2Error;
     if (!FMUstate) return refuse(inst, "fmi2SetFMUstate", "the FMU state is NULL.");
+    if (check_state(inst, "fmi2SetFMUstate", FMUstate) != fmi2OK) return fmi2Error;
     memcpy(&inst->data, FMUstate, sizeof(SimData));
     return fmi2OK;
 }
@@ -494,7 +563,7 @@ fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, si
     Instance *inst = (Instance *)c;
     (void)FMUstate;
     if (!inst) return fmi2Error;
-    *size = sizeof(StateHeader) + sizeof(SimData);
+    *size = sizeof(StateHeader) + sizeof(SimData) + STATE_DIGEST;
     return fmi2OK;
 }
 
@@ -502,11 +571,12 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byt
                                  size_t size) {
     Instance *inst = (Instance *)c;
     StateHeader header;
+    char digest[65];
     if (!inst) return fmi2Error;
     if (!FMUstate) return refuse(inst, "fmi2SerializeFMUstate", "the FMU state is NULL.");
-    if (size < sizeof header + sizeof(SimData)) {
+    if (size < sizeof header + sizeof(SimData) + STATE_DIGEST) {
         return refuse(inst, "fmi2SerializeFMUstate", "buffer of %zu bytes is too small (need %zu).",
-                    size, sizeof header + sizeof(SimData));
+                    size, sizeof header + sizeof(SimData) + STATE_DIGEST);
     }
     memset(&header, 0, sizeof header);
     memcpy(header.magic, STATE_MAGIC, sizeof header.magic);
@@ -514,6 +584,8 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byt
     header.data_size = sizeof(SimData);
     memcpy(serializedState, &header, sizeof header);
     memcpy(serializedState + sizeof header, FMUstate, sizeof(SimData));
+    sha256_bytes(serializedState, sizeof header + sizeof(SimData), digest);
+    memcpy(serializedState + sizeof header + sizeof(SimData), digest, STATE_DIGEST);
     return fmi2OK;
 }
 
@@ -521,11 +593,19 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
                                    fmi2FMUstate *FMUstate) {
     Instance *inst = (Instance *)c;
     StateHeader header;
+    SimData *data;
+    char digest[65];
     static const char *const call = "fmi2DeSerializeFMUstate";
     if (!inst) return fmi2Error;
-    if (size != sizeof header + sizeof(SimData)) {
+    if (size != sizeof header + sizeof(SimData) + STATE_DIGEST) {
         return refuse(inst, call, "%zu bytes given, a state of this FMU has %zu.", size,
-                    sizeof header + sizeof(SimData));
+                    sizeof header + sizeof(SimData) + STATE_DIGEST);
+    }
+    sha256_bytes(serializedState, sizeof header + sizeof(SimData), digest);
+    if (memcmp(digest, serializedState + sizeof header + sizeof(SimData), STATE_DIGEST) != 0) {
+        return refuse(inst, call, "the state's bytes do not match their SHA-256: they were "
+                      "damaged or edited after fmi2SerializeFMUstate wrote them; restore an "
+                      "undamaged copy.");
     }
     memcpy(&header, serializedState, sizeof header);
     if (memcmp(header.magic, STATE_MAGIC, sizeof header.magic) != 0 ||
@@ -536,11 +616,19 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
         return refuse(inst, call, "the state was written by another FMU (GUID %.40s).",
                       header.guid);
     }
-    if (!*FMUstate) {
-        *FMUstate = allocate(inst, sizeof(SimData));
-        if (!*FMUstate) return fail(inst, call, "out of memory.");
+    data = allocate(inst, sizeof(SimData)); /* not on the stack: a model's memory may be large */
+    if (!data) return fail(inst, call, "out of memory.");
+    memcpy(data, serializedState + sizeof header, sizeof(SimData));
+    if (check_state(inst, call, data) != fmi2OK) {
+        release(inst, data);
+        return fmi2Error;
     }
-    memcpy(*FMUstate, serializedState + sizeof header, sizeof(SimData));
+    if (*FMUstate) {
+        memcpy(*FMUstate, data, sizeof(SimData));
+        release(inst, data);
+    } else {
+        *FMUstate = data;
+    }
     return fmi2OK;
 }
 

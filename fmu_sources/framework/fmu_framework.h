@@ -113,6 +113,12 @@ int model_after_step(SimData *d, char *message, size_t size);
 /* Compute every output variable from states, inputs and parameters. */
 void model_outputs(SimData *d);
 
+#ifdef MODEL_HAS_MEMORY
+/* Check the memory of a state being restored (indices in range, values finite): 0, or -1 with
+ * what is wrong. The framework has checked everything else of the state. */
+int model_check_memory(const SimData *d, char *message, size_t size);
+#endif
+
 /* ---------------------------------------------------------------------------------------------
  * Integrator (rosenbrock.c)
  * ------------------------------------------------------------------------------------------- */
