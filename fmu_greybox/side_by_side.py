@@ -6,7 +6,8 @@ limited to one BLAS thread, keep both cores busy with no more threads than cores
 itself, OpenBLAS gives every call a thread per core, and its threads spin while they wait:
 beside any other busy process a fit then runs several times slower (measured: 92 s instead of
 15 s for the same fit with one BLAS thread, on this project's 2-core machine with two other
-processes running; ``docs/speed.md``).
+processes running; ``docs/speed.md``). So training runs with one BLAS thread throughout
+(:func:`one_blas_thread`) and gets its parallelism from fits that do not depend on each other.
 """
 
 from __future__ import annotations
@@ -38,11 +39,18 @@ def run_side_by_side(tasks: Sequence[Callable[[], T]], workers: int | None = Non
     list
     """
     count = min(len(tasks), workers or available_cores())
-    if count <= 1:
-        return [task() for task in tasks]
-    with threadpool_limits(limits=1, user_api="blas"), ThreadPoolExecutor(count) as pool:
-        futures = [pool.submit(task) for task in tasks]
-        return [future.result() for future in futures]
+    with one_blas_thread():
+        if count <= 1:
+            return [task() for task in tasks]
+        with ThreadPoolExecutor(count) as pool:
+            futures = [pool.submit(task) for task in tasks]
+            return [future.result() for future in futures]
+
+
+def one_blas_thread() -> threadpool_limits:
+    """A context in which BLAS calls use one thread (process-wide; nested uses keep it at
+    one until the outermost ends)."""
+    return threadpool_limits(limits=1, user_api="blas")
 
 
 def available_cores() -> int:

@@ -30,7 +30,7 @@ from fmu_greybox.model.calibration import (
 from fmu_greybox.model.chain_step import ChainPlan, ChainState
 from fmu_greybox.model.stage import TARGET_MODES, SourceLayout, StageLayout
 from fmu_greybox.project.config import AUTO, ProjectConfig
-from fmu_greybox.side_by_side import run_side_by_side
+from fmu_greybox.side_by_side import one_blas_thread, run_side_by_side
 
 ProgressCallback = Callable[[str, int, float], None]
 """Called as ``progress(corrector, iteration, bound)`` after each optimiser iteration of a fit,
@@ -255,16 +255,17 @@ class GreyBoxChain:
         self.calibration_check_ = {}
         if targets_from is not None:
             self.selection_ = dict(targets_from.selection_)
-        for q, stage in enumerate(self.stages):
-            if targets_from is not None:
-                stage.target_mode = targets_from.stages[q].target_mode
-            elif stage.target_mode == AUTO:
-                stage.target_mode = self._choose_target(q, exo, y_wb, outputs, progress)
-            self._fit_stage(q, exo, y_wb, outputs, progress, f"{stage.name} corrector")
-        if self.check_tail is not None:
-            self.free_run_check_ = self._check_free_run(exo, y_wb, outputs, self.check_tail)
-        if self.calibrate:
-            self._calibrate(RecordedRun(exo, y_wb, outputs), progress, calibration_runs)
+        with one_blas_thread():  # the parallelism is in the fits side by side
+            for q, stage in enumerate(self.stages):
+                if targets_from is not None:
+                    stage.target_mode = targets_from.stages[q].target_mode
+                elif stage.target_mode == AUTO:
+                    stage.target_mode = self._choose_target(q, exo, y_wb, outputs, progress)
+                self._fit_stage(q, exo, y_wb, outputs, progress, f"{stage.name} corrector")
+            if self.check_tail is not None:
+                self.free_run_check_ = self._check_free_run(exo, y_wb, outputs, self.check_tail)
+            if self.calibrate:
+                self._calibrate(RecordedRun(exo, y_wb, outputs), progress, calibration_runs)
         return self
 
     def pass_through(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import threading
 import time
 from collections.abc import Sequence
@@ -21,6 +22,7 @@ from fmu_greybox.progress import Progress, announce
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import check_sample_time, prepare, split_row, whitebox_path
 from fmu_greybox.project.fingerprint import data_rows, row_digests
+from fmu_greybox.side_by_side import run_side_by_side
 from fmu_greybox.workflow.parts import FittedModel, PartsComparison, check_ship, compare_fitted
 
 #: Fewest rows a model is trained on: fewer cannot pin down a corrector's hyperparameters, and
@@ -101,7 +103,7 @@ def train_model(
     announce(
         f"Training pass 3 of 3: the model that ships ({comparison.shipped}), on all the "
         f"training rows, with pass {2 if shipped == 'correctors' else 1}'s choice of targets "
-        f"(about {seconds / 2:.0f} s left)",
+        f"(about {seconds:.0f} s left)",
         progress,
     )
     fitted = fit_model(
@@ -141,29 +143,36 @@ def compare_parts_forward(
         :data:`~fmu_greybox.workflow.parts.SHIP_CHOICES`; for ``best``, ``terms+correctors``
         when the data cannot decide).
     float
-        Seconds the two comparison chains took to train.
+        Seconds the two comparison chains took to train (side by side).
     dict of str to FittedModel
         The two chains: ``"terms"`` (correctors on the white-box with ``terms``) and
         ``"correctors"`` (on the plain white-box); the model shipped takes the target modes of one
         of them (``fit_model``'s ``targets_from``).
     """
     early = comparison_config(config, GreyBoxChain(config, target_mode), recording.n_samples)
-    rows = "the first half of the training rows"
     announce(
-        f"Training pass 1 of 3: correctors on the white-box with named terms, on {rows} "
-        "(to compare the parts)",
+        "Training passes 1 and 2 of 3, side by side, on the first half of the training rows "
+        "(to compare the parts): correctors on the white-box with named terms (1), and on "
+        "the plain white-box (2)",
         progress,
     )
     # the parts are compared by their means: no σ to calibrate
-    named = fit_model(early, recording, progress, target_mode, terms, calibrate=False)
-    took = named.model.training["seconds"]
-    announce(
-        f"Training pass 2 of 3: correctors on the plain white-box, on {rows} (to compare the "
-        f"parts; pass 1 took {took:.0f} s, about {1.25 * took:.0f} s left)",
-        progress,
+    named, plain = run_side_by_side(
+        [
+            functools.partial(
+                fit_model,
+                early,
+                recording,
+                progress,
+                target_mode,
+                chosen,
+                calibrate=False,
+                pass_=pass_,
+            )
+            for chosen, pass_ in ((terms, "pass 1"), ((), "pass 2"))
+        ]
     )
-    plain = fit_model(early, recording, progress, target_mode, (), calibrate=False)
-    seconds = named.model.training["seconds"] + plain.model.training["seconds"]
+    seconds = max(named.model.training["seconds"], plain.model.training["seconds"])
     return compare_fitted(named, plain, ship), seconds, {"terms": named, "correctors": plain}
 
 
@@ -189,12 +198,14 @@ def fit_model(
     calibrate: bool = True,
     calibrate_on: Sequence[Recording] = (),
     targets_from: GreyBoxChain | None = None,
+    pass_: str = "",
 ) -> FittedModel:
     """One chain of correctors on the white-box with ``terms`` (see :func:`train_model`);
     without ``calibrate``, its σ is the propagated variance (a chain used for its mean only).
     ``calibrate_on``: the calibration recordings (``train_model``'s
     ``calibration_recordings``); ``targets_from``: a chain fitted on part of the same rows
-    whose target modes the fit takes (:meth:`~fmu_greybox.model.chain.GreyBoxChain.fit`)."""
+    whose target modes the fit takes (:meth:`~fmu_greybox.model.chain.GreyBoxChain.fit`);
+    ``pass_``: which training pass this is, in words, for the progress lines."""
     started = time.perf_counter()
     fmu_path = whitebox_path(config)
     chain = GreyBoxChain(config, target_mode, calibrate=calibrate)
@@ -207,7 +218,7 @@ def fit_model(
     runs = [RecordedRun(d.exo, d.y_wb, d.outputs) for d in calibration]
     split = split_row(config, data.n_samples)
     rows = slice(0, split + 1)
-    report = FitProgress(config.gp.max_iter, progress)
+    report = FitProgress(config.gp.max_iter, progress, pass_)
     chain.fit(
         data.exo[rows],
         data.y_wb[rows],
@@ -268,16 +279,19 @@ class FitProgress:
         Iterations a fit takes at most.
     enabled : bool
         Show anything.
+    pass_ : str
+        Which training pass the fits belong to, in words (shown after each fit's label).
     """
 
-    def __init__(self, max_iter: int, enabled: bool) -> None:
+    def __init__(self, max_iter: int, enabled: bool, pass_: str = "") -> None:
         self.max_iter = max_iter
         self.enabled = enabled
+        self.pass_ = pass_
         self._open: dict[str, Progress] = {}
         self._lock = threading.Lock()
 
     def __call__(self, corrector: str, iteration: int, bound: float) -> None:
-        label = f"Fitting the {corrector}"
+        label = f"Fitting the {corrector}" + (f" [{self.pass_}]" if self.pass_ else "")
         with self._lock:
             if iteration == 0:  # the fit is done
                 shown = self._open.pop(label, None)
