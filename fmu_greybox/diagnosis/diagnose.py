@@ -20,6 +20,7 @@ the recording, so that the selection's held-out test has data to judge on.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections.abc import Callable
 
@@ -46,6 +47,7 @@ from fmu_greybox.model.simulate import simulate_with_terms
 from fmu_greybox.model.terms import ViscousForce
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import check_step, whitebox_path
+from fmu_greybox.side_by_side import run_side_by_side
 from fmu_greybox.workflow.metrics import improvement, rmse
 from fmu_greybox.workflow.parts import compare_parts
 
@@ -327,12 +329,19 @@ class Diagnosis:
         named = self.simulated_["named"][:, targets]
         gb, gb_std = named[train:], np.zeros_like(named[train:])
         self.parts_ = None
+        both = self.simulated_["named"] is not self.simulated_["whitebox"]
         if self.greybox is not None:
-            self.progress("training the grey-box on the named model")
-            gb, gb_std = self._greybox(recording, named, recorded, train)
-        if self.greybox is not None and self.simulated_["named"] is not self.simulated_["whitebox"]:
-            self.progress("training the grey-box on the white-box (correctors alone)")
-            alone, _ = self._greybox(recording, wb, recorded, train)
+            self.progress(
+                "training the grey-box on the named model"
+                + (" and, side by side, on the white-box (correctors alone)" if both else "")
+            )
+            on = [named, wb] if both else [named]
+            runs = run_side_by_side(
+                [functools.partial(self._greybox, recording, y, recorded, train) for y in on]
+            )
+            gb, gb_std = runs[0]
+        if self.greybox is not None and both:
+            alone, _ = runs[1]
             self.parts_ = compare_parts(
                 names,
                 recorded[train:],
