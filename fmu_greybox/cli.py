@@ -159,13 +159,17 @@ def main(ctx: click.Context, debug: bool, quiet: bool, verbose: bool) -> None:
     variable and how to mend it), 2 a usage error, 3 acceptance criteria not met
     (validate --strict).
 
+    CONFIG, the project of diagnose, train, validate and campaign, is a project file or a
+    project the package carries: builtin:hydraulic_actuator (the reference actuator) or
+    builtin:positioner.
+
     \b
     Examples:
       fmu-greybox demo                       # the main job on the built-in default
       fmu-greybox fmu build --out fmus/
       fmu-greybox synth --effect coulomb_friction=800 --seed 3 --out rec.csv
-      fmu-greybox diagnose bench_configs/hydraulic_actuator.toml --recording rec.csv
-      fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv --out model/
+      fmu-greybox diagnose builtin:hydraulic_actuator --recording rec.csv
+      fmu-greybox train builtin:hydraulic_actuator --recording rec.csv --out model/
       fmu-greybox export model/ --out greybox.fmu --ssp bench.ssp --recording rec.csv
       fmu-greybox cosim bench.ssp --engine libcosim --out results.csv
     """
@@ -394,10 +398,10 @@ def train(
 
     \b
     Examples:
-      fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv --out model/
-      fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv \\
+      fmu-greybox train builtin:hydraulic_actuator --recording rec.csv --out model/
+      fmu-greybox train builtin:hydraulic_actuator --recording rec.csv \\
           --terms diag/diagnosis.json --out model/
-      fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv \\
+      fmu-greybox train builtin:hydraulic_actuator --recording rec.csv \\
           --calibrate-on run2.csv --calibrate-on run3.csv --out model/
     """
     from fmu_greybox.atomic import output_lock
@@ -479,7 +483,7 @@ def validate(
 
     \b
     Example:
-      fmu-greybox validate bench_configs/hydraulic_actuator.toml --model model/ \\
+      fmu-greybox validate builtin:hydraulic_actuator --model model/ \\
           --recording rec.csv --out validation/ --strict
     """
     from fmu_greybox.model.store import load_model
@@ -881,8 +885,8 @@ def diagnose(
     \b
     Examples:
       fmu-greybox synth --effect coulomb_friction=600 --duration 25 --out rec.csv
-      fmu-greybox diagnose bench_configs/hydraulic_actuator.toml --recording rec.csv --out diag/
-      fmu-greybox diagnose bench_configs/hydraulic_actuator.toml --recording rec.csv \\
+      fmu-greybox diagnose builtin:hydraulic_actuator --recording rec.csv --out diag/
+      fmu-greybox diagnose builtin:hydraulic_actuator --recording rec.csv \\
           --scheduler tcp://127.0.0.1:8786 --out diag/
     """
     from contextlib import nullcontext
@@ -964,8 +968,8 @@ def campaign(
 
     \b
     Examples:
-      fmu-greybox campaign bench_configs/hydraulic_actuator.toml flights/*.csv --out camp/
-      fmu-greybox campaign bench_configs/hydraulic_actuator.toml flights/*.parquet \\
+      fmu-greybox campaign builtin:hydraulic_actuator flights/*.csv --out camp/
+      fmu-greybox campaign builtin:hydraulic_actuator flights/*.parquet \\
           --scheduler tcp://10.0.0.5:8786 --out camp/
     """
     import os

@@ -146,8 +146,10 @@ def test_invalid_toml_and_unreadable_file(tmp_path: Path) -> None:
     bad.write_text("[whitebox\nfmu = 1")
     with pytest.raises(ConfigError, match="invalid TOML"):
         load_config(bad)
-    with pytest.raises(ConfigError, match="cannot read"):
+    with pytest.raises(ConfigError, match="no such project file; the built-in projects are"):
         load_config(tmp_path / "missing.toml")
+    with pytest.raises(ConfigError, match="cannot read the project file: Is a directory"):
+        load_config(tmp_path)
 
 
 def test_units_are_checked_against_the_fmu(raw: dict, whitebox_fmu: Path) -> None:

@@ -2,8 +2,8 @@
 
 A TOML file, validated on load; every error names the field and says how to mend it. The
 project describes any white-box FMU, not only the reference actuator. See ``docs/config.md``
-for the field-by-field reference and ``bench_configs/hydraulic_actuator.toml`` for a full
-example.
+for the field-by-field reference and ``bench_configs/hydraulic_actuator.toml`` (on the command
+line ``builtin:hydraulic_actuator``) for a full example.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from fmu_greybox.errors import ConfigError, UnitMismatchError
+from fmu_greybox.resources import builtin_projects, project_path
 from fmu_greybox.suggest import did_you_mean
 from fmu_greybox.units import normalise_unit
 
@@ -365,7 +366,8 @@ def load_config(path: str | Path) -> ProjectConfig:
     Parameters
     ----------
     path : str or Path
-        The TOML file.
+        The TOML file, or ``builtin:NAME`` for a project the package carries
+        (:func:`fmu_greybox.resources.builtin_projects`, e.g. ``builtin:hydraulic_actuator``).
 
     Returns
     -------
@@ -374,11 +376,17 @@ def load_config(path: str | Path) -> ProjectConfig:
     Raises
     ------
     ConfigError
-        For an unreadable file, invalid TOML, or any invalid field (the message names it).
+        For a missing file (the message lists the built-in projects), an unknown built-in
+        name, an unreadable file, invalid TOML, or any invalid field (the message names it).
     """
-    path = Path(path)
+    path = project_path(path)
     try:
         raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError as exc:
+        raise ConfigError(
+            "no such project file; the built-in projects are " + ", ".join(builtin_projects()),
+            path=str(path),
+        ) from exc
     except OSError as exc:
         raise ConfigError(f"cannot read the project file: {exc.strerror}", path=str(path)) from exc
     except UnicodeDecodeError as exc:
