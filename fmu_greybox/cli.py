@@ -166,6 +166,7 @@ def main(ctx: click.Context, debug: bool, quiet: bool, verbose: bool) -> None:
     \b
     Examples:
       fmu-greybox demo                       # the main job on the built-in default
+      fmu-greybox init my.fmu --out myproject/  # a starter project for your own FMU
       fmu-greybox fmu build --out fmus/
       fmu-greybox synth --effect coulomb_friction=800 --seed 3 --out rec.csv
       fmu-greybox diagnose builtin:hydraulic_actuator --recording rec.csv
@@ -200,6 +201,39 @@ def fmu_build_cmd(ctx: click.Context, out_dir: Path) -> None:
     out_dir.mkdir(parents=True, exist_ok=True)
     for name, path in build_reference_fmus(out_dir).items():
         _info(ctx, f"built {name}: {path}")
+
+
+@main.command()
+@click.argument("fmu_spec", metavar="FMU")
+@out_option("project", "Folder receiving project.toml", folder=True)
+@click.option("--force", is_flag=True, help="Write over an existing project.toml.")
+@click.pass_context
+def init(ctx: click.Context, fmu_spec: str, out_dir: Path, force: bool) -> None:
+    """Write a starter project for your own white-box FMU, to check and edit.
+
+    FMU is a .fmu path or builtin:NAME. OUT/project.toml declares each FMU input and output as
+    a signal (its role read from the FMU's unit, description or name, as the diagnosis reads
+    it; its unit the FMU's), a stage per output that holds a level (a position, pressure,
+    current, voltage, force or temperature) fed by every input, and the defaults of [gp],
+    [split] and [acceptance] as comments. Check the roles and units, order and connect the
+    stages (feeds_from), then diagnose a recording. docs/config.md describes every field.
+
+    \b
+    Examples:
+      fmu-greybox init path/to/model.fmu --out myproject/
+      fmu-greybox diagnose myproject/project.toml --recording rec.csv --out diag/
+      fmu-greybox init builtin:HydraulicActuator --out actuator/ --force
+    """
+    from fmu_greybox.project.starter import write_starter
+
+    config = write_starter(fmu_spec, out_dir, force=force)
+    stages = ", ".join(stage.name for stage in config.stages)
+    _info(
+        ctx,
+        f"wrote {out_dir / 'project.toml'} ({len(config.signals)} signals; stages {stages}); "
+        "check its roles, units and stage order, then: fmu-greybox diagnose "
+        f"{out_dir / 'project.toml'} --recording REC",
+    )
 
 
 @main.command()

@@ -229,6 +229,7 @@ def test_subprocess_user_error_and_debug_traceback(env: dict[str, str], tmp_path
 
 
 COMMANDS = [
+    ["init"],
     ["fmu", "build"],
     ["synth"],
     ["simulate"],

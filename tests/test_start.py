@@ -4,6 +4,7 @@ the fmpy snippet of docs/bench.md)."""
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -13,6 +14,7 @@ from click.testing import CliRunner, Result
 
 from fmu_greybox.cli import main
 from fmu_greybox.errors import ConfigError
+from fmu_greybox.fmi.archive import real_outputs
 from fmu_greybox.model.store import load_model
 from fmu_greybox.project.config import load_config
 from fmu_greybox.resources import DATA_DIR, builtin_projects
@@ -69,9 +71,9 @@ def test_every_help_example_names_only_what_the_package_carries() -> None:
     texts = help_texts()
     used = set()
     for command, text in texts.items():
-        assert "bench_configs" not in text and ".toml" not in text, command
+        assert "bench_configs" not in text, command
         used |= set(re.findall(r"builtin:\w+", text))
-    assert used <= known
+    assert used - {"builtin:NAME"} <= known
     assert "builtin:hydraulic_actuator" in used
     for command in ("diagnose", "train", "validate", "campaign"):
         assert "builtin:hydraulic_actuator" in texts[command], command
@@ -99,3 +101,83 @@ def test_train_runs_on_the_built_in_project_away_from_the_checkout(
     model = load_model(tmp_path / "model")
     assert model.config.name == "hydraulic_actuator"
     assert [s.name for s in model.config.stages] == ["EHV", "RAM", "ITFV"]
+
+
+def test_init_writes_a_starter_project_for_the_built_in_white_box(tmp_path: Path) -> None:
+    from fmu_greybox.fmi.archive import open_fmu
+    from fmu_greybox.fmi.builtin import resolve_fmu
+
+    result = cli("init", "builtin:HydraulicActuator", "--out", tmp_path / "actuator")
+    assert result.exit_code == 0, result.output
+    config = load_config(tmp_path / "actuator" / "project.toml")
+    with open_fmu(resolve_fmu(config.fmu)) as archive:
+        config.check_against_fmu(archive)
+        assert list(config.signals) == [*archive.inputs, *real_outputs(archive)]
+    assert config.fmu == "builtin:HydraulicActuator"
+    levels = ["spool_position", "ram_position", "itfv_pressure", "pressure_a", "pressure_b"]
+    assert [s.target for s in config.stages] == levels  # not the velocities and flows
+    assert all(s.inputs == tuple(archive.inputs) for s in config.stages)
+    reference = load_config("builtin:hydraulic_actuator")
+    for name, signal in reference.signals.items():  # the roles and units its authors gave
+        if signal.role != "command":
+            assert (config.signals[name].role, config.signals[name].unit) == (
+                signal.role,
+                signal.unit,
+            ), name
+    assert config.gp == reference.gp.__class__()  # the defaults, as comments
+    text = (tmp_path / "actuator" / "project.toml").read_text()
+    assert "# inducing = 300" in text and "# coverage95 = [0.9, 0.99]" in text
+
+
+def test_init_refuses_to_overwrite_a_project_unless_forced(tmp_path: Path) -> None:
+    target = tmp_path / "project.toml"
+    target.write_text("# mine\n")
+    result = cli("init", "builtin:HydraulicActuator", "--out", tmp_path)
+    assert result.exit_code == 1
+    assert f"--out {target} exists" in result.stderr and "--force" in result.stderr
+    assert target.read_text() == "# mine\n"
+    assert cli("init", "builtin:HydraulicActuator", "--out", tmp_path, "--force").exit_code == 0
+    assert load_config(target).fmu == "builtin:HydraulicActuator"
+    assert [p.name for p in tmp_path.iterdir()] == ["project.toml"]  # no temporary left
+
+
+def test_a_starter_project_for_a_third_party_fmu_without_units_diagnoses_as_written(
+    dc_servo_fmus: dict[str, Path], tmp_path: Path
+) -> None:
+    """The DC servo declares no units and terse names: the roles come from its descriptions,
+    the units are left out, and ``diagnose`` names the bearing friction of the recording."""
+    from third_party import record
+
+    from fmu_greybox.data.recording import save_recording
+    from fmu_greybox.fmi.archive import open_fmu
+
+    result = cli("init", dc_servo_fmus["DCServo"], "--out", tmp_path / "servo")
+    assert result.exit_code == 0, result.output
+    config = load_config(tmp_path / "servo" / "project.toml")
+    roles = {name: (s.role, s.unit) for name, s in config.signals.items()}
+    assert roles == {
+        "u": ("voltage", ""),
+        "tl": ("force", ""),
+        "th": ("position", ""),
+        "w": ("velocity", ""),
+        "ia": ("current", ""),
+    }
+    assert [(s.name, s.inputs, s.feeds_from) for s in config.stages] == [
+        ("th", ("u", "tl"), ()),
+        ("ia", ("u", "tl"), ()),
+    ]
+    with open_fmu(dc_servo_fmus["DCServoTruth"]) as truth:
+        save_recording(record(truth, {"fc": 0.02}, seed=13, duration=8.0), tmp_path / "rec.csv")
+    result = cli(
+        "diagnose",
+        tmp_path / "servo" / "project.toml",
+        "--recording",
+        tmp_path / "rec.csv",
+        "--out",
+        tmp_path / "diag",
+        "--json",
+    )
+    assert result.exit_code == 0, result.output
+    top = json.loads(result.stdout)["findings"][0]
+    assert (top["effect"], top["stage"]) == ("coulomb_friction", "th")
+    assert top["magnitude"]["value"] == pytest.approx(0.02, rel=0.1)

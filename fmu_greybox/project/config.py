@@ -46,6 +46,19 @@ FEED_SOURCES = ("recorded", "free_run")
 INDUCING_METHODS = ("equispaced", "kmeans", "greedy")
 
 
+def unit_suits_role(unit: str, role: str) -> bool:
+    """Whether ``unit`` is one of the units :data:`ROLE_UNITS` accepts for ``role`` (any unit
+    suits ``other``).
+
+    Examples
+    --------
+    >>> unit_suits_role("bar", "pressure"), unit_suits_role("Pa", "force")
+    (True, False)
+    """
+    accepted = ROLE_UNITS[role]
+    return not accepted or normalise_unit(unit) in {normalise_unit(u) for u in accepted}
+
+
 @dataclass(frozen=True)
 class Signal:
     """A recorded signal and the FMU variable it corresponds to.
@@ -61,7 +74,8 @@ class Signal:
     role : str
         Physical role, one of :data:`ROLE_UNITS`.
     unit : str
-        Unit of the recorded column.
+        Unit of the recorded column; ``""`` where the project gives none (allowed only where
+        the FMU declares none: then no unit is checked or converted).
     """
 
     name: str
@@ -283,7 +297,10 @@ class ProjectConfig:
             "name": self.name,
             "whitebox": _without_none(whitebox),
             "recording": _without_none(recording),
-            "signals": {n: _fields(s, skip=("name",)) for n, s in self.signals.items()},
+            "signals": {
+                n: _fields(s, skip=("name",) if s.unit else ("name", "unit"))
+                for n, s in self.signals.items()
+            },
             "stages": [_fields(s) for s in self.stages],
             "gp": _fields(self.gp),
             "split": {"train_fraction": self.train_fraction},
@@ -322,6 +339,13 @@ class ProjectConfig:
                     f"FMU {archive.path.name} has no variable {sig.variable!r}"
                     + did_you_mean(sig.variable, known),
                     field=f"signals.{sig.name}.variable",
+                    path=where,
+                )
+            if var.unit and not sig.unit:
+                raise ConfigError(
+                    f"signal {sig.name!r} gives no unit but FMU variable {sig.variable!r} is in "
+                    f"{var.unit!r}; add unit = {var.unit!r} (the unit of the recorded column)",
+                    field=f"signals.{sig.name}.unit",
                     path=where,
                 )
             if var.unit and sig.unit and normalise_unit(var.unit) != normalise_unit(sig.unit):
@@ -488,9 +512,9 @@ def _signals(reader: _Reader, table: Mapping[str, Any]) -> dict[str, Signal]:
                 + did_you_mean(role, ROLE_UNITS)
                 + f"; roles: {', '.join(ROLE_UNITS)}",
             )
-        unit = reader.get(entry, "unit", str, None, where + ".", required=True)
+        unit = reader.get(entry, "unit", str, "", where + ".")
         accepted = ROLE_UNITS[role]
-        if accepted and normalise_unit(unit) not in {normalise_unit(u) for u in accepted}:
+        if unit and not unit_suits_role(unit, role):
             reader.fail(
                 where + ".unit",
                 f"{unit!r} is not a unit of a {role} "
