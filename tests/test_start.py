@@ -181,3 +181,13 @@ def test_a_starter_project_for_a_third_party_fmu_without_units_diagnoses_as_writ
     top = json.loads(result.stdout)["findings"][0]
     assert (top["effect"], top["stage"]) == ("coulomb_friction", "th")
     assert top["magnitude"]["value"] == pytest.approx(0.02, rel=0.1)
+
+
+def test_demo_refuses_an_unknown_effect_before_it_says_or_writes_anything(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    result = cli("demo", "--effect", "foo=1", "--out", out)
+    assert result.exit_code == 1
+    assert result.stderr.startswith("error: --effect: unknown effect 'foo'; effects offered: ")
+    assert "coulomb_friction" in result.stderr and "internal_leakage" in result.stderr
+    assert "[1/6]" not in result.output
+    assert not out.exists()

@@ -2,7 +2,8 @@
 
 On the reference actuator, with nothing but this repository:
 
-1. build the white-box and truth FMUs from their C sources;
+1. build the white-box and truth FMUs from their C sources, and check that the truth FMU
+   offers the effects asked for (before anything is said or written);
 2. record the truth actuator in closed loop with a concealed effect (drawn by the seed from
    :data:`~fmu_greybox.synth.actuator.TYPICAL_MAGNITUDES` unless given), plus an independent
    validation
@@ -50,6 +51,7 @@ from fmu_greybox.synth.actuator import (
     TYPICAL_MAGNITUDES,
     FlightTestProfile,
     SynthRequest,
+    check_effects,
     synthesise,
 )
 from fmu_greybox.workflow.train import train_model, with_inducing
@@ -229,10 +231,13 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
     Returns
     -------
     DemoResult
+
+    Raises
+    ------
+    ConfigError
+        For an effect the truth actuator does not offer, before anything is said or written.
     """
     say = log or (lambda _message: None)
-    out = Path(settings.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
     clock = time.perf_counter()
 
@@ -243,8 +248,15 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
         clock = now
 
     effects = dict(settings.effects) if settings.effects else choose_effect(settings.seed)
-    say("[1/6] building the reference FMUs from fmu_sources/")
     fmus = reference_fmus()
+    with (
+        open_fmu(fmus["HydraulicActuatorTruth"]) as truth,
+        open_fmu(fmus["HydraulicActuator"]) as whitebox,
+    ):
+        check_effects(effects, truth, whitebox)  # before a step is said or a folder made
+    out = Path(settings.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    say("[1/6] the reference FMUs, built from fmu_sources/ (once: they are cached)")
     config = load_config(reference_project())
     step("build")
 
