@@ -290,8 +290,15 @@ def synth(
         open_fmu(paths["HydraulicActuator"]) as whitebox,
     ):
         if list_effects:
-            for v in synth_mod.list_effects(truth, whitebox):
-                click.echo(f"{v.name:24s} [{v.unit or '-'}]  {v.description}")
+            offered = synth_mod.list_effects(truth, whitebox)
+            rows = [
+                (v.name, f"[{v.unit or '-'}]", synth_mod.typical_range(v), v.description)
+                for v in offered
+            ]
+            widths = [max(len(row[i]) for row in rows) for i in range(3)]
+            for row in rows:
+                cells = [f"{cell:{width}}" for cell, width in zip(row[:3], widths, strict=True)]
+                click.echo("  ".join([*cells, row[3]]))
             return
         request = synth_mod.SynthRequest(
             effects=synth_mod.parse_effects(effects),

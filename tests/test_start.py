@@ -191,3 +191,17 @@ def test_demo_refuses_an_unknown_effect_before_it_says_or_writes_anything(tmp_pa
     assert "coulomb_friction" in result.stderr and "internal_leakage" in result.stderr
     assert "[1/6]" not in result.output
     assert not out.exists()
+
+
+def test_synth_lists_each_effect_with_its_typical_magnitudes_and_unit() -> None:
+    from fmu_greybox.synth.actuator import TYPICAL_MAGNITUDES
+
+    result = cli("synth", "--list-effects")
+    assert result.exit_code == 0, result.output
+    lines = {line.split()[0]: " ".join(line.split()) for line in result.stdout.splitlines()}
+    assert "[N] typical 300 to 900 N Coulomb seal friction" in lines["coulomb_friction"]
+    assert "[s] typical 0.002 to 0.005 s Sensor delay" in lines["time_delay"]
+    assert "[1] typical 0.03 to 0.1 Relative EHV gain error" in lines["gain_error"]
+    for name, magnitudes in TYPICAL_MAGNITUDES.items():
+        assert f"typical {magnitudes[0]:g} to {magnitudes[-1]:g}" in lines[name]
+    assert "[m/s] - Stribeck velocity" in lines["stribeck_velocity"]  # a shape, not an effect
