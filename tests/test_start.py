@@ -4,8 +4,11 @@ the fmpy snippet of docs/bench.md)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import click
@@ -79,26 +82,32 @@ def test_every_help_example_names_only_what_the_package_carries() -> None:
         assert "builtin:hydraulic_actuator" in texts[command], command
 
 
-def test_train_runs_on_the_built_in_project_away_from_the_checkout(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    monkeypatch.chdir(tmp_path)
-    assert cli("-q", "synth", "--duration", 2, "--out", "rec.csv").exit_code == 0
-    result = cli(
-        "-q",
-        "train",
-        "builtin:hydraulic_actuator",
-        "--recording",
-        "rec.csv",
-        "--inducing",
-        10,
-        "--max-iter",
-        3,
-        "--out",
-        "model",
-    )
+@pytest.fixture(scope="module")
+def first_hour(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder away from the checkout where the CLI wrote ``rec.csv`` (2.5 s) and ``model/``,
+    trained on the built-in project (10 inducing points, 3 iterations)."""
+    folder = tmp_path_factory.mktemp("first_hour")
+    with contextlib.chdir(folder):
+        assert cli("-q", "synth", "--duration", 2.5, "--out", "rec.csv").exit_code == 0
+        result = cli(
+            "-q",
+            "train",
+            "builtin:hydraulic_actuator",
+            "--recording",
+            "rec.csv",
+            "--inducing",
+            10,
+            "--max-iter",
+            3,
+            "--out",
+            "model",
+        )
     assert result.exit_code == 0, result.output
-    model = load_model(tmp_path / "model")
+    return folder
+
+
+def test_train_runs_on_the_built_in_project_away_from_the_checkout(first_hour: Path) -> None:
+    model = load_model(first_hour / "model")
     assert model.config.name == "hydraulic_actuator"
     assert [s.name for s in model.config.stages] == ["EHV", "RAM", "ITFV"]
 
@@ -205,3 +214,17 @@ def test_synth_lists_each_effect_with_its_typical_magnitudes_and_unit() -> None:
     for name, magnitudes in TYPICAL_MAGNITUDES.items():
         assert f"typical {magnitudes[0]:g} to {magnitudes[-1]:g}" in lines[name]
     assert "[m/s] - Stribeck velocity" in lines["stribeck_velocity"]  # a shape, not an effect
+
+
+def test_the_fmpy_snippet_of_the_bench_page_runs_as_written(first_hour: Path) -> None:
+    """Exported from the model the CLI trained, the FMU runs in plain fmpy by the page's code."""
+    page = (ROOT / "docs" / "bench.md").read_text(encoding="utf-8")
+    (snippet,) = [s for s in re.findall(r"```python\n(.*?)```", page, flags=re.S) if "fmpy" in s]
+    with contextlib.chdir(first_hour):
+        assert cli("-q", "export", "model", "--out", "greybox.fmu").exit_code == 0
+    (first_hour / "snippet.py").write_text(snippet, encoding="utf-8")
+    run = subprocess.run(
+        [sys.executable, "snippet.py"], cwd=first_hour, capture_output=True, text=True, timeout=300
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert re.fullmatch(r"ram_position at 2 s: \S+ m \+/- \S+ m\n", run.stdout), run.stdout
