@@ -492,7 +492,7 @@ def _signals(reader: _Reader, table: Mapping[str, Any]) -> dict[str, Signal]:
         reader.fail(
             "signals",
             "no signals declared; add one [signals.NAME] table per recorded "
-            "signal, with role and unit",
+            "signal, with role and unit ('fmu-greybox init FMU' writes them all)",
         )
     signals: dict[str, Signal] = {}
     for name, entry in table.items():
@@ -500,7 +500,7 @@ def _signals(reader: _Reader, table: Mapping[str, Any]) -> dict[str, Signal]:
         if not isinstance(entry, Mapping):
             reader.fail(
                 where,
-                "must be a table with at least role and unit, e.g. "
+                "must be a table with a role and (where the FMU declares one) a unit, e.g. "
                 '{ role = "pressure", unit = "Pa" }',
             )
         reader.keys(entry, where, {"role", "unit", "column", "variable"})
