@@ -38,7 +38,7 @@ from fmu_greybox.export.fmu import export_greybox
 from fmu_greybox.export.ssp import BenchAgreement, compare_with_master, make_bench, run_bench
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import reference_fmus, reference_project, sources_digest
-from fmu_greybox.model.store import file_sha256, load_model, save_model
+from fmu_greybox.model.store import GreyBoxModel, file_sha256, load_model, save_model
 from fmu_greybox.model.whitebox import terms_from_findings
 from fmu_greybox.project.config import ProjectConfig, load_config
 from fmu_greybox.report.provenance import (
@@ -142,6 +142,11 @@ class DemoResult:
     parts : dict
         With named terms, the training's comparison of its parts and the part shipped
         (``model.json``'s ``training.parts``); empty without terms.
+    effect_units : dict[str, str]
+        Each concealed effect's unit, as the truth FMU declares it (empty when it declares
+        none, or for an effect around the FMU).
+    model : GreyBoxModel or None
+        The model exported (its named terms, the stages whose corrector is switched off).
     """
 
     settings: DemoSettings
@@ -158,6 +163,8 @@ class DemoResult:
     timings: dict[str, float] = field(default_factory=dict)
     command: str = ""
     parts: dict[str, Any] = field(default_factory=dict)
+    effect_units: dict[str, str] = field(default_factory=dict)
+    model: GreyBoxModel | None = None
 
     def top_finding_correct(self) -> bool:
         """The diagnosis' top finding names one of the concealed effects."""
@@ -254,6 +261,9 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
         open_fmu(fmus["HydraulicActuator"]) as whitebox,
     ):
         check_effects(effects, truth, whitebox)  # before a step is said or a folder made
+        effect_units = {
+            name: truth.variables[name].unit for name in effects if name in truth.variables
+        }
     out = Path(settings.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     say("[1/6] the reference FMUs, built from fmu_sources/ (once: they are cached)")
@@ -328,6 +338,8 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
         timings=timings,
         command=command_line(),
         parts=model.training.get("parts", {}),
+        effect_units=effect_units,
+        model=model,
     )
 
 
