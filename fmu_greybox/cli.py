@@ -170,13 +170,18 @@ def main(ctx: click.Context, debug: bool, quiet: bool, verbose: bool) -> None:
     variable and how to mend it), 2 a usage error, 3 acceptance criteria not met
     (validate --strict), 130 interrupted (Ctrl-C).
 
+    CONFIG, the project of diagnose, train, validate and campaign, is a project file or a
+    project the package carries: builtin:hydraulic_actuator (the reference actuator) or
+    builtin:positioner.
+
     \b
     Examples:
       fmu-greybox demo                       # the main job on the built-in default
+      fmu-greybox init my.fmu --out myproject/  # a starter project for your own FMU
       fmu-greybox fmu build --out fmus/
       fmu-greybox synth --effect coulomb_friction=800 --seed 3 --out rec.csv
-      fmu-greybox diagnose bench_configs/hydraulic_actuator.toml --recording rec.csv
-      fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv --out model/
+      fmu-greybox diagnose builtin:hydraulic_actuator --recording rec.csv
+      fmu-greybox train builtin:hydraulic_actuator --recording rec.csv --out model/
       fmu-greybox export model/ --out greybox.fmu --ssp bench.ssp --recording rec.csv
       fmu-greybox cosim bench.ssp --engine libcosim --out results.csv
     """
@@ -207,6 +212,39 @@ def fmu_build_cmd(ctx: click.Context, out_dir: Path) -> None:
     out_dir.mkdir(parents=True, exist_ok=True)
     for name, path in build_reference_fmus(out_dir).items():
         _info(ctx, f"built {name}: {path}")
+
+
+@main.command()
+@click.argument("fmu_spec", metavar="FMU")
+@out_option("project", "Folder receiving project.toml", folder=True)
+@click.option("--force", is_flag=True, help="Write over an existing project.toml.")
+@click.pass_context
+def init(ctx: click.Context, fmu_spec: str, out_dir: Path, force: bool) -> None:
+    """Write a starter project for your own white-box FMU, to check and edit.
+
+    FMU is a .fmu path or builtin:NAME. OUT/project.toml declares each FMU input and output as
+    a signal (its role read from the FMU's unit, description or name, as the diagnosis reads
+    it; its unit the FMU's), a stage per output that holds a level (a position, pressure,
+    current, voltage, force or temperature) fed by every input, and the defaults of [gp],
+    [split] and [acceptance] as comments. Check the roles and units, order and connect the
+    stages (feeds_from), then diagnose a recording. docs/config.md describes every field.
+
+    \b
+    Examples:
+      fmu-greybox init path/to/model.fmu --out myproject/
+      fmu-greybox diagnose myproject/project.toml --recording rec.csv --out diag/
+      fmu-greybox init builtin:HydraulicActuator --out actuator/ --force
+    """
+    from fmu_greybox.project.starter import write_starter
+
+    config = write_starter(fmu_spec, out_dir, force=force)
+    stages = ", ".join(stage.name for stage in config.stages)
+    _info(
+        ctx,
+        f"wrote {out_dir / 'project.toml'} ({len(config.signals)} signals; stages {stages}); "
+        "check its roles, units and stage order, then: fmu-greybox diagnose "
+        f"{out_dir / 'project.toml'} --recording REC",
+    )
 
 
 @main.command()
@@ -263,8 +301,15 @@ def synth(
         open_fmu(paths["HydraulicActuator"]) as whitebox,
     ):
         if list_effects:
-            for v in synth_mod.list_effects(truth, whitebox):
-                click.echo(f"{v.name:24s} [{v.unit or '-'}]  {v.description}")
+            offered = synth_mod.list_effects(truth, whitebox)
+            rows = [
+                (v.name, f"[{v.unit or '-'}]", synth_mod.typical_range(v), v.description)
+                for v in offered
+            ]
+            widths = [max(len(row[i]) for row in rows) for i in range(3)]
+            for row in rows:
+                cells = [f"{cell:{width}}" for cell, width in zip(row[:3], widths, strict=True)]
+                click.echo("  ".join([*cells, row[3]]))
             return
         request = synth_mod.SynthRequest(
             effects=synth_mod.parse_effects(effects),
@@ -405,10 +450,10 @@ def train(
 
     \b
     Examples:
-      fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv --out model/
-      fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv \\
+      fmu-greybox train builtin:hydraulic_actuator --recording rec.csv --out model/
+      fmu-greybox train builtin:hydraulic_actuator --recording rec.csv \\
           --terms diag/diagnosis.json --out model/
-      fmu-greybox train bench_configs/hydraulic_actuator.toml --recording rec.csv \\
+      fmu-greybox train builtin:hydraulic_actuator --recording rec.csv \\
           --calibrate-on run2.csv --calibrate-on run3.csv --out model/
     """
     from fmu_greybox.atomic import output_lock
@@ -490,7 +535,7 @@ def validate(
 
     \b
     Example:
-      fmu-greybox validate bench_configs/hydraulic_actuator.toml --model model/ \\
+      fmu-greybox validate builtin:hydraulic_actuator --model model/ \\
           --recording rec.csv --out validation/ --strict
     """
     from fmu_greybox.model.store import load_model
@@ -892,8 +937,8 @@ def diagnose(
     \b
     Examples:
       fmu-greybox synth --effect coulomb_friction=600 --duration 25 --out rec.csv
-      fmu-greybox diagnose bench_configs/hydraulic_actuator.toml --recording rec.csv --out diag/
-      fmu-greybox diagnose bench_configs/hydraulic_actuator.toml --recording rec.csv \\
+      fmu-greybox diagnose builtin:hydraulic_actuator --recording rec.csv --out diag/
+      fmu-greybox diagnose builtin:hydraulic_actuator --recording rec.csv \\
           --scheduler tcp://127.0.0.1:8786 --out diag/
     """
     from contextlib import nullcontext
@@ -975,8 +1020,8 @@ def campaign(
 
     \b
     Examples:
-      fmu-greybox campaign bench_configs/hydraulic_actuator.toml flights/*.csv --out camp/
-      fmu-greybox campaign bench_configs/hydraulic_actuator.toml flights/*.parquet \\
+      fmu-greybox campaign builtin:hydraulic_actuator flights/*.csv --out camp/
+      fmu-greybox campaign builtin:hydraulic_actuator flights/*.parquet \\
           --scheduler tcp://10.0.0.5:8786 --out camp/
     """
     import os

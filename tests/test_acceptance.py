@@ -333,3 +333,36 @@ def test_pooled_recordings_say_how_their_errors_compare_with_the_calibrations() 
     other = [rows[0], {**rows[1], "calibration_rmse": 2e-4}]
     assert "gb_rmse" not in pooled_row(other, [1000, 3000])
     assert "calibration_independent_rows" not in pooled_row(other, [1000, 3000])
+
+
+def test_a_pass_on_thin_evidence_is_marked_and_says_why() -> None:
+    """The demo's RAM: 96.9 % inside ±1.96σ passes 0.9-0.99, but over rows worth 12
+    independent ones its 95 % interval is 88.7-99.7 %, and a band calibrated on 8 independent
+    rows holds anywhere in about 59-99.6 % on recordings like the training one. The pass
+    stands, marked thin, with both reasons; the same share over 5 000 rows of each is a plain
+    pass, and the whole verdict's line counts the thin pass."""
+    criteria = parsed({"band": [600.0, 900.0], "max_nrmse": False, "coverage68": False})
+    thin_row = {
+        **ROW,
+        "coverage95": 0.969,
+        "coverage95_low": 0.887,
+        "coverage95_high": 0.997,
+        "independent_rows": 12.0,
+        "calibration_independent_rows": 8.0,
+    }
+
+    def share(row: dict):
+        result = evaluate(criteria, {"RAM": row}, [])
+        return result, next(c for c in result.checks if c.criterion.startswith(SHARE_INSIDE))
+
+    result, check = share(thin_row)
+    assert check.verdict == PASS and check.thin
+    low, high = calibration_spread(8.0)
+    assert "the share's 95 % interval 0.887-0.997 reaches beyond the limits" in check.note
+    assert f"±1.96σ holds {100 * low:.3g}-{100 * high:.3g} % on recordings" in check.note
+    assert result.thin == [check] and check.to_dict()["thin"] is True
+    assert "1 on thin evidence (RAM share of rows inside ±1.96σ)" in result.summary()
+    firm = {**thin_row, "coverage95_low": 0.96, "coverage95_high": 0.975}
+    result, check = share(firm | {"independent_rows": 5000.0, "calibration_independent_rows": 5e3})
+    assert check.verdict == PASS and not check.thin and check.note == ""
+    assert result.thin == [] and "thin" not in result.summary()

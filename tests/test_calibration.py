@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import tomllib
 from pathlib import Path
 
@@ -34,7 +35,12 @@ from fmu_greybox.model.calibration import (
 )
 from fmu_greybox.model.chain import GreyBoxChain, RecordedRun
 from fmu_greybox.project.config import parse_config
-from fmu_greybox.report.plots import OUTSIDE_STYLE, trace_figure, zoom_range
+from fmu_greybox.report.plots import (
+    OUTSIDE_STYLE,
+    calibration_figure,
+    trace_figure,
+    zoom_range,
+)
 
 REFERENCE = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"
 
@@ -247,6 +253,43 @@ def test_a_zoom_holds_a_nearby_white_box_and_says_when_it_cuts_a_far_one() -> No
     assert low < -1.5 and high > 2.0 and cut == ""
     low, high, cut = zoom_range(0.0, 1.0, np.array([0.5, 40.0]))
     assert high < 40.0 and "off scale" in cut and "40" in cut
+
+
+def test_a_cut_white_box_is_told_in_digits_that_tell_its_ends_apart() -> None:
+    """The demo's RAM zoom said 'off scale here (0.0245 to 0.0245)': two equal numbers."""
+    _, _, cut = zoom_range(0.02215, 0.0223, np.array([0.024512, 0.024538]))
+    assert cut == "white-box off scale above: 0.02451 to 0.02454"
+    _, _, cut = zoom_range(0.02215, 0.0223, np.full(5, 0.0245))
+    assert cut == "white-box off scale above: constant at 0.0245"
+    _, _, cut = zoom_range(0.0, 1.0, np.array([-60.0, -50.0]))
+    assert cut == "white-box off scale below: -60 to -50"
+
+
+def test_the_zoom_draws_its_three_curves_in_styles_that_differ() -> None:
+    """Where recording, white-box and grey-box coincide (the demo's ITFV zoom) each still shows:
+    no two share line style, marker and width."""
+    time = np.arange(1000) * 1e-3
+    recorded = np.sin(2 * np.pi * time)[:, None]
+    fig = trace_figure(time, recorded, recorded, recorded, np.full((1000, 1), 0.01), ["A"], ["m"])
+    lines = fig.axes[1].get_lines()
+    styles = {(line.get_linestyle(), line.get_marker(), line.get_linewidth()) for line in lines}
+    assert len(lines) == 3 and len(styles) == 3
+
+
+def test_the_calibration_plot_draws_sigma_before_calibration_only_where_it_shows() -> None:
+    """σ before calibration a thousand times too small holds nothing at any level: a dashed
+    line on the axis says nothing, so that stage is named in words with the most it held; one
+    twice too small is drawn."""
+    rng = np.random.default_rng(7)
+    recorded, mean = rng.standard_normal((4000, 2)), np.zeros((4000, 2))
+    std = np.ones((4000, 2))
+    latent = np.column_stack([np.full(4000, 1e-3), np.full(4000, 0.5)])
+    fig = calibration_figure(recorded, mean, std, latent, ["RAM", "EHV"])
+    labels = [line.get_label() for line in fig.axes[0].get_lines()]
+    assert "EHV, before" in labels and "RAM, before" not in labels
+    (note,) = [t for t in fig.axes[0].texts if t.get_gid() == "flat before calibration"]
+    text = note.get_text()  # at most 2.8σ·1e-3 of unit Gaussian errors: about 0.2 %
+    assert re.search(r"RAM \(at most 0\.[12]\d? %\)", text) and "EHV" not in text, text
 
 
 def ar1(rng: np.random.Generator, rows: int, phi: float) -> np.ndarray:

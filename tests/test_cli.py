@@ -261,6 +261,7 @@ def test_ctrl_c_exits_130(env: dict[str, str], tmp_path: Path) -> None:
 
 
 COMMANDS = [
+    ["init"],
     ["fmu", "build"],
     ["synth"],
     ["simulate"],

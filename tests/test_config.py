@@ -65,7 +65,6 @@ def test_reference_project_matches_its_fmu(whitebox_fmu: Path) -> None:
             "signals.load_force.unit",
             "not a unit of a force",
         ),
-        (lambda r: r["signals"]["load_force"].pop("unit"), "signals.load_force.unit", "required"),
         (lambda r: r["signals"].update(extra=3), "signals.extra", "must be a table"),
         (lambda r: r.update(signals={}), "signals", "no signals"),
         (lambda r: r.update(stages=[]), "stages", "no stages"),
@@ -146,8 +145,23 @@ def test_invalid_toml_and_unreadable_file(tmp_path: Path) -> None:
     bad.write_text("[whitebox\nfmu = 1")
     with pytest.raises(ConfigError, match="invalid TOML"):
         load_config(bad)
-    with pytest.raises(ConfigError, match="cannot read"):
+    with pytest.raises(ConfigError, match="no such project file; the built-in projects are"):
         load_config(tmp_path / "missing.toml")
+    with pytest.raises(ConfigError, match="cannot read the project file: Is a directory"):
+        load_config(tmp_path)
+
+
+def test_a_unit_may_be_left_out_only_where_the_fmu_declares_none(
+    raw: dict, whitebox_fmu: Path
+) -> None:
+    raw["signals"]["load_force"].pop("unit")
+    config = parse_config(raw, REFERENCE)
+    assert config.signals["load_force"].unit == ""
+    assert parse_config(config.to_dict(), REFERENCE) == config
+    with open_fmu(whitebox_fmu) as archive, pytest.raises(ConfigError) as info:
+        config.check_against_fmu(archive)
+    assert info.value.field == "signals.load_force.unit"
+    assert "add unit = 'N'" in str(info.value)
 
 
 def test_units_are_checked_against_the_fmu(raw: dict, whitebox_fmu: Path) -> None:

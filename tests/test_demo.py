@@ -8,6 +8,7 @@ fails.
 
 from __future__ import annotations
 
+import html
 import json
 import os
 import re
@@ -18,14 +19,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from figures import overlapping_tick_labels
 from fmpy.validation import validate_fmu
 from PIL import Image
 
 from fmu_greybox.cli import main
+from fmu_greybox.fmi.builtin import reference_project
 from fmu_greybox.model.calibration import calibration_spread
+from fmu_greybox.model.store import load_model
+from fmu_greybox.project.config import load_config
+from fmu_greybox.project.data import load_project_recording
 from fmu_greybox.report.main import SHIPPED_MODEL
+from fmu_greybox.report.plots import frequency_figure
+from fmu_greybox.report.summary import PART_WORDS
 from fmu_greybox.synth.actuator import TYPICAL_MAGNITUDES
 from fmu_greybox.workflow.demo import choose_effect
+from fmu_greybox.workflow.validate import validate_model
 
 #: A clear fault, so the test can require the diagnosis to name it.
 EFFECT = "coulomb_friction=900"
@@ -92,7 +101,14 @@ def test_demo_model_carries_the_named_terms_and_improves_the_ram(demo: tuple[Pat
     assert summary["parts"] == parts
     report = (out / "report.html").read_text()
     assert f"{SHIPPED_MODEL[parts['shipped']]} (the exported FMU)" in report
-    assert f"shipped {parts['shipped']}" in report
+    assert f"shipped: {PART_WORDS[parts['shipped']]}" in report
+    # the summary says what ships on each stage; the stages whose corrector is off say so
+    summary = report[report.index("<div class='summary'") : report.index("</div>")]
+    passed = load_model(out / "model").chain.passed_through
+    for stage in ("EHV", "RAM", "ITFV"):
+        off = stage in passed
+        ships = re.search(rf"<tr><td>{stage}</td><td>(white-box[^<]*)</td>", summary)
+        assert ships and ships.group(1).endswith(", corrector off" if off else " + corrector")
 
 
 def test_demo_bench_runs_match_the_master(demo: tuple[Path, dict]) -> None:
@@ -164,14 +180,16 @@ def test_report_gives_each_stage_its_error_ratio(demo: tuple[Path, dict]) -> Non
     start = text.index("<h2>Grey-box on an independent recording</h2>")
     section = text[start : text.index("</table>", start)]
     header = re.findall(r"<th>(.*?)</th>", section)
-    assert header[-1] == "k: RMSE / calibration&#x27;s", header
+    assert header[-1] == ("<a class='term' href='#glossary-error-ratio'>error ratio k</a>"), header
     rows = [re.findall(r"<td>(.*?)</td>", r) for r in re.findall(r"<tr>(<td>.*?)</tr>", section)]
     cells = {row[0]: row for row in rows}
     assert set(cells) == {"EHV", "RAM", "ITFV"}
     for stage, row in summary["validation"].items():
         k = row["gb_rmse"] / row["calibration_rmse"]
         assert cells[stage][-1] == f"{k:.3g}×", (stage, cells[stage])
-    assert "erf(1.96 / k / √2)" in section
+    glossary = text[text.index("<h2 id='glossary'>") :]
+    assert "<dt id='glossary-error-ratio'>error ratio k</dt>" in glossary
+    assert "erf(1.96 / k / √2)" in glossary
     start = text.index("<p>What σ was calibrated on")
     section = text[start : text.index("</table>", start)]
     rows = [re.findall(r"<td>(.*?)</td>", r) for r in re.findall(r"<tr>(<td>.*?)</tr>", section)]
@@ -241,7 +259,8 @@ def test_report_renders_in_headless_chromium(demo: tuple[Path, dict], tmp_path: 
             "'data-images',document.images.length+'/'+bad);const box=e=>{const r=e"
             ".getBoundingClientRect();return [r.left,r.top,r.right,r.bottom].map(Math.round)"
             ".join(',')};document.body.setAttribute('data-acceptance',box(document"
-            ".querySelector('table')));document.body.setAttribute('data-band',box(document"
+            ".querySelector('h2 + table')));document.body.setAttribute('data-summary',box(document"
+            ".getElementById('summary')));document.body.setAttribute('data-band',box(document"
             ".querySelector(\"img[alt^='Residuals']\")));});</script></body>",
         ),
         encoding="utf-8",
@@ -258,9 +277,12 @@ def test_report_renders_in_headless_chromium(demo: tuple[Path, dict], tmp_path: 
     total, broken = map(int, found.groups())
     assert total >= 5 and broken == 0
     colour = np.asarray(Image.open(shot).convert("RGB"), dtype=int)
-    # the acceptance table is the first thing on the page, its verdicts in coloured badges
+    # the summary is the first thing on the page, whole within the first screen
+    left, top, right, bottom = box(dom, "summary")
+    assert top < 150 and top + 100 < bottom <= FOLD, (top, bottom)
+    # then the acceptance table, its verdicts in coloured badges
     left, top, right, bottom = box(dom, "acceptance")
-    assert top < 400 and bottom > top + 100
+    assert top < FOLD + 400 and bottom > top + 100
     table = colour[top:bottom, left:right]
     badges = sum(np.all(np.abs(table - rgb) <= 12, axis=-1).sum() for rgb in VERDICT_COLOURS)
     assert badges > 500, badges
@@ -272,15 +294,44 @@ def test_report_renders_in_headless_chromium(demo: tuple[Path, dict], tmp_path: 
     assert band > 0.02, band
 
 
+#: Height of the first screen [px] a reader sees without scrolling (a laptop's browser window).
+FOLD = 900
+#: Most words a table cell may hold: a short phrase; explanations stand under the tables.
+CELL_WORDS = 25
 #: Height of the rendered page [px]: the acceptance table (its notes vary with the run) and the
 #: residual figure below it must both lie inside (3000 until the coverage notes said what a
 #: band's calibration rows are worth: the figure then ended at 3111 px on this demo; 3200 until
-#: they also gave the shares single free runs held: 3239 px).
-SHOT_HEIGHT = 3400
+#: they also gave the shares single free runs held: 3239 px; 3400 until the summary box and the
+#: acceptance table's notes came first).
+SHOT_HEIGHT = 4200
 #: Badge colours of PASS, FAIL and UNDECIDED (report/html.py).
 VERDICT_COLOURS = ((0x1A, 0x7F, 0x37), (0xC6, 0x28, 0x28), (0xF2, 0xC9, 0x4C))
 #: The band's fill: tab:green at alpha 0.25 over white.
 BAND_RGB = (201, 231, 201)
+
+
+def test_report_cells_are_short_and_the_frequency_labels_stand_clear(
+    demo: tuple[Path, dict],
+) -> None:
+    """No cell of the report's tables holds more than a short phrase, every glossary link
+    lands on a definition, and the frequency-response figure of the demo's validation has
+    no two tick labels of one axis overlapping once rendered."""
+    out = demo[0]
+    text = (out / "report.html").read_text(encoding="utf-8")
+    cells = re.findall(r"<t[dh]>(.*?)</t[dh]>", text, flags=re.S)
+    assert len(cells) > 100
+    words = {html.unescape(re.sub(r"<[^>]+>", " ", c)).strip(): 0 for c in cells}
+    longest = max(words, key=lambda c: len(c.split()))
+    assert len(longest.split()) <= CELL_WORDS, longest
+    anchors = set(re.findall(r" id='([^']+)'", text))
+    links = set(re.findall(r"href='#([^']+)'", text))
+    assert {"glossary", "glossary-error-ratio", "glossary-thin-evidence"} <= anchors
+    assert links and links <= anchors, links - anchors
+    model = load_model(out / "model")
+    recording = load_project_recording(load_config(reference_project()), out / "validation.csv")
+    validation = validate_model(model, recording)
+    bands = [validation.criteria.for_stage(r.stage).band for r in validation.responses]
+    assert overlapping_tick_labels(frequency_figure(validation.responses, bands)) == []
 
 
 def box(dom: str, name: str) -> tuple[int, int, int, int]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import re
 import tomllib
+from html import unescape
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ from fmu_greybox.diagnosis.alternatives import nearly_as_good
 from fmu_greybox.diagnosis.findings import named_physics
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.project.config import load_config, parse_config
+from fmu_greybox.report.summary import DIAGNOSIS_PARTS, PART_WORDS
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 from fmu_greybox.workflow.parts import PARTS
 
@@ -153,11 +155,18 @@ def test_diagnose_command_writes_json_and_report(whitebox_fmu, truth_fmu, tmp_pa
         assert compared["terms+correctors_rmse"] == row["gb_rmse"]
         assert row["best"] == min(PARTS, key=lambda part: compared[f"{part}_rmse"])
     assert parts["best"] == min(PARTS, key=parts["score"].__getitem__)
-    assert f"best {parts['best']}" in payload["verdict"][-1]
+    # the diagnosis' comparison says it is the quick one (training's decides what ships)
+    assert payload["verdict"][-1].startswith(f"   {DIAGNOSIS_PARTS}: ")
+    assert f"best: {PART_WORDS[parts['best']]}" in payload["verdict"][-1]
     assert payload["fit"]["RAM"]["named_rmse"] < 0.5 * payload["fit"]["RAM"]["wb_rmse"]
     html = (out / "report.html").read_text()
     assert html.index("Verdict") < html.index("<img")
     assert html.count("data:image/png;base64,") == 3
+    # the findings' sentences stand under their table; the terms its tables use are defined
+    findings = html[html.index("<h2>Findings</h2>") : html.index("<h2>Diagnosis: fit")]
+    assert f"<p>1. {top['summary']}</p>" in unescape(findings)
+    assert top["summary"] not in unescape(findings[: findings.index("</table>")])
+    assert "<dt id='glossary-inherited'>" in html and "href='#glossary-inherited'" in html
 
 
 def test_an_alternative_fits_nearly_as_well_by_either_measure() -> None:

@@ -392,8 +392,11 @@ def test_validate_pools_the_coverage_of_several_recordings(
     # the page over both: the acceptance over all first, each recording linked to its own page
     top = (out / REPORT).read_text(encoding="utf-8")
     assert top.index("Acceptance") < top.index("Recordings") < top.index("Traceability")
-    links = re.findall(r"<a href='([^']*)'>", top)
+    links = re.findall(r"<a href='([^'#]*)'>", top)
     assert links == [f"{f}/{REPORT}" for f in folders]
+    # the rest link inside the page: the glossary, the notes under the acceptance table
+    inside = set(re.findall(r"href='#([^']*)'", top))
+    assert "glossary" in inside and inside <= set(re.findall(r" id='([^']*)'", top))
     assert all((out / link).is_file() for link in links)
     for stage, pooled in metrics["pooled"].items():
         k = pooled["gb_rmse"] / pooled["calibration_rmse"]

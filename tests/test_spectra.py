@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from figures import overlapping_tick_labels
 from scipy import signal
 
 from fmu_greybox.report.plots import frequency_figure
@@ -138,3 +139,25 @@ def test_the_table_band_statistic_is_the_one_plotted() -> None:
         trusted = r.freq[r.in_band(band)]
         assert (start[0], end[0]) == (trusted.min(), trusted.max())
     assert fig.axes[0].get_title(loc="left").startswith("RAM: ")
+
+
+@pytest.mark.parametrize(("rows", "passband"), [(8000, (2.0, 60.0)), (2**15, (0.5, 300.0))])
+def test_frequency_tick_labels_stand_clear_of_one_another(
+    rows: int, passband: tuple[float, float]
+) -> None:
+    """An 8 s recording excited from 2 to 60 Hz (the demo's RAM) spans under two decades:
+    matplotlib labels every minor tick there (``2×10^0 3×10^0 ...``, one unreadable string).
+    There as over a wide span, every panel has at least two frequency labels and no two labels
+    of one axis overlap once rendered."""
+    rng = np.random.default_rng(6)
+    u = rng.standard_normal(rows)
+    y = signal.lfilter(*signal.butter(4, passband, "bandpass", fs=1 / DT), u)
+    noisy = y + np.std(y) * rng.standard_normal(u.size)
+    r = frequency_response(
+        u, {"recording": noisy, "white-box": 1.3 * y, "grey-box": y}, DT, stage="RAM"
+    )
+    fig = frequency_figure([r], [(0.0, 50.0)])
+    assert overlapping_tick_labels(fig) == []
+    for ax in fig.axes:
+        labels = [t.get_text() for t in ax.get_xticklabels() if t.get_text()]
+        assert len(labels) >= 2, labels

@@ -16,7 +16,9 @@ import numpy as np
 from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.diagnosis.figures import regime_figure, residual_figure, trace_figure
+from fmu_greybox.report.glossary import glossary_section, term
 from fmu_greybox.report.html import (
+    Html,
     escape,
     figure,
     fmt,
@@ -26,7 +28,7 @@ from fmu_greybox.report.html import (
     verdict,
     write_page,
 )
-from fmu_greybox.workflow.parts import summary as parts_summary
+from fmu_greybox.report.summary import DIAGNOSIS_PARTS, parts_text
 
 SCHEMA_VERSION = 1
 
@@ -134,8 +136,8 @@ def verdict_lines(diagnosis) -> list[str]:
             f"{row['named_rmse']:.3g} -> grey-box {row['gb_rmse']:.3g}{alone} {unit}"
         )
     if diagnosis.parts_ is not None:
-        parts = parts_summary(parts_payload(diagnosis.parts_))
-        lines.append(f"   Parts on held-out rows: {parts}.")
+        parts = parts_text(parts_payload(diagnosis.parts_))
+        lines.append(f"   {DIAGNOSIS_PARTS}: {parts}.")
     return lines
 
 
@@ -174,7 +176,10 @@ def write_json(payload: dict, path: str | Path) -> None:
 def report_html(diagnosis, payload: dict) -> str:
     """The self-contained HTML report of a diagnosis."""
     title = f"Diagnosis of {payload['project']}"
-    return page(title, [verdict(payload["verdict"]), *diagnosis_sections(diagnosis, payload)])
+    return page(
+        title,
+        [verdict(payload["verdict"]), *diagnosis_sections(diagnosis, payload), glossary_section()],
+    )
 
 
 def diagnosis_sections(diagnosis, payload: dict) -> list[str]:
@@ -187,8 +192,9 @@ def diagnosis_sections(diagnosis, payload: dict) -> list[str]:
     payload : dict
         Its :func:`diagnosis_payload`.
     """
-    findings = []
+    findings, summaries = [], []
     for i, f in enumerate(payload["findings"], 1):
+        summaries.append(escape(f"{i}. {f['summary']}"))
         mag = f.get("magnitude") or {}
         ci = mag.get("ci95")
         findings.append(
@@ -201,7 +207,6 @@ def diagnosis_sections(diagnosis, payload: dict) -> list[str]:
                 ""
                 if f.get("explained_fraction") is None
                 else f"{100 * f['explained_fraction']:.0f} %",
-                f["summary"],
             )
         )
     fit = [
@@ -239,13 +244,33 @@ def diagnosis_sections(diagnosis, payload: dict) -> list[str]:
     return [
         *stretch,
         "<h2>Findings</h2>",
+        table(("#", "stage", "effect", "magnitude", "95 % interval", "explained"), findings),
+        "".join(f"<p>{line}</p>" for line in summaries),
+        "<h2>Diagnosis: fit on the rows it held out</h2>",
         table(
-            ("#", "stage", "effect", "magnitude", "95 % interval", "explained", "summary"), findings
+            (
+                "stage",
+                "unit",
+                "noise",
+                "white-box RMSE",
+                Html(f"+ {term('named-terms')}"),
+                Html(f"grey-box ({term('corrector', 'correctors')})"),
+            ),
+            fit,
         ),
-        "<h2>Diagnosis fit on held-out rows</h2>",
-        table(("stage", "unit", "noise", "white-box RMSE", "+ named terms", "grey-box"), fit),
+        f"<p>RMSE on the diagnosis' {term('held-out')}, and its change against the white-box.</p>",
         "<h2>Residual per stage (white-box)</h2>",
-        table(("stage", "signal", "RMS", "RMS / noise", "nRMS", "inherited"), residuals),
+        table(
+            (
+                "stage",
+                "signal",
+                "RMS",
+                term("noise-ratio"),
+                Html(f"RMS / recorded spread ({term('nrmse', 'nRMS')})"),
+                Html(f"{term('inherited')} from the stages before"),
+            ),
+            residuals,
+        ),
         figure("Residual versus time", residual_figure(diagnosis)),
         figure("Residual by regime and frequency band", regime_figure(diagnosis)),
         figure("Before and after on held-out data", trace_figure(diagnosis)),

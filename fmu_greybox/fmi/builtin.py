@@ -13,9 +13,8 @@ import os
 from pathlib import Path
 
 from fmu_greybox.errors import FmuArchiveError
-from fmu_greybox.resources import bench_config, sources_root
+from fmu_greybox.resources import PREFIX, bench_config, sources_root
 
-PREFIX = "builtin:"
 #: The reference actuator's models (white-box, truth).
 REFERENCE_MODELS = ("HydraulicActuator", "HydraulicActuatorTruth")
 

@@ -2,8 +2,8 @@
 
 A TOML file, validated on load; every error names the field and says how to mend it. The
 project describes any white-box FMU, not only the reference actuator. See ``docs/config.md``
-for the field-by-field reference and ``bench_configs/hydraulic_actuator.toml`` for a full
-example.
+for the field-by-field reference and ``bench_configs/hydraulic_actuator.toml`` (on the command
+line ``builtin:hydraulic_actuator``) for a full example.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from fmu_greybox.errors import ConfigError, UnitMismatchError
+from fmu_greybox.resources import builtin_projects, project_path
 from fmu_greybox.suggest import did_you_mean
 from fmu_greybox.units import normalise_unit
 
@@ -45,6 +46,19 @@ FEED_SOURCES = ("recorded", "free_run")
 INDUCING_METHODS = ("equispaced", "kmeans", "greedy")
 
 
+def unit_suits_role(unit: str, role: str) -> bool:
+    """Whether ``unit`` is one of the units :data:`ROLE_UNITS` accepts for ``role`` (any unit
+    suits ``other``).
+
+    Examples
+    --------
+    >>> unit_suits_role("bar", "pressure"), unit_suits_role("Pa", "force")
+    (True, False)
+    """
+    accepted = ROLE_UNITS[role]
+    return not accepted or normalise_unit(unit) in {normalise_unit(u) for u in accepted}
+
+
 @dataclass(frozen=True)
 class Signal:
     """A recorded signal and the FMU variable it corresponds to.
@@ -60,7 +74,8 @@ class Signal:
     role : str
         Physical role, one of :data:`ROLE_UNITS`.
     unit : str
-        Unit of the recorded column.
+        Unit of the recorded column; ``""`` where the project gives none (allowed only where
+        the FMU declares none: then no unit is checked or converted).
     """
 
     name: str
@@ -287,7 +302,10 @@ class ProjectConfig:
             "name": self.name,
             "whitebox": _without_none(whitebox),
             "recording": _without_none(recording),
-            "signals": {n: _fields(s, skip=("name",)) for n, s in self.signals.items()},
+            "signals": {
+                n: _fields(s, skip=("name",) if s.unit else ("name", "unit"))
+                for n, s in self.signals.items()
+            },
             "stages": [_fields(s) for s in self.stages],
             "gp": _fields(self.gp),
             "split": {"train_fraction": self.train_fraction},
@@ -326,6 +344,13 @@ class ProjectConfig:
                     f"FMU {archive.path.name} has no variable {sig.variable!r}"
                     + did_you_mean(sig.variable, known),
                     field=f"signals.{sig.name}.variable",
+                    path=where,
+                )
+            if var.unit and not sig.unit:
+                raise ConfigError(
+                    f"signal {sig.name!r} gives no unit but FMU variable {sig.variable!r} is in "
+                    f"{var.unit!r}; add unit = {var.unit!r} (the unit of the recorded column)",
+                    field=f"signals.{sig.name}.unit",
                     path=where,
                 )
             if var.unit and sig.unit and normalise_unit(var.unit) != normalise_unit(sig.unit):
@@ -370,7 +395,8 @@ def load_config(path: str | Path) -> ProjectConfig:
     Parameters
     ----------
     path : str or Path
-        The TOML file.
+        The TOML file, or ``builtin:NAME`` for a project the package carries
+        (:func:`fmu_greybox.resources.builtin_projects`, e.g. ``builtin:hydraulic_actuator``).
 
     Returns
     -------
@@ -379,11 +405,17 @@ def load_config(path: str | Path) -> ProjectConfig:
     Raises
     ------
     ConfigError
-        For an unreadable file, invalid TOML, or any invalid field (the message names it).
+        For a missing file (the message lists the built-in projects), an unknown built-in
+        name, an unreadable file, invalid TOML, or any invalid field (the message names it).
     """
-    path = Path(path)
+    path = project_path(path)
     try:
         raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError as exc:
+        raise ConfigError(
+            "no such project file; the built-in projects are " + ", ".join(builtin_projects()),
+            path=str(path),
+        ) from exc
     except OSError as exc:
         raise ConfigError(f"cannot read the project file: {exc.strerror}", path=str(path)) from exc
     except UnicodeDecodeError as exc:
@@ -465,7 +497,7 @@ def _signals(reader: _Reader, table: Mapping[str, Any]) -> dict[str, Signal]:
         reader.fail(
             "signals",
             "no signals declared; add one [signals.NAME] table per recorded "
-            "signal, with role and unit",
+            "signal, with role and unit ('fmu-greybox init FMU' writes them all)",
         )
     signals: dict[str, Signal] = {}
     for name, entry in table.items():
@@ -473,7 +505,7 @@ def _signals(reader: _Reader, table: Mapping[str, Any]) -> dict[str, Signal]:
         if not isinstance(entry, Mapping):
             reader.fail(
                 where,
-                "must be a table with at least role and unit, e.g. "
+                "must be a table with a role and (where the FMU declares one) a unit, e.g. "
                 '{ role = "pressure", unit = "Pa" }',
             )
         reader.keys(entry, where, {"role", "unit", "column", "variable"})
@@ -485,9 +517,9 @@ def _signals(reader: _Reader, table: Mapping[str, Any]) -> dict[str, Signal]:
                 + did_you_mean(role, ROLE_UNITS)
                 + f"; roles: {', '.join(ROLE_UNITS)}",
             )
-        unit = reader.get(entry, "unit", str, None, where + ".", required=True)
+        unit = reader.get(entry, "unit", str, "", where + ".")
         accepted = ROLE_UNITS[role]
-        if accepted and normalise_unit(unit) not in {normalise_unit(u) for u in accepted}:
+        if unit and not unit_suits_role(unit, role):
             reader.fail(
                 where + ".unit",
                 f"{unit!r} is not a unit of a {role} "

@@ -27,7 +27,22 @@ STYLE = (
     ".fail{color:#fff;background:#c62828;padding:0 6px;font-weight:bold;}"
     ".undecided{color:#000;background:#f2c94c;padding:0 6px;font-weight:bold;}"
     ".verdict li{margin:0.3em 0;}"
+    ".summary{border:2px solid #555;padding:0.3em 1em;margin:1em 0;}"
+    ".summary h2{margin:0.3em 0;}.summary p{margin:0.4em 0;}"
+    ".thin{color:#7a5b00;background:#fff3cd;border:1px solid #c9a227;padding:0 4px;}"
+    ".notes li{margin:0.3em 0;font-size:90%;}"
+    "a.term{color:inherit;text-decoration:underline dotted;}"
+    "dt{font-weight:bold;margin-top:0.5em;}"
 )
+
+
+class Html(str):
+    """Text that is already HTML: :func:`table` puts it in a cell or header unescaped."""
+
+
+def cell_html(value: object) -> str:
+    """A value as HTML: an :class:`Html` as it is, anything else escaped."""
+    return value if isinstance(value, Html) else escape(value)
 
 
 def escape(value: object) -> str:
@@ -63,7 +78,7 @@ def verdict(lines: Sequence[str], heading: str = "Verdict") -> str:
 
 
 def table(header: Sequence[str], rows: Iterable[Sequence[object]], raw: bool = False) -> str:
-    """A table; cells are escaped unless ``raw``.
+    """A table; cells and headers are escaped unless ``raw`` or :class:`Html`.
 
     Parameters
     ----------
@@ -72,12 +87,26 @@ def table(header: Sequence[str], rows: Iterable[Sequence[object]], raw: bool = F
     raw : bool
         Cells are already HTML.
     """
-    cell = str if raw else escape
-    parts = ["<table><tr>", *(f"<th>{escape(h)}</th>" for h in header), "</tr>"]
+    cell = str if raw else cell_html
+    parts = ["<table><tr>", *(f"<th>{cell_html(h)}</th>" for h in header), "</tr>"]
     for row in rows:
         parts.append("<tr>" + "".join(f"<td>{cell(c)}</td>" for c in row) + "</tr>")
     parts.append("</table>")
     return "".join(parts)
+
+
+def notes_list(notes: Sequence[str], prefix: str = "note") -> str:
+    """Numbered notes under a table (HTML fragments), each with the anchor ``#PREFIX-N`` a cell
+    links to (:func:`note_link`); empty without notes."""
+    if not notes:
+        return ""
+    items = "".join(f"<li id='{prefix}-{n}'>{note}</li>" for n, note in enumerate(notes, 1))
+    return f"<ol class='notes'>{items}</ol>"
+
+
+def note_link(number: int, prefix: str = "note") -> str:
+    """A cell's link to its note under the table (:func:`notes_list`)."""
+    return f"<a href='#{prefix}-{number}'>note {number}</a>"
 
 
 def figure(title: str, fig: plt.Figure, caption: str = "") -> str:

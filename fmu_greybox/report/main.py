@@ -1,12 +1,14 @@
 """The main job's report: one self-contained HTML page, and ``summary.json``.
 
-Anatomy (``docs/report.md``): the acceptance table first (PASS or FAIL per criterion and
-stage, against the project's ``[acceptance]``); the verdict in a few lines; the grey-box on an
+Anatomy (``docs/report.md``): a summary read at a glance (:mod:`fmu_greybox.report.summary`);
+the acceptance table (PASS or FAIL per criterion and stage, against the project's
+``[acceptance]``, its notes under it); the verdict in a few lines; the grey-box on an
 independent recording (table, residual panels with the calibrated ±1.96σ band, zooms, the
 calibration plot); frequency responses with trusted bands, bounds and a table of the band
 statistics; the diagnosis (findings, held-out fit, residual per stage, in time and by regime);
-the exported FMU on the SSP bench against the in-process master and the step-time target; and
-a traceability table in which every hash says what it covers.
+the exported FMU on the SSP bench against the in-process master and the step-time target; a
+glossary of the terms the tables link to; and a traceability table in which every hash says
+what it covers. No table cell holds an explanation: those stand under the tables.
 """
 
 from __future__ import annotations
@@ -17,10 +19,14 @@ from typing import Any
 
 from fmu_greybox.diagnosis.report import diagnosis_sections, write_json
 from fmu_greybox.project.config import ProjectConfig
+from fmu_greybox.report.glossary import glossary_section, term
 from fmu_greybox.report.html import (
+    Html,
     escape,
     figure,
     fmt,
+    note_link,
+    notes_list,
     page,
     percent,
     table,
@@ -28,6 +34,15 @@ from fmu_greybox.report.html import (
     write_page,
 )
 from fmu_greybox.report.plots import calibration_figure, frequency_figure, trace_figure
+from fmu_greybox.report.summary import (
+    TRAINING_PARTS,
+    finding_sentence,
+    next_step,
+    parts_text,
+    result_line,
+    shipped_by_stage,
+    summary_section,
+)
 from fmu_greybox.workflow.acceptance import PASS, Acceptance
 from fmu_greybox.workflow.demo import DemoResult
 from fmu_greybox.workflow.metrics import (
@@ -38,7 +53,6 @@ from fmu_greybox.workflow.metrics import (
     improvement,
     spread_text,
 )
-from fmu_greybox.workflow.parts import summary as parts_summary
 from fmu_greybox.workflow.validate import Validation, frequency_table
 
 #: Wall time per step of the exported FMU a 1 kHz bench can afford: a tenth of the 1 ms step,
@@ -108,7 +122,7 @@ def shipped_model(parts: Mapping[str, Any]) -> str:
 
 def verdict_lines(result: DemoResult) -> list[str]:
     """The verdict, in a few sentences (the acceptance first)."""
-    concealed = ", ".join(f"{k} = {v:g}" for k, v in result.effects.items())
+    concealed = concealed_text(result)
     acceptance = result.validation.acceptance
     lines = [acceptance.summary()] if acceptance is not None else []
     lines += [
@@ -120,7 +134,7 @@ def verdict_lines(result: DemoResult) -> list[str]:
         else "The top finding does not name the concealed effect.",
     ]
     if result.parts:
-        lines.append(f"Parts compared at training: {parts_summary(result.parts)}.")
+        lines.append(f"{TRAINING_PARTS}: {parts_text(result.parts)}.")
     lines += validation_lines(
         result.validation.table,
         f"{shipped_model(result.parts)} (the exported FMU)",
@@ -132,6 +146,70 @@ def verdict_lines(result: DemoResult) -> list[str]:
         f"(relative): {engines}."
     )
     return lines
+
+
+def concealed_text(result: DemoResult) -> str:
+    """The concealed effects with their units, e.g.
+    ``supply_pressure_droop = 1.5e+10 Pa/(m3/s)``."""
+    return ", ".join(
+        f"{name} = {value:g} {result.effect_units.get(name, '')}".rstrip()
+        for name, value in result.effects.items()
+    )
+
+
+def demo_summary(result: DemoResult) -> str:
+    """The summary box of the demo's report (:func:`~fmu_greybox.report.summary.
+    summary_section`): the acceptance on the independent recording, the findings with their
+    units and the concealed effect, what ships on each stage, the next step."""
+    found = [finding_sentence(f) for f in result.payload["findings"] if f["effect"] != "none"]
+    found.append(
+        Html(
+            escape(f"The demo concealed {concealed_text(result)}: the top finding ")
+            + ("names it." if result.top_finding_correct() else "<b>does not name it</b>.")
+        )
+    )
+    model = result.model
+    stages = list(result.validation.table)
+    shipped = (
+        shipped_by_stage(
+            stages, model.chain.passed_through, [(t.effect, t.entry) for t in model.terms]
+        )
+        if model is not None
+        else dict.fromkeys(stages, shipped_model(result.parts))
+    )
+    recording = f"an independent {result.settings.validation_duration:g} s recording"
+    use = (
+        f"Load {result.fmu.name} in your bench (docs/bench.md); its _std outputs are the "
+        "uncertainty."
+    )
+    return summary_section(
+        result_line(result.validation.acceptance, recording),
+        found,
+        shipped,
+        result.validation.table,
+        next_step(result.validation.acceptance, use) + worse_text(result.validation.table),
+    )
+
+
+def worse_stages(table_: Mapping[str, Mapping[str, float]]) -> tuple[list[str], str]:
+    """The stages where the correctors do worse (by over 1 %) than what they correct: the named
+    terms alone when the table has them, else the white-box; and that in words."""
+    named = all("named_rmse" in row for row in table_.values())
+    base = "named_rmse" if named else "wb_rmse"
+    worse = [stage for stage, row in table_.items() if row["gb_rmse"] > 1.01 * row[base]]
+    return worse, "the named terms alone" if named else "the white-box"
+
+
+def worse_text(table_: Mapping[str, Mapping[str, float]]) -> str:
+    """The summary's warning where the correctors do worse (:func:`worse_stages`), or ``""``."""
+    worse, than = worse_stages(table_)
+    if not worse:
+        return ""
+    return (
+        f" On {', '.join(worse)} the correctors do worse than {than} on this recording: "
+        f"for those outputs use the exported FMU with correction_enabled = false (it gives "
+        f"{than}), or retrain on a recording like this one."
+    )
 
 
 def validation_lines(
@@ -169,10 +247,8 @@ def validation_lines(
             )
             + "."
         )
-    base = "named_rmse" if named else "wb_rmse"
-    worse = [stage for stage, row in table_.items() if row["gb_rmse"] > 1.01 * row[base]]
+    worse, than = worse_stages(table_)
     if worse:
-        than = "the named terms alone" if named else "the white-box"
         lines.append(
             f"The correctors do worse than {than} on {', '.join(worse)} in free run on that "
             f"recording: do not rely on them there (the exported FMU with correction_enabled = "
@@ -210,6 +286,19 @@ def criteria_source(config: ProjectConfig, recordings: str) -> str:
     )
 
 
+#: Words of the acceptance criteria linked to the glossary: word -> glossary key.
+CRITERION_TERMS = {"nRMSE": "nrmse", "σ": "sigma", "coherence": "coherence"}
+
+
+def criterion_html(criterion: str) -> str:
+    """A criterion as HTML, its first word of :data:`CRITERION_TERMS` linked to the glossary."""
+    text = escape(criterion)
+    for word, key in CRITERION_TERMS.items():
+        if word in text:
+            return text.replace(word, term(key, word), 1)
+    return text
+
+
 def acceptance_section(acceptance: Acceptance, source: str) -> str:
     """The PASS / FAIL table, headed by the whole verdict.
 
@@ -220,29 +309,36 @@ def acceptance_section(acceptance: Acceptance, source: str) -> str:
         Where the criteria come from, in words.
     """
     colours = {PASS: "pass", "FAIL": "fail"}
-    rows = [
-        (
-            escape(c.stage),
-            escape(c.criterion),
-            "" if c.value != c.value else escape(f"{c.value:.3g}"),
-            escape(c.limit),
-            f"<span class='{colours.get(c.verdict, 'undecided')}'>{c.verdict}</span>"
-            + (f" <small>{escape(c.note)}</small>" if c.note else ""),
+    rows, notes = [], []
+    for c in acceptance.checks:
+        cell = f"<span class='{colours.get(c.verdict, 'undecided')}'>{c.verdict}</span>"
+        if c.thin:
+            cell += f" <span class='thin'>{term('thin-evidence')}</span>"
+        if c.note:
+            notes.append(f"{escape(c.stage)}, {escape(c.criterion)}: {escape(c.note)}.")
+            cell += f" {note_link(len(notes))}"
+        rows.append(
+            (
+                escape(c.stage),
+                criterion_html(c.criterion),
+                "" if c.value != c.value else escape(f"{c.value:.3g}"),
+                escape(c.limit),
+                cell,
+            )
         )
-        for c in acceptance.checks
-    ]
     verdict_class = colours.get(acceptance.verdict, "undecided")
     return (
         f"<h2>Acceptance: <span class='{verdict_class}'>{acceptance.verdict}</span></h2>"
-        f"<p>{escape(source)}</p>"
         + table(("stage", "criterion", "measured", "limit", "verdict"), rows, raw=True)
+        + f"<p>{escape(source)}</p>"
+        + notes_list(notes)
     )
 
 
-#: What the independent-recording table's last column says.
+#: What the independent-recording table's last column says (the glossary gives the law).
 RATIO_NOTE = (
-    "k: this RMSE over that of the free runs σ was calibrated on; "
-    "±1.96σ then holds about erf(1.96 / k / √2) of Gaussian errors."
+    "Error ratio k: this RMSE over that of the free runs σ was calibrated on; near 1, "
+    "±1.96σ holds about 95 %, less the larger k."
 )
 
 
@@ -355,27 +451,28 @@ def validation_sections(
     named = all("named_rmse" in row for row in validation.table.values())
     return [
         "<h2>Grey-box on an independent recording</h2>",
-        f"<p>{escape(validation.held_out)}; free run, correctors fed their own outputs."
-        + model_text
-        + " σ is the grey-box's calibrated standard deviation (docs/greybox.md, 'Calibrated "
-        "uncertainty'), the exported FMU's _std; in brackets: the share's 95 % interval, as in "
-        "the verdict." + (f" {RATIO_NOTE}" if calibration_ratios(validation) else "") + "</p>",
         table(
             (
                 "stage",
                 "unit",
                 "white-box RMSE",
-                *(["+ named terms RMSE"] if named else []),
+                *([Html(f"+ {term('named-terms')} RMSE")] if named else []),
                 "grey-box RMSE",
                 "change",
-                "grey-box nRMSE",
-                "median σ",
+                Html(f"grey-box {term('nrmse', 'nRMSE')}"),
+                Html(f"median {term('sigma', 'σ')}"),
                 "inside ±1σ",
                 "inside ±1.96σ",
-                *(["k: RMSE / calibration's"] if calibration_ratios(validation) else []),
+                *([term("error-ratio")] if calibration_ratios(validation) else []),
             ),
             validation_rows(validation, units),
         ),
+        f"<p>{escape(validation.held_out)}; a {term('free-run')}."
+        + escape(model_text)
+        + f" {term('sigma', 'σ')}: the grey-box's calibrated standard deviation, the exported "
+        "FMU's _std. In brackets: the share's 95 % interval."
+        + (f" {escape(RATIO_NOTE)}" if calibration_ratios(validation) else "")
+        + "</p>",
         figure(
             "Residuals with the grey-box's ±1.96σ band",
             trace_figure(
@@ -397,7 +494,9 @@ def validation_sections(
             "Calibration of the uncertainty",
             calibration_figure(recorded, run.mean, run.std, run.latent_std, labels),
             "Share of the independent recording inside ±z σ against the share a calibrated σ "
-            "puts there; dashed: the σ propagated through the chain before calibration.",
+            "puts there; dashed: the σ propagated through the chain before calibration, where "
+            "it holds a visible share (a stage where it held almost nothing is named beside "
+            "the plot instead).",
         ),
         *_calibration_worth_section(validation, units),
         figure(
@@ -440,21 +539,22 @@ def _calibration_worth_section(validation: Validation, units: list[str]) -> list
         else "the training rows free-run by correctors trained on the other half"
     )
     return [
-        f"<p>What σ was calibrated on: {runs}. A slow error repeats few times in a free run, "
-        "and a band calibrated on few independent rows holds anywhere in a wide range on "
-        "recordings of the same kind (95 % range, docs/greybox.md). The last column is what "
-        "single recordings held: each free run scored with σ calibrated on the others.</p>",
+        f"<p>What σ was calibrated on: {runs}.</p>",
         table(
             (
                 "stage",
                 "unit",
                 "RMSE of the calibration free runs",
-                "independent rows",
+                term("independent-rows"),
                 "±1.96σ holds on recordings like them",
                 "one free run held, σ from the others",
             ),
             rows,
         ),
+        "<p>A slow error repeats few times in a free run, and a band calibrated on few "
+        f"{term('independent-rows')} holds anywhere in a wide range on recordings of the same "
+        "kind (95 % range, docs/greybox.md). The last column is what single recordings held: "
+        "each free run scored with σ calibrated on the others.</p>",
     ]
 
 
@@ -462,7 +562,7 @@ def report_html(result: DemoResult) -> str:
     """The whole report page."""
     validation = result.validation
     units, labels = stage_titles(result.config)
-    sections = []
+    sections = [demo_summary(result)]
     if validation.acceptance is not None:
         sections.append(
             acceptance_section(
@@ -514,6 +614,7 @@ def report_html(result: DemoResult) -> str:
                 for a in result.bench
             ],
         ),
+        glossary_section(),
         *traceability_section(result.traceability()),
         "<h3>Run time of each step of the demo</h3>",
         table(

@@ -18,6 +18,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib import ticker
 from scipy.stats import norm
 
 from fmu_greybox.atomic import atomic_write
@@ -28,6 +29,15 @@ WB_STYLE = {"color": "tab:red", "lw": 1.0, "label": "white-box"}
 REC_STYLE = {"color": "tab:blue", "lw": 1.2, "ls": ":", "label": "recording"}
 GB_STYLE = {"color": "tab:green", "lw": 1.0, "label": "grey-box"}
 BAND_STYLE = {"color": "tab:green", "alpha": 0.25, "lw": 0, "label": "grey-box ±1.96σ"}
+#: In a zoom the three curves often lie on one another: the white-box dashed, the grey-box
+#: wider and solid, the recording as dots, so each shows where they coincide.
+ZOOM_STYLES = {
+    "white-box": {"color": "tab:red", "lw": 1.0, "ls": "--"},
+    "recording": {"color": "tab:blue", "ls": "none", "marker": "o", "ms": 2.5},
+    "grey-box": {"color": "tab:green", "lw": 2.2, "alpha": 0.8},
+}
+#: Most dots a zoom draws of the recording (every row of a 0.2 s window would be a line).
+ZOOM_DOTS = 40
 #: Shading of the times the correctors were outside their domain (``out_of_domain``).
 OUTSIDE_STYLE = {"color": "0.6", "alpha": 0.3, "lw": 0}
 #: Share of the residual panel's height the band and the grey-box residual fill at most.
@@ -49,8 +59,9 @@ def trace_figure(
 
     Left: recording minus grey-box inside the band, titled with both models' RMSE (the
     white-box's residual is often orders of magnitude larger and would hide the band). Right:
-    the recording, the white-box and the grey-box with its band over the ``zoom_seconds``
-    window where the grey-box's residual is largest in RMS.
+    the recording (dots), the white-box (dashed) and the grey-box (wide) with its band over the
+    ``zoom_seconds`` window where the grey-box's residual is largest in RMS
+    (:data:`ZOOM_STYLES`).
 
     Parameters
     ----------
@@ -105,9 +116,14 @@ def trace_figure(
             mean[window, q] + Z95 * std[window, q],
             **BAND_STYLE,
         )
-        right.plot(t, whitebox[window, q], **WB_STYLE)
-        right.plot(t, recorded[window, q], **REC_STYLE)
-        right.plot(t, mean[window, q], **GB_STYLE)
+        right.plot(t, mean[window, q], **ZOOM_STYLES["grey-box"])
+        right.plot(t, whitebox[window, q], **ZOOM_STYLES["white-box"])
+        right.plot(
+            t,
+            recorded[window, q],
+            markevery=max(1, t.size // ZOOM_DOTS),
+            **ZOOM_STYLES["recording"],
+        )
         low = np.minimum(recorded[window, q], mean[window, q] - Z95 * std[window, q]).min()
         high = np.maximum(recorded[window, q], mean[window, q] + Z95 * std[window, q]).max()
         low, high, clipped = zoom_range(low, high, whitebox[window, q])
@@ -120,9 +136,9 @@ def trace_figure(
         ax.set_xlabel("time [s]")
     handles = [
         plt.Rectangle((0, 0), 1, 1, **{k: v for k, v in BAND_STYLE.items() if k != "label"}),
-        plt.Line2D([], [], color="tab:green", lw=1.0),
-        plt.Line2D([], [], color="tab:red", lw=1.0),
-        plt.Line2D([], [], **{k: v for k, v in REC_STYLE.items() if k != "label"}),
+        plt.Line2D([], [], **ZOOM_STYLES["grey-box"]),
+        plt.Line2D([], [], **ZOOM_STYLES["white-box"]),
+        plt.Line2D([], [], **ZOOM_STYLES["recording"]),
     ]
     labels = ["grey-box ±1.96σ", "grey-box (left: recording − grey-box)", "white-box", "recording"]
     if shaded:
@@ -148,9 +164,20 @@ def zoom_range(low: float, high: float, whitebox: np.ndarray) -> tuple[float, fl
     if wb_low >= low - WHITEBOX_REACH * span and wb_high <= high + WHITEBOX_REACH * span:
         low, high = min(low, wb_low), max(high, wb_high)
     else:
-        clipped = f"white-box off scale here ({wb_low:.3g} to {wb_high:.3g})"
+        side = "above" if wb_low > high else "below" if wb_high < low else "around"
+        clipped = f"white-box off scale {side}: {span_text(wb_low, wb_high)}"
     pad = 0.1 * (high - low) or span * 0.1
     return low - pad, high + pad, clipped
+
+
+def span_text(low: float, high: float) -> str:
+    """A range in as many significant digits as tell its ends apart (3 to 8), e.g.
+    ``0.024512 to 0.024538``; ``constant at 0.0245`` when even 8 do not."""
+    for digits in range(3, 9):
+        a, b = f"{low:.{digits}g}", f"{high:.{digits}g}"
+        if a != b:
+            return f"{a} to {b}"
+    return f"constant at {low:.3g}"
 
 
 def worst_window(residual: np.ndarray, width: int) -> slice:
@@ -167,6 +194,11 @@ def worst_window(residual: np.ndarray, width: int) -> slice:
     return slice(start, start + width)
 
 
+#: Below this share at every level, a stage's σ before calibration would lie on the axis: it is
+#: said in words instead of drawn.
+FLAT_SHARE = 0.05
+
+
 def calibration_figure(
     recorded: np.ndarray,
     mean: np.ndarray,
@@ -177,7 +209,9 @@ def calibration_figure(
     """Calibration: for each central level p, the share of rows inside ±z_p σ.
 
     A calibrated σ lies on the diagonal; the target at 95 % (0.90 .. 0.99) is marked. Dashed:
-    the propagated σ before calibration.
+    the propagated σ before calibration, for the stages where it held a visible share
+    (:data:`FLAT_SHARE`) at some level; the others are named under the legend with the most
+    it held (a σ many times too small holds nothing, a line on the axis).
 
     Parameters
     ----------
@@ -189,18 +223,35 @@ def calibration_figure(
     fig, ax = plt.subplots(figsize=(8.5, 4.6))
     ax.plot([0, 1], [0, 1], color="0.5", lw=0.8, label="calibrated")
     ax.plot([0.95, 0.95], [0.90, 0.99], color="k", lw=4, alpha=0.35, label="target at 95 %")
+    flat = []
     for q, name in enumerate(names):
         residual = recorded[:, q] - mean[:, q]
-        for sigma, style in ((std, "-"), (latent_std, "--")):
-            share = [coverage(residual, sigma[:, q], w) for w in widths]
-            label = name if style == "-" else f"{name}, before calibration"
-            ax.plot(levels, share, ls=style, color=f"C{q}", lw=1.2, label=label)
+        share = [coverage(residual, std[:, q], w) for w in widths]
+        ax.plot(levels, share, color=f"C{q}", lw=1.2, label=name)
+        before = [coverage(residual, latent_std[:, q], w) for w in widths]
+        if max(before) >= FLAT_SHARE:
+            ax.plot(levels, before, ls="--", color=f"C{q}", lw=1.2, label=f"{name}, before")
+        else:
+            flat.append(f"{name} (at most {100 * max(before):.2g} %)")
     ax.set_xlabel("nominal share inside ±z σ")
     ax.set_ylabel("share of validation rows inside")
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1.02)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0)
+    legend = ax.legend(
+        fontsize="x-small", loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0
+    )
+    legend.set_title("dashed: σ before calibration", prop={"size": "x-small"})
+    if flat:
+        ax.text(
+            1.02,
+            0.0,
+            "Before calibration, held\nalmost nothing (not drawn):\n" + "\n".join(flat),
+            transform=ax.transAxes,
+            fontsize="x-small",
+            va="bottom",
+            gid="flat before calibration",
+        )
     fig.tight_layout()
     return fig
 
@@ -276,6 +327,8 @@ def frequency_figure(
         phase.set_ylabel("phase [deg]")
         match.set_ylabel("coherence")
         match.set_ylim(0, 1.05)
+        for ax in (gain, phase, match):
+            frequency_ticks(ax)
     for ax in axes[-1]:
         ax.set_xlabel("frequency [Hz]")
     handles = [
@@ -295,6 +348,38 @@ def frequency_figure(
     ]
     legend_above(fig, handles, labels)
     return fig
+
+
+#: Most labelled ticks on a frequency axis, and on a gain or phase axis.
+MAX_FREQUENCY_TICKS = 5
+MAX_VALUE_TICKS = 6
+
+
+def frequency_ticks(ax: plt.Axes) -> None:
+    """Few, readable ticks on a panel over frequency: on the log axis, 1-2-5 steps (thinned to
+    decades, then to every other decade, until at most :data:`MAX_FREQUENCY_TICKS` remain)
+    written in engineering form (``200``, ``1k``), the others unlabelled (a span narrower than
+    one step gets two ticks inside it); on the value axis at most :data:`MAX_VALUE_TICKS`
+    ticks, without an offset. Matplotlib's own labels every minor
+    tick of an axis spanning less than a decade, and they run into one another."""
+    low, high = ax.get_xlim()
+    decades = np.arange(np.floor(np.log10(low)), np.ceil(np.log10(high)) + 1)
+    for steps, stride in (((1, 2, 5), 1), ((1,), 1), ((1,), 2), ((1,), 3)):
+        ticks = [
+            step * 10.0**d
+            for d in decades[::stride]
+            for step in steps
+            if low <= step * 10.0**d <= high
+        ]
+        if len(ticks) <= MAX_FREQUENCY_TICKS:
+            break
+    if len(ticks) < 2:  # narrower than one 1-2-5 step: two ticks inside, 2 digits
+        ticks = sorted({float(f"{v:.2g}") for v in np.geomspace(low, high, 4)[1:3]})
+    ax.xaxis.set_major_locator(ticker.FixedLocator(ticks))
+    ax.xaxis.set_major_formatter(ticker.EngFormatter(sep=""))
+    ax.xaxis.set_minor_formatter(ticker.NullFormatter())
+    ax.yaxis.set_major_locator(ticker.MaxNLocator(MAX_VALUE_TICKS))
+    ax.yaxis.get_major_formatter().set_useOffset(False)
 
 
 def legend_above(fig: plt.Figure, handles: list, labels: list[str]) -> None:

@@ -16,7 +16,8 @@ from fmu_greybox.data.recording import Recording
 from fmu_greybox.model.store import GreyBoxModel, file_sha256
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import whitebox_path
-from fmu_greybox.report.html import escape, page, table, verdict
+from fmu_greybox.report.glossary import glossary_section, term
+from fmu_greybox.report.html import Html, escape, page, table, verdict
 from fmu_greybox.report.main import (
     acceptance_section,
     criteria_source,
@@ -25,14 +26,26 @@ from fmu_greybox.report.main import (
     traceability_section,
     validation_lines,
     validation_sections,
+    worse_text,
 )
 from fmu_greybox.report.provenance import environment_rows, project_row, tool_rows
+from fmu_greybox.report.summary import (
+    next_step,
+    result_line,
+    shipped_by_stage,
+    summary_section,
+)
 from fmu_greybox.workflow.metrics import INTERVAL_NOTE, coverage_text, error_ratio
 from fmu_greybox.workflow.parts import passed_through_reason
 from fmu_greybox.workflow.validate import PooledValidation, Validation
 
 #: Name of the page in each folder ``validate`` writes.
 REPORT = "report.html"
+#: How to put a validated model to use, the summary's next step when it passes.
+USE = (
+    "Export it (fmu-greybox export MODEL_DIR) and load the FMU in your bench (docs/bench.md); "
+    "its _std outputs are the uncertainty."
+)
 
 
 def validation_report_html(
@@ -59,7 +72,30 @@ def validation_report_html(
     """
     units, labels = stage_titles(config)
     recording = _recording_name(validation.data.recording)
-    sections = []
+    terms = [(t.effect, t.entry) for t in model.terms]
+    stages = model.chain.stage_names
+    found = (
+        [
+            Html(
+                escape(
+                    "The model carries the diagnosis' named terms: "
+                    + ", ".join(f"{effect} (from stage {stages[entry]})" for effect, entry in terms)
+                    + "."
+                )
+            )
+        ]
+        if terms
+        else []
+    )
+    sections = [
+        summary_section(
+            result_line(validation.acceptance, recording),
+            found,
+            shipped_by_stage(stages, model.chain.passed_through, terms),
+            validation.table,
+            next_step(validation.acceptance, USE) + worse_text(validation.table),
+        )
+    ]
     if validation.acceptance is not None:
         sections.append(
             acceptance_section(validation.acceptance, criteria_source(config, recording))
@@ -76,6 +112,7 @@ def validation_report_html(
     sections += [
         verdict(lines),
         *validation_sections(validation, units, labels, f" The model: {shipped}."),
+        glossary_section(),
         *_traceability(config, model_dir, [validation.data.recording], command),
     ]
     return page(f"fmu-greybox validation: {config.name}, {recording}", sections)
@@ -97,6 +134,9 @@ def pooled_report_html(
     """
     names = ", ".join(_recording_name(v.data.recording) for v in result.validations.values())
     sections = [
+        summary_section(
+            result_line(result.acceptance, names), [], {}, {}, next_step(result.acceptance, USE)
+        ),
         acceptance_section(
             result.acceptance,
             criteria_source(
@@ -120,11 +160,8 @@ def pooled_report_html(
             raw=True,
         ),
         "<h2>Shares inside the band, pooled</h2>",
-        f"<p>Each recording's share weighted by its independent rows; {INTERVAL_NOTE}. k: the "
-        "grey-box's RMSE over all the scored rows over its RMSE on the free runs σ was "
-        "calibrated on.</p>",
         table(
-            ("stage", "inside ±1σ", "inside ±1.96σ", "independent rows", "k"),
+            ("stage", "inside ±1σ", "inside ±1.96σ", term("independent-rows"), term("error-ratio")),
             [
                 (
                     stage,
@@ -136,6 +173,10 @@ def pooled_report_html(
                 for stage, row in result.pooled.items()
             ],
         ),
+        f"<p>Each recording's share weighted by its independent rows; {escape(INTERVAL_NOTE)}. "
+        "Error ratio k: the grey-box's RMSE over all the scored rows over its RMSE on the free "
+        "runs σ was calibrated on.</p>",
+        glossary_section(),
         *_traceability(
             config, model_dir, [v.data.recording for v in result.validations.values()], command
         ),

@@ -30,6 +30,7 @@ from fmu_greybox.fmi.instance import FmuInstance
 from fmu_greybox.progress import track
 from fmu_greybox.suggest import did_you_mean
 from fmu_greybox.synth.loop import Loop, is_loop_effect, parse_loop_effects
+from fmu_greybox.units import normalise_unit
 
 #: Standard deviation of each sensor's white noise at ``noise = 1`` [SI units of the signal].
 SENSOR_NOISE: dict[str, float] = {
@@ -165,6 +166,22 @@ def list_effects(truth: FmuArchive, whitebox: FmuArchive) -> list[FmuVariable]:
     return [
         v for v in truth.variables.values() if v.causality == "parameter" and v.name not in known
     ]
+
+
+def typical_range(effect: FmuVariable) -> str:
+    """An effect's :data:`TYPICAL_MAGNITUDES` with its unit, as ``synth --list-effects`` shows it.
+
+    Returns
+    -------
+    str
+        E.g. ``"typical 300 to 900 N"`` (no unit for a dimensionless one); ``"-"`` for an
+        effect without typical magnitudes (a shape parameter of another, or one not drawn).
+    """
+    if effect.name not in TYPICAL_MAGNITUDES:
+        return "-"
+    low, high = TYPICAL_MAGNITUDES[effect.name][0], TYPICAL_MAGNITUDES[effect.name][-1]
+    unit = "" if normalise_unit(effect.unit) == "" else f" {effect.unit}"
+    return f"typical {low:g} to {high:g}{unit}"
 
 
 def parse_effects(texts: list[str] | tuple[str, ...]) -> dict[str, float]:

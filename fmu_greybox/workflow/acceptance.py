@@ -5,7 +5,8 @@ verdict: ``PASS``, ``FAIL``, or ``UNDECIDED`` when the data cannot decide (a fre
 where the recording's own estimate cannot be trusted, no rows to count, a share inside the
 uncertainty band outside its limits over too few independent rows to say so). The whole verdict is
 ``FAIL`` if any check fails, else ``UNDECIDED`` if any is undecided, else ``PASS``: an
-engineer signs a ``PASS`` only.
+engineer signs a ``PASS`` only. A coverage check that passes on evidence too thin to vouch for
+its limits is marked so (:attr:`Check.thin`), its note saying why.
 """
 
 from __future__ import annotations
@@ -43,7 +44,12 @@ class Check:
     verdict : str
         ``PASS``, ``FAIL`` or ``UNDECIDED``.
     note : str
-        Why a check is undecided (empty otherwise).
+        Why a check is undecided or failed, or why a pass rests on thin evidence; over several
+        recordings, also which recording a check is the worst of (empty otherwise).
+    thin : bool
+        A ``PASS`` whose evidence cannot vouch for its limits: the share's 95 % interval, or
+        the range a band calibrated on so few independent rows holds on recordings like
+        them, reaches beyond the limits.
     """
 
     stage: str
@@ -52,6 +58,7 @@ class Check:
     limit: str
     verdict: str
     note: str = ""
+    thin: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (NaN as ``None``)."""
@@ -81,14 +88,26 @@ class Acceptance:
         """``{"verdict", "checks": [...]}`` for ``metrics.json`` and ``summary.json``."""
         return {"verdict": self.verdict, "checks": [c.to_dict() for c in self.checks]}
 
+    @property
+    def thin(self) -> list[Check]:
+        """The passes that rest on thin evidence (:attr:`Check.thin`)."""
+        return [c for c in self.checks if c.thin]
+
     def summary(self) -> str:
-        """One line: the verdict and the checks that did not pass."""
+        """One line: the verdict, the checks that did not pass and the passes on thin
+        evidence."""
         others = [c for c in self.checks if c.verdict != PASS]
         named = "; ".join(
             f"{c.stage} {c.criterion}: {c.verdict} ({_number(c.value)}, limit {c.limit})"
             for c in others
         )
         counted = f"{len(self.checks) - len(others)} of {len(self.checks)} checks pass"
+        if self.thin:
+            counted += (
+                f", {len(self.thin)} on thin evidence ("
+                + "; ".join(f"{c.stage} {c.criterion}" for c in self.thin)
+                + ")"
+            )
         return f"Acceptance: {self.verdict} ({counted}{'; ' + named if named else ''})."
 
 
@@ -219,6 +238,9 @@ def _share_inside(
     words (``±1.96σ``)."""
     z, width = band
     check = _within(stage, f"{SHARE_INSIDE} {width}", row[key], bounds)
+    if check.verdict == PASS:
+        thin = _thin_evidence(row, key, bounds)
+        return replace(check, note="; ".join(thin), thin=bool(thin))
     if check.verdict != FAIL:
         return check
     notes = []
@@ -240,6 +262,25 @@ def _share_inside(
         notes += _calibration_worth(row, bounds)
         notes += _free_run_spread(row, check.value)
     return replace(check, verdict=UNDECIDED if undecided else FAIL, note="; ".join(notes))
+
+
+def _thin_evidence(row: Mapping[str, float], key: str, bounds: tuple[float, float]) -> list[str]:
+    """Why a share inside its limits does not vouch for them: its 95 % interval (``key_low``
+    .. ``key_high``) reaches beyond them, and for ±1.96σ, the band was calibrated on too few
+    independent rows to hold within them on recordings like them (:func:`_calibration_worth`);
+    [] when neither."""
+    notes = []
+    low, high = row.get(f"{key}_low"), row.get(f"{key}_high")
+    if low is not None and high is not None and (low < bounds[0] or high > bounds[1]):
+        notes.append(
+            f"the rows are worth about {row.get('independent_rows', float('nan')):.0f} "
+            f"independent ones, and the share's 95 % interval {low:.3g}-{high:.3g} reaches "
+            "beyond the limits: a longer recording, or more of them validated together, would "
+            "confirm the pass"
+        )
+    if key == "coverage95":
+        notes += _calibration_worth(row, bounds)
+    return notes
 
 
 #: Why a band calibrated on the training rows' halves is often too wide (their free runs are

@@ -2,7 +2,8 @@
 
 On the reference actuator, with nothing but this repository:
 
-1. build the white-box and truth FMUs from their C sources;
+1. build the white-box and truth FMUs from their C sources, and check that the truth FMU
+   offers the effects asked for (before anything is said or written);
 2. record the truth actuator in closed loop with a concealed effect (drawn by the seed from
    :data:`~fmu_greybox.synth.actuator.TYPICAL_MAGNITUDES` unless given), plus an independent
    validation
@@ -37,7 +38,7 @@ from fmu_greybox.export.fmu import export_greybox
 from fmu_greybox.export.ssp import BenchAgreement, compare_with_master, make_bench, run_bench
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import reference_fmus, reference_project, sources_digest
-from fmu_greybox.model.store import file_sha256, load_model, save_model
+from fmu_greybox.model.store import GreyBoxModel, file_sha256, load_model, save_model
 from fmu_greybox.model.whitebox import terms_from_findings
 from fmu_greybox.project.config import ProjectConfig, load_config
 from fmu_greybox.report.provenance import (
@@ -50,6 +51,7 @@ from fmu_greybox.synth.actuator import (
     TYPICAL_MAGNITUDES,
     FlightTestProfile,
     SynthRequest,
+    check_effects,
     synthesise,
 )
 from fmu_greybox.workflow.train import train_model, with_inducing
@@ -140,6 +142,11 @@ class DemoResult:
     parts : dict
         With named terms, the training's comparison of its parts and the part shipped
         (``model.json``'s ``training.parts``); empty without terms.
+    effect_units : dict[str, str]
+        Each concealed effect's unit, as the truth FMU declares it (empty when it declares
+        none, or for an effect around the FMU).
+    model : GreyBoxModel or None
+        The model exported (its named terms, the stages whose corrector is switched off).
     """
 
     settings: DemoSettings
@@ -156,6 +163,8 @@ class DemoResult:
     timings: dict[str, float] = field(default_factory=dict)
     command: str = ""
     parts: dict[str, Any] = field(default_factory=dict)
+    effect_units: dict[str, str] = field(default_factory=dict)
+    model: GreyBoxModel | None = None
 
     def top_finding_correct(self) -> bool:
         """The diagnosis' top finding names one of the concealed effects."""
@@ -229,10 +238,13 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
     Returns
     -------
     DemoResult
+
+    Raises
+    ------
+    ConfigError
+        For an effect the truth actuator does not offer, before anything is said or written.
     """
     say = log or (lambda _message: None)
-    out = Path(settings.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
     clock = time.perf_counter()
 
@@ -243,8 +255,18 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
         clock = now
 
     effects = dict(settings.effects) if settings.effects else choose_effect(settings.seed)
-    say("[1/6] building the reference FMUs from fmu_sources/")
     fmus = reference_fmus()
+    with (
+        open_fmu(fmus["HydraulicActuatorTruth"]) as truth,
+        open_fmu(fmus["HydraulicActuator"]) as whitebox,
+    ):
+        check_effects(effects, truth, whitebox)  # before a step is said or a folder made
+        effect_units = {
+            name: truth.variables[name].unit for name in effects if name in truth.variables
+        }
+    out = Path(settings.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    say("[1/6] the reference FMUs, built from fmu_sources/ (once: they are cached)")
     config = load_config(reference_project())
     step("build")
 
@@ -316,6 +338,8 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
         timings=timings,
         command=command_line(),
         parts=model.training.get("parts", {}),
+        effect_units=effect_units,
+        model=model,
     )
 
 
