@@ -19,7 +19,6 @@ import numpy as np
 
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.gp import SparseGPR
-from fmu_greybox.gp.bound import Hyperparameters
 from fmu_greybox.model.calibration import (
     UNCALIBRATED,
     VarianceCalibration,
@@ -310,12 +309,8 @@ class GreyBoxChain:
         outputs: np.ndarray,
         progress: ProgressCallback | None,
         label: str,
-        start: Hyperparameters | None = None,
-        max_iter: int | None = None,
     ) -> None:
-        """Fit stage ``q``'s corrector on the rows given (the stages before it are fitted),
-        from ``start`` (see :meth:`SparseGPR.fit <fmu_greybox.gp.SparseGPR.fit>`) with at most
-        ``max_iter`` iterations (``None``: the project's ``gp.max_iter``)."""
+        """Fit stage ``q``'s corrector on the rows given (the stages before it are fitted)."""
         gp = self.config.gp
         stage = self.stages[q]
         fed = self._fed(q, exo, y_wb, outputs) if gp.feeds == "free_run" and q else None
@@ -325,12 +320,12 @@ class GreyBoxChain:
         corrector = SparseGPR(
             n_inducing=min(gp.inducing, t.size),
             inducing=gp.inducing_method,
-            max_iter=gp.max_iter if max_iter is None else max_iter,
+            max_iter=gp.max_iter,
             optimise_rows=gp.optimise_rows,
             seed=gp.seed,
         )
         callback = _stage_progress(progress, label) if progress is not None else None
-        self.correctors_[q] = corrector.fit(X, t, progress=callback, start=start)
+        self.correctors_[q] = corrector.fit(X, t, progress=callback)
         if progress is not None:
             progress(label, 0, self.correctors_[q].bound_)  # this fit is done
 

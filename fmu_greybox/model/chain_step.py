@@ -30,7 +30,7 @@ largest kernel correlation between the features and an inducing point.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Protocol
+from typing import Protocol, TypeVar
 
 import numpy as np
 
@@ -39,6 +39,8 @@ from fmu_greybox.gp import SparseGPR
 from fmu_greybox.gp.linalg import aligned_zeros
 from fmu_greybox.model.calibration import VarianceCalibration
 from fmu_greybox.model.stage import SourceLayout, StageLayout
+
+T = TypeVar("T", bool, np.ndarray)
 
 
 class FittedChain(Protocol):
@@ -347,13 +349,19 @@ class RunRows:
 
     def in_domain(self, threshold: float = DEFAULT_OOD_THRESHOLD) -> np.ndarray:
         """Rows the exported FMU would not flag ``out_of_domain`` (:func:`out_of_domain`)."""
-        return ~((self.score < threshold) | self.outside)
+        return ~flagged(self.score, self.outside, threshold)
 
 
 def out_of_domain(
     score: float, state: ChainState, threshold: float = DEFAULT_OOD_THRESHOLD
 ) -> bool:
-    """The exported FMU's ``out_of_domain`` flag for the step that returned ``score``: some
-    stage's features were clipped to their widened training range, or ``score`` is below
+    """The exported FMU's ``out_of_domain`` flag for the step that returned ``score`` (see
+    :func:`flagged`)."""
+    return bool(flagged(score, 1.0 in state.outside.tolist(), threshold))
+
+
+def flagged(score: T, outside: T, threshold: float) -> T:
+    """``out_of_domain`` of one step or of many rows (arrays): some stage's features were
+    clipped to their widened training range (``outside``), or the domain ``score`` is below
     ``threshold``."""
-    return score < threshold or 1.0 in state.outside.tolist()
+    return (score < threshold) | outside
