@@ -29,7 +29,7 @@ from fmu_greybox.model.calibration import calibration_spread
 from fmu_greybox.model.store import load_model
 from fmu_greybox.project.config import load_config
 from fmu_greybox.project.data import load_project_recording
-from fmu_greybox.report.main import SHIPPED_MODEL
+from fmu_greybox.report.main import shipped_model
 from fmu_greybox.report.plots import frequency_figure
 from fmu_greybox.report.summary import PART_WORDS
 from fmu_greybox.synth.actuator import TYPICAL_MAGNITUDES
@@ -100,8 +100,8 @@ def test_demo_model_carries_the_named_terms_and_improves_the_ram(demo: tuple[Pat
     parts = manifest["training"]["parts"]
     assert summary["parts"] == parts
     report = (out / "report.html").read_text()
-    assert f"{SHIPPED_MODEL[parts['shipped']]} (the exported FMU)" in report
-    assert f"shipped: {PART_WORDS[parts['shipped']]}" in report
+    assert f"{shipped_model(parts, load_model(out / 'model'))} (the exported FMU)" in report
+    assert all(f"{stage} {PART_WORDS[part]}" in report for stage, part in parts["shipped"].items())
     # the summary says what ships on each stage; the stages whose corrector is off say so
     summary = report[report.index("<div class='summary'") : report.index("</div>")]
     passed = load_model(out / "model").chain.passed_through

@@ -37,13 +37,17 @@ from fmu_greybox.model.whitebox import NamedModel, check_terms, read_terms
 from fmu_greybox.project.config import load_config
 from fmu_greybox.project.data import split_row
 from fmu_greybox.workflow.parts import (
+    BLOCKS,
     EQUAL_MARGIN,
-    PARTS,
+    STAGE_PARTS,
+    block_rmse,
+    choose_stage_part,
     compare_parts,
+    has_corrector,
     passed_through_reason,
     summary,
 )
-from fmu_greybox.workflow.train import train_model, with_inducing
+from fmu_greybox.workflow.train import terms_per_stage, train_model, with_inducing
 
 ROOT = Path(__file__).resolve().parents[1]
 OUTPUTS = ["spool_position", "ram_position", "itfv_pressure"]
@@ -184,18 +188,55 @@ def test_parts_within_the_margin_are_equally_good(factor: float, equal: bool) ->
     }
     scale = {"A": 1.0, "B": 1.0}
     parts = compare_parts(["A", "B"], recorded, predictions, scale, first_row=100)
-    assert parts.best == "terms" and parts.shipped == "terms"
+    assert parts.best == "terms" and parts.shipped == {"A": "terms", "B": "terms"}
     assert parts.score["terms+correctors"] == pytest.approx(factor * parts.score["terms"])
     payload = parts.to_dict()
     assert payload["equally_good"] == (["terms+correctors"] if equal else [])
     assert payload["equal_margin"] == EQUAL_MARGIN
     line = summary(payload)
     assert (f"equally good within {100 * EQUAL_MARGIN:.0f} %: terms+correctors" in line) is equal
-    assert line.endswith("; shipped terms")
+    assert line.endswith("; shipped A terms, B terms")
     # the terminal and the report say why the correctors are off: here the terms won
-    assert passed_through_reason(payload) == "the named terms alone ship"
+    assert "chose no corrector" in passed_through_reason(payload)
     lost = passed_through_reason({**payload, "shipped": "terms+correctors"})
     assert lost == passed_through_reason({}) and "free-run check" in lost
+
+
+def _stage_errors(scales: dict[str, list[float]], rows: int = 400) -> tuple[dict, dict]:
+    """RMSE in total and per block of parts whose error has the given scale in each of four
+    consecutive blocks (white noise, the same draw for every part)."""
+    noise = np.random.default_rng(4).normal(size=rows)
+    recorded = np.zeros(rows)
+    total, blocks = {}, {}
+    for part, per_block in scales.items():
+        predicted = noise * np.repeat(per_block, rows // len(per_block))
+        total[part] = float(np.sqrt(np.mean(predicted**2)))
+        blocks[part] = block_rmse(predicted, recorded)
+    return total, blocks
+
+
+#: Error scales of the white-box and the terms in each of four blocks, shared by the cases.
+PLAIN = {"white-box": [3.0] * 4, "terms": [1.0] * 4}
+
+
+@pytest.mark.parametrize(
+    ("scales", "chosen"),
+    [
+        # both better than the terms, by less than the margin
+        ({**PLAIN, "terms+correctors": [0.97] * 4}, "terms"),
+        # both better by more than the margin overall, but in only two blocks of four
+        ({**PLAIN, "terms+correctors": [0.05, 0.9, 1.05, 1.05]}, "terms"),
+        # both better by more than the margin in every block
+        ({**PLAIN, "terms+correctors": [0.5] * 4}, "terms+correctors"),
+        # physics and data equally good: the physics
+        ({**PLAIN, "correctors": [0.99] * 4}, "terms"),
+        # nothing beats the white-box clearly: the white-box alone
+        ({"white-box": [1.0] * 4, "terms": [0.97] * 4, "correctors": [1.2] * 4}, "white-box"),
+    ],
+)
+def test_a_stage_ships_the_simplest_part_the_best_does_not_beat_clearly(scales, chosen) -> None:
+    total, blocks = _stage_errors(scales)
+    assert choose_stage_part(total, blocks) == chosen
 
 
 def test_train_with_terms_compares_its_parts_forward_in_time(termed) -> None:
@@ -205,8 +246,9 @@ def test_train_with_terms_compares_its_parts_forward_in_time(termed) -> None:
     white-box with every corrector passed through."""
     model, recording = termed["model"], termed["recording"]
     parts = model.training["parts"]
-    assert parts["shipped"] == "terms+correctors"
-    assert parts["best"] == min(PARTS, key=parts["score"].__getitem__)
+    assert set(parts["shipped"].values()) == {"terms+correctors"}  # --ship on every stage
+    assert parts["best"] == min(parts["score"], key=parts["score"].__getitem__)
+    assert set(parts["score"]) == set(STAGE_PARTS)
     n = recording.n_samples
     split = split_row(model.config, n)
     config = model.config
@@ -224,7 +266,8 @@ def test_train_with_terms_compares_its_parts_forward_in_time(termed) -> None:
         error = np.sqrt(np.mean((named_run[first:, q] - recording[column][first:]) ** 2))
         assert parts["stages"][stage]["terms_rmse"] == pytest.approx(error, rel=1e-9)
         row = parts["stages"][stage]
-        assert row["best"] == min(PARTS, key=lambda part: row[f"{part}_rmse"])
+        assert row["best"] == min(STAGE_PARTS, key=lambda part: row[f"{part}_rmse"])
+        assert len(row["blocks"]["terms"]) == BLOCKS
     alone = train_model(termed["config"], recording, terms=terms(), ship="terms")
     assert not alone.chain.active_.any() and alone.terms == terms()
     assert alone.training["parts"]["score"] == pytest.approx(parts["score"], rel=1e-9)
@@ -258,7 +301,8 @@ def test_train_with_terms_compares_its_parts_forward_in_time(termed) -> None:
         assert inside == pytest.approx(0.95, abs=2e-3), stage
         assert on_other.training["calibration_check"][stage]["source"] == "recordings"
     plain = train_model(termed["config"], recording, terms=terms(), ship="correctors")
-    assert plain.terms == [] and plain.training["parts"]["shipped"] == "correctors"
+    assert plain.terms == []
+    assert set(plain.training["parts"]["shipped"].values()) == {"correctors"}
     with pytest.raises(ConfigError, match="'all' is not a part to ship"):
         train_model(termed["config"], recording, terms=terms(), ship="all")
 
@@ -347,9 +391,15 @@ def test_train_command_folds_a_diagnosis_terms(termed, tmp_path: Path) -> None:
     model = load_model(tmp_path / "model")
     parts = model.training["parts"]
     assert f"best {parts['best']}" in result.output
-    assert f"; shipped {parts['best']}" in result.output
+    line = next(text for text in result.output.splitlines() if text.startswith("held-out"))
+    assert all(f"{stage} {part}" in line for stage, part in parts["shipped"].items())
     assert ("equally good within" in result.output) == bool(parts["equally_good"])
-    assert model.terms == ([] if parts["best"] == "correctors" else [terms()[1]])
+    chosen = [parts["shipped"][stage] for stage in model.chain.stage_names]
+    assert model.terms == terms_per_stage([terms()[1]], chosen)
+    assert model.chain.active_.tolist() == [
+        has_corrector(part) and model.training["free_run_check"][stage]["active"]
+        for stage, part in zip(model.chain.stage_names, chosen, strict=True)
+    ]
     assert ("named terms: coulomb_friction" in result.output) == bool(model.terms)
 
 

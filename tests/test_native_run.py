@@ -4,6 +4,7 @@ name their cause."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -143,3 +144,21 @@ def test_without_a_compiler_simulations_step_in_python_and_say_so(tmp_path) -> N
     assert done.stdout.split() == ["False"]
     assert "native runner is unavailable" in done.stderr
     assert "C compiler 'no-such-compiler' not found" in done.stderr
+
+
+def test_a_stage_that_takes_the_terms_off_sees_the_plain_white_box(whitebox, rows) -> None:
+    """A term with ``stages_off`` (chosen per stage at training) leaves that stage's outputs
+    those of the plain white-box, bit for bit, in C, in Python and in ``simulate_with_terms``;
+    the other stages keep the term's effect."""
+    term = dataclasses.replace(EXAMPLES["CoulombForce"], stages_off=(1,))
+    term = term_kinds.term_from_dict(term.to_dict())  # the field survives the model folder
+    assert term.stages_off == (1,) and not term.acts_at(1) and term.acts_at(2)
+    plain = in_c(whitebox, rows, [])
+    python, native = in_python(whitebox, rows, [term]), in_c(whitebox, rows, [term])
+    np.testing.assert_array_equal(native, python)
+    simulated = simulate_with_terms(whitebox, INPUTS, rows, DT, OUTPUTS, [term], stages=STAGES)
+    np.testing.assert_array_equal(simulated, native)
+    off = [j for j, s in enumerate(STAGES) if s == 1]
+    on = [j for j, s in enumerate(STAGES) if s != 1]
+    np.testing.assert_array_equal(native[:, off], plain[:, off])
+    assert not np.array_equal(native[:, on], plain[:, on])

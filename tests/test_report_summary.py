@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 
+from fmu_greybox.model.terms import FlowDroop
 from fmu_greybox.report.glossary import GLOSSARY, glossary_section, term
 from fmu_greybox.report.main import worse_text
 from fmu_greybox.report.summary import (
@@ -38,6 +40,8 @@ def test_each_comparison_of_the_parts_says_whose_it_is_in_plain_words() -> None:
         "0.016, named terms + correctors 0.0162; best: named terms alone, as good within 5 %: "
         "named terms + correctors; shipped: named terms alone"
     )
+    per_stage = parts_text({**PARTS, "shipped": {"EHV": "white-box", "RAM": "terms"}})
+    assert per_stage.endswith("; shipped: EHV white-box alone, RAM named terms alone")
     unshipped = {k: v for k, v in PARTS.items() if k != "shipped"} | {"best": None}
     assert parts_text(unshipped).endswith(
         "; too few rows to tell, as good within 5 %: named terms + correctors"
@@ -46,12 +50,18 @@ def test_each_comparison_of_the_parts_says_whose_it_is_in_plain_words() -> None:
 
 def test_what_ships_on_each_stage() -> None:
     """A term acts from its entry stage on; a stage whose corrector is off says so."""
-    shipped = shipped_by_stage(["EHV", "RAM", "ITFV"], ["ITFV"], [("supply_pressure_droop", 1)])
+    droop = FlowDroop(input="supply_pressure", source="supply_flow", resistance=1e10, entry=1)
+    shipped = shipped_by_stage(["EHV", "RAM", "ITFV"], ["ITFV"], [droop])
     assert shipped == {
         "EHV": "white-box + corrector",
         "RAM": "white-box + supply_pressure_droop (named term) + corrector",
         "ITFV": "white-box + supply_pressure_droop (named term), corrector off",
     }
+    # a stage that ships without the terms (chosen at training) takes the plain white-box
+    off = dataclasses.replace(droop, stages_off=(2,))
+    assert shipped_by_stage(["EHV", "RAM", "ITFV"], ["ITFV"], [off])["ITFV"] == (
+        "white-box, corrector off"
+    )
 
 
 def check(stage: str, verdict: str, thin: bool = False) -> Check:

@@ -143,8 +143,14 @@ def verdict_lines(diagnosis) -> list[str]:
 
 def parts_payload(parts) -> dict:
     """``diagnosis.json``'s ``parts``: the comparison without ``shipped`` (a diagnosis ships no
-    model; ``train --terms`` compares again with the project's own corrector settings)."""
-    return {k: v for k, v in parts.to_dict().items() if k != "shipped"}
+    model; ``train --terms`` compares again with the project's own corrector settings), on the
+    whole and on each stage."""
+    payload = {k: v for k, v in parts.to_dict().items() if k != "shipped"}
+    payload["stages"] = {
+        stage: {k: v for k, v in row.items() if k != "shipped"}
+        for stage, row in payload["stages"].items()
+    }
+    return payload
 
 
 def write_outputs(diagnosis, recording, out_dir: str | Path) -> dict:

@@ -227,7 +227,7 @@ def _plan(
     cosim = archive.model_description.coSimulation
     units = etree.parse(str(archive.unzip_dir / "modelDescription.xml")).find("UnitDefinitions")
     identity = f"fmu-greybox:{__version__}:{runtime}:{model_sha}:{ood_threshold!r}"
-    stages = ", ".join(model.chain.stage_names)
+    stages = "; ".join(f"{stage}: {what}" for stage, what in model.contents().items())
     settings = {
         "kind": "greybox",
         "runtime": runtime,
@@ -235,9 +235,9 @@ def _plan(
         "model_sha256": model_sha,
         "model_identifier": _identifier(f"{model.config.name}_greybox"),
         "description": (
-            f"Grey-box of {archive.model_name} ({model.config.name}): the white-box FMU stepped "
-            f"with sparse-GP stage correctors {stages} (fmu-greybox); drop-in replacement with "
-            "corrected outputs, their standard deviations, raw white-box outputs and an "
+            f"{model.kind.capitalize()} of {archive.model_name} ({model.config.name}), stage by "
+            f"stage {stages} (fmu-greybox); drop-in replacement with the stages' outputs, their "
+            "standard deviations, the white-box outputs before the correctors and an "
             "out-of-domain flag"
         ),
         "author": author or login_name(),

@@ -19,8 +19,8 @@ Variables (value references in this order, see :func:`greybox_interface`):
 
 * the white-box's Real inputs, same names, units and start values;
 * the white-box's Real outputs, same names; a stage's output carries the corrected value;
-* per stage output ``<name>_std`` (predictive standard deviation) and ``<name>_wb`` (raw
-  white-box);
+* per stage output ``<name>_std`` (predictive standard deviation) and ``<name>_wb`` (the
+  white-box with the named terms acting on the stage, if any, before the corrector);
 * ``domain_score`` (0..1, see :mod:`fmu_greybox.model.chain_step`) and the Boolean
 ``out_of_domain``: some
   stage's features left their (widened) training range, where the chain clips them, or
@@ -198,29 +198,14 @@ def greybox_interface(
         )
         for v in inputs
     ]
+    contents = model.contents()
     for v in outputs:
         text = v.description or v.name
         stage = stage_of.get(v.name)
-        if stage is not None and chain.active_[stage.stage_index]:
-            text = f"{text}; grey-box corrected (stage {stage.name})"
-        elif stage is not None:
-            text = f"{text}; white-box value (stage {stage.name}'s corrector did not improve on it)"
+        if stage is not None:
+            text = f"{text}; {contents[stage.name]} (stage {stage.name})"
         reals.append(Port(v.name, "Real", "output", "continuous", v.unit, text))
-    for kind, text in (
-        (
-            "std",
-            "Calibrated predictive standard deviation of {name} (stage {stage}; the "
-            "correctors' variance propagated through the chain, scaled, plus the stage's "
-            "residual variance)",
-        ),
-        (
-            "wb",
-            "White-box {name} with the named terms "
-            f"({', '.join(t.effect for t in model.terms)}), before the correctors"
-            if model.terms
-            else "Raw white-box {name} (uncorrected)",
-        ),
-    ):
+    for kind in ("std", "wb"):
         for stage in chain.stages:
             name = stage.config.whitebox_output
             reals.append(
@@ -230,7 +215,7 @@ def greybox_interface(
                     "output",
                     "continuous",
                     variables[name].unit,
-                    text.format(name=name, stage=stage.name),
+                    _stage_output_text(model, stage.stage_index, kind),
                 )
             )
     reals.append(
@@ -292,6 +277,23 @@ def greybox_interface(
         stage_output=np.array([out_names.index(o) for o in chain.whitebox_outputs], dtype=int),
         exo_index=np.array(exo_index, dtype=int),
     )
+
+
+def _stage_output_text(model: GreyBoxModel, q: int, kind: str) -> str:
+    """The description of stage ``q``'s ``_std`` or ``_wb`` output."""
+    stage = model.chain.stages[q]
+    name = stage.config.whitebox_output
+    if kind == "std":
+        return (
+            f"Calibrated predictive standard deviation of {name} (stage {stage.name}; the "
+            "correctors' variance propagated through the chain, scaled, plus the stage's "
+            "residual variance)"
+        )
+    acting = model.stage_terms(q)
+    if acting:
+        effects = ", ".join(dict.fromkeys(t.effect for t in acting))
+        return f"White-box {name} with the named terms ({effects}), before the corrector"
+    return f"Plain white-box {name} (no named term acts on stage {stage.name})"
 
 
 @dataclass

@@ -12,7 +12,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import functools
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -183,7 +183,8 @@ class GreyBoxChain:
         outputs: np.ndarray,
         progress: ProgressCallback | None = None,
         calibration_runs: Sequence[RecordedRun] = (),
-        targets_from: GreyBoxChain | None = None,
+        targets_from: Mapping[str, GreyBoxChain] | None = None,
+        correct: Sequence[bool] | None = None,
     ) -> GreyBoxChain:
         """Train every stage, in chain order.
 
@@ -197,11 +198,12 @@ class GreyBoxChain:
         :data:`SELECTION_MARGIN`; then it is trained on all rows (from the usual start: a warm
         start at the chosen candidate's hyperparameters changes which corrector passes the
         free-run check below, measured in ``docs/speed.md``). The two candidates are trained
-        side by side. Given ``targets_from``, a chain already fitted to the same stages (on
-        other rows of the same recording), every stage takes its target mode instead. Last,
-        unless ``check_tail`` is ``None``, the chain is free-run over that share of the rows and
-        every stage that does not beat its white-box there is passed through (:attr:`active_`),
-        so the grey-box is never knowingly worse than the model it corrects. Then, with
+        side by side. Given ``targets_from``, per stage a chain already fitted to the same stage (on
+        other rows of the same recording), every stage takes its target mode instead. Stages
+        that ``correct`` says not to correct are passed through. Last, unless ``check_tail``
+        is ``None``, the chain is free-run over that share of the rows and every stage that
+        does not beat its white-box there is passed through too (:attr:`active_`), so the
+        grey-box is never knowingly worse than the model it corrects. Then, with
         ``calibrate``, each stage's reported variance is estimated (:attr:`calibration_`) by
         two-fold cross-validation: each half of the rows is free-run by a chain whose correctors
         were trained (hyperparameters and all, the two halves side by side) on the other half
@@ -235,8 +237,11 @@ class GreyBoxChain:
         calibration_runs : sequence of RecordedRun
             Recordings to calibrate the uncertainty on, instead of the two halves of the
             training rows (each longer than :attr:`history` rows).
-        targets_from : GreyBoxChain, optional
-            A fitted chain of the same project whose stages' target modes this fit takes.
+        targets_from : mapping of str to GreyBoxChain, optional
+            Stage name -> a fitted chain of the same project whose target mode of that stage
+            this fit takes.
+        correct : sequence of bool, optional
+            Per stage, whether its corrector may be used (default: every stage's).
 
         Returns
         -------
@@ -252,53 +257,22 @@ class GreyBoxChain:
         self.free_run_check_ = {}
         self.calibration_ = [UNCALIBRATED] * q_count
         self.calibration_check_ = {}
-        if targets_from is not None:
-            self.selection_ = dict(targets_from.selection_)
+        allowed = np.ones(q_count, dtype=bool) if correct is None else np.asarray(correct, bool)
         with one_blas_thread():  # the parallelism is in the fits side by side
             for q, stage in enumerate(self.stages):
                 if targets_from is not None:
-                    stage.target_mode = targets_from.stages[q].target_mode
+                    source = targets_from[stage.name]
+                    stage.target_mode = source.stages[q].target_mode
+                    if stage.name in source.selection_:
+                        self.selection_[stage.name] = source.selection_[stage.name]
                 elif stage.target_mode == AUTO:
                     stage.target_mode = self._choose_target(q, exo, y_wb, outputs, progress)
                 self._fit_stage(q, exo, y_wb, outputs, progress, f"{stage.name} corrector")
+            self.active_[:] = allowed
             if self.check_tail is not None:
                 self.free_run_check_ = self._check_free_run(exo, y_wb, outputs, self.check_tail)
             if self.calibrate:
                 self._calibrate(RecordedRun(exo, y_wb, outputs), progress, calibration_runs)
-        return self
-
-    def pass_through(
-        self,
-        exo: np.ndarray,
-        y_wb: np.ndarray,
-        outputs: np.ndarray,
-        progress: ProgressCallback | None = None,
-        calibration_runs: Sequence[RecordedRun] = (),
-    ) -> GreyBoxChain:
-        """Pass every stage through (the chain then reports the model it corrects; the
-        correctors are kept, unused) and, with ``calibrate``, estimate :attr:`calibration_`
-        again for the chain as it now runs.
-
-        The calibration of :meth:`fit` describes the residual of the correctors; a chain that
-        no longer uses them reports the residual of what they corrected (``V = 0``, so each
-        stage's ``b`` alone, from both halves of the rows, as :meth:`fit` takes it).
-
-        Parameters
-        ----------
-        exo, y_wb, outputs : ndarray
-            The training rows, as given to :meth:`fit`.
-        progress : callable, optional
-        calibration_runs : sequence of RecordedRun
-            As for :meth:`fit`.
-
-        Returns
-        -------
-        GreyBoxChain
-            ``self``.
-        """
-        self.active_[:] = False
-        if self.calibrate:
-            self._calibrate(RecordedRun(exo, y_wb, outputs), progress, calibration_runs)
         return self
 
     def _fit_stage(
@@ -554,9 +528,10 @@ class GreyBoxChain:
     ) -> dict[str, dict[str, float]]:
         """Free-run the last ``tail`` of the training rows; pass through stages that lose.
 
-        A corrector trained by teacher forcing can still drift when it is fed its own
-        predictions. Each stage is compared with its white-box on the free run; a stage whose
-        RMSE is not below the white-box's is deactivated (its output is the white-box's).
+        The stages already passed through stay so. A corrector trained by teacher forcing can
+        still drift when it is fed its own predictions. Each stage is compared with its
+        white-box on the free run; a stage whose RMSE is not below the white-box's is
+        deactivated (its output is the white-box's).
 
         Parameters
         ----------
@@ -572,15 +547,14 @@ class GreyBoxChain:
         """
         n = exo.shape[0]
         start = max(1, int((1.0 - tail) * n) - 1)
-        self.active_[:] = True
         mean, _ = self.free_run(exo, y_wb, outputs, start)
         recorded = outputs[start + 1 :]
         wb = np.sqrt(np.mean((y_wb[start + 1 :] - recorded) ** 2, axis=0))
         gb = np.sqrt(np.mean((mean - recorded) ** 2, axis=0))
-        self.active_[:] = gb < wb
+        self.active_ &= gb < wb
         return {
-            name: {"wb_rmse": float(wb[q]), "gb_rmse": float(gb[q]), "active": bool(gb[q] < wb[q])}
-            for q, name in enumerate(self.stage_names)
+            name: {"wb_rmse": float(wb[q]), "gb_rmse": float(gb[q]), "active": bool(active)}
+            for q, (name, active) in enumerate(zip(self.stage_names, self.active_, strict=True))
         }
 
     def free_run(

@@ -12,7 +12,6 @@ observed at ``t_k`` *before* ``u_k`` acts. So ``y_0`` is the FMU's initial outpu
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Protocol
@@ -24,7 +23,7 @@ from fmu_greybox.fmi.archive import FmuArchive, open_fmu, real_outputs
 from fmu_greybox.fmi.binding import InputBinding, bind_inputs, input_units
 from fmu_greybox.model.native_run import run_native, runs_natively
 from fmu_greybox.model.terms import Term
-from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS, NamedModel
+from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS, NamedModel, term_groups
 from fmu_greybox.progress import track
 
 #: Largest number of runs :func:`simulate_with_terms` keeps in a cache.
@@ -111,14 +110,8 @@ def simulate_with_terms(
         If the FMU fails (e.g. a correction drives it out of its valid range).
     """
     stages = list(stages) if stages is not None else [0] * len(outputs)
-    levels = sorted({0, *(t.entry for t in terms)})
     y = np.empty((u.shape[0], len(outputs)))
-    for i, level in enumerate(levels):
-        upper = levels[i + 1] if i + 1 < len(levels) else math.inf
-        columns = [j for j, s in enumerate(stages) if level <= s < upper]
-        if not columns:
-            continue
-        active = [t for t in terms if t.entry <= level]
+    for level, columns, active in term_groups(terms, stages):
         names = [outputs[j] for j in columns]
         key = (repr([t.to_dict() for t in active]), tuple(names), u.shape[0])
         if cache is not None and key in cache:

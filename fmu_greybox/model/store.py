@@ -108,6 +108,29 @@ class GreyBoxModel:
         """Standard deviation of each stage's training target (for normalised RMSE)."""
         return self.training["target_std"]
 
+    def stage_terms(self, q: int) -> list[Term]:
+        """The named terms acting on stage ``q``'s outputs."""
+        return [t for t in self.terms if t.acts_at(q)]
+
+    def contents(self) -> dict[str, str]:
+        """Stage -> what the model computes there, in words: ``"white-box"``, then
+        ``" + named terms"`` where terms act on the stage, then ``" + corrector"`` where its
+        corrector is used."""
+        return {
+            stage.name: "white-box"
+            + (" + named terms" if self.stage_terms(q) else "")
+            + (" + corrector" if self.chain.active_[q] else "")
+            for q, stage in enumerate(self.chain.stages)
+        }
+
+    @property
+    def kind(self) -> str:
+        """What the model is, in words: ``"grey-box"`` when some corrector is used, else
+        ``"white-box + named terms"`` or ``"white-box"``."""
+        if self.chain.active_.any():
+            return "grey-box"
+        return "white-box + named terms" if self.terms else "white-box"
+
     def output_stages(self, outputs: Sequence[str]) -> list[int]:
         """The stage each white-box output is read at: a stage's output at its stage, any
         other output at the last stage (after every named term)."""
@@ -419,8 +442,9 @@ def _named_terms(path: Path, manifest: Mapping[str, Any], n_stages: int) -> tupl
     try:
         terms = [term_from_dict(t) for t in named["terms"]]
         substeps = int(named["substeps"])
-        if substeps < 1 or any(not 0 <= t.entry < n_stages for t in terms):
-            raise ValueError("sub-steps below 1 or a term entering at a stage that is not there")
+        stages = [t.entry for t in terms] + [q for t in terms for q in t.stages_off]
+        if substeps < 1 or any(not 0 <= q < n_stages for q in stages):
+            raise ValueError("sub-steps below 1 or a term acting at a stage that is not there")
     except (KeyError, TypeError, ValueError) as exc:
         raise ModelFormatError(
             f"{path}: field 'named_terms' is unusable ({exc}); {_RETRAIN}"

@@ -19,9 +19,11 @@ terms):
   feedback terms read the FMU's own outputs, untouched by sensor faults.
 
 A term acts on the stages from its ``entry`` stage on: stages before it keep the plain white-box
-outputs. A term entering after the first stage models physics between two stages (e.g. a dead
-zone between a valve's spool and its metering edges): the named model runs one FMU instance per
-distinct entry stage and takes each observed output from the instance of its stage.
+outputs, and so do the stages in its ``stages_off`` (those for which training found the plain
+white-box better, :mod:`fmu_greybox.workflow.parts`). A term entering after the first stage
+models physics between two stages (e.g. a dead zone between a valve's spool and its metering
+edges): the named model runs one FMU instance per distinct set of terms acting on a stage and
+takes each observed output from the instance of its stage.
 
 Terms are small dataclasses, picklable, and round-trip through :meth:`Term.to_dict` /
 :func:`term_from_dict` so that a later run (training, the co-simulation master, an exported
@@ -90,9 +92,13 @@ class Term:
     ----------
     entry : int
         Index of the first stage the term acts on (0: every stage).
+    stages_off : tuple of int
+        Stages from ``entry`` on that take the white-box without this term (chosen per stage
+        at training; empty: every stage from ``entry`` on).
     """
 
     entry: int = field(default=0, kw_only=True)
+    stages_off: tuple[int, ...] = field(default=(), kw_only=True)
 
     #: Vocabulary identifier of the effect the term models (docs/diagnosis.md).
     effect = ""
@@ -135,9 +141,19 @@ class Term:
         if line is not None:
             line.restore(memory)
 
+    def acts_at(self, stage: int) -> bool:
+        """Whether the term acts on the outputs of stage ``stage``."""
+        return self.entry <= stage and stage not in self.stages_off
+
     def to_dict(self) -> dict:
-        """The term as plain data (``kind`` names the class)."""
-        return {"kind": type(self).__name__, **asdict(self)}
+        """The term as plain data (``kind`` names the class; ``stages_off`` only when some
+        stage is off)."""
+        data = {"kind": type(self).__name__, **asdict(self)}
+        if self.stages_off:
+            data["stages_off"] = list(self.stages_off)
+        else:
+            del data["stages_off"]
+        return data
 
 
 @dataclass
@@ -513,6 +529,7 @@ def term_from_dict(data: Mapping) -> Term:
     unknown = set(data) - known
     if unknown:
         raise ValueError(f"term {kind} has no field(s) {', '.join(sorted(unknown))}")
-    if "outputs" in data:
-        data["outputs"] = tuple(data["outputs"])
+    for name in ("outputs", "stages_off"):
+        if name in data:
+            data[name] = tuple(data[name])
     return cls(**data)

@@ -16,7 +16,6 @@ from __future__ import annotations
 import base64
 import copy
 import json
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,7 +44,7 @@ class PartLayout:
     Attributes
     ----------
     level : int
-        Entry stage of the instance: the terms with ``entry <= level`` act on it.
+        Lowest stage the instance serves (the terms acting there act on it).
     columns : list of int
         Positions of the outputs it observes among the model's outputs.
     outputs : list of str
@@ -74,6 +73,33 @@ class PartLayout:
         return dt / self.substeps if term.feedback else dt
 
 
+def term_groups(
+    terms: Sequence[Term], stages: Sequence[int]
+) -> list[tuple[int, list[int], list[Term]]]:
+    """The outputs grouped by the terms that act on them: one group per distinct set of terms
+    acting on an output's stage (:meth:`~fmu_greybox.model.terms.Term.acts_at`).
+
+    Parameters
+    ----------
+    terms : sequence of Term
+    stages : sequence of int
+        Stage of every output.
+
+    Returns
+    -------
+    list of (int, list of int, list of Term)
+        Per group, in order of its lowest stage: that stage, the positions of its outputs, and
+        the terms acting on them (in model order).
+    """
+    groups: dict[tuple[int, ...], tuple[int, list[int]]] = {}
+    for j, stage in enumerate(stages):
+        key = tuple(i for i, t in enumerate(terms) if t.acts_at(stage))
+        level, columns = groups.setdefault(key, (stage, []))
+        groups[key] = (min(level, stage), [*columns, j])
+    ordered = sorted(groups.items(), key=lambda item: item[1][0])
+    return [(level, columns, [terms[i] for i in key]) for key, (level, columns) in ordered]
+
+
 def part_layouts(
     outputs: Sequence[str],
     terms: Sequence[Term],
@@ -81,7 +107,8 @@ def part_layouts(
     parameters: Mapping[str, float] | None,
     substeps: int,
 ) -> list[PartLayout]:
-    """The FMU instances of a named model: one per distinct entry stage that observes an output.
+    """The FMU instances of a named model: one per distinct set of terms acting on an observed
+    output's stage (:func:`term_groups`).
 
     Parameters
     ----------
@@ -93,20 +120,15 @@ def part_layouts(
     parameters : mapping, optional
         Project parameter values.
     substeps : int
-        FMU steps per communication step while a feedback term acts.
+        FMU steps per communication step while a feedback term is active.
 
     Returns
     -------
     list of PartLayout
     """
-    levels = sorted({0, *(t.entry for t in terms)})
     layouts = []
-    for i, level in enumerate(levels):
-        upper = levels[i + 1] if i + 1 < len(levels) else math.inf
-        columns = [j for j, s in enumerate(stages) if level <= s < upper]
-        if not columns:
-            continue
-        active = [copy.deepcopy(t) for t in terms if t.entry <= level]
+    for level, columns, acting in term_groups(terms, stages):
+        active = [copy.deepcopy(t) for t in acting]
         observed = [outputs[j] for j in columns]
         bound = list(observed)
         for term in active:

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from fmu_greybox.diagnosis.report import diagnosis_sections, write_json
+from fmu_greybox.model.store import GreyBoxModel
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.report.glossary import glossary_section, term
 from fmu_greybox.report.html import (
@@ -35,6 +36,7 @@ from fmu_greybox.report.html import (
 )
 from fmu_greybox.report.plots import calibration_figure, frequency_figure, trace_figure
 from fmu_greybox.report.summary import (
+    PART_WORDS,
     TRAINING_PARTS,
     finding_sentence,
     next_step,
@@ -53,6 +55,7 @@ from fmu_greybox.workflow.metrics import (
     improvement,
     spread_text,
 )
+from fmu_greybox.workflow.parts import shipped_parts
 from fmu_greybox.workflow.validate import Validation, frequency_table
 
 #: Wall time per step of the exported FMU a 1 kHz bench can afford: a tenth of the 1 ms step,
@@ -105,19 +108,31 @@ def summary(result: DemoResult) -> dict[str, Any]:
     }
 
 
-#: What the exported model is, by the part shipped (:data:`fmu_greybox.workflow.parts.PARTS`).
+#: What the exported model is, by the part shipped on every stage
+#: (:data:`fmu_greybox.workflow.parts.STAGE_PARTS`).
 SHIPPED_MODEL = {
     "terms+correctors": "White-box + named terms + correctors",
     "terms": "White-box + named terms, every corrector passed through",
     "correctors": "White-box + correctors (the named terms left out)",
+    "white-box": "White-box alone (the named terms and the correctors left out)",
 }
 
 
-def shipped_model(parts: Mapping[str, Any]) -> str:
-    """The exported model in words, from the comparison of its parts at training
-    (:func:`~fmu_greybox.workflow.parts.summary`'s input): the part shipped, or the grey-box
-    without terms."""
-    return SHIPPED_MODEL.get(parts.get("shipped", ""), "Grey-box")
+def shipped_model(parts: Mapping[str, Any], model: GreyBoxModel | None = None) -> str:
+    """The exported model in words: what ``model`` computes on each stage
+    (:meth:`~fmu_greybox.model.store.GreyBoxModel.contents`) when given, else the part shipped
+    from the comparison of its parts at training (:func:`~fmu_greybox.workflow.parts.
+    summary`'s input), or the grey-box without terms."""
+    if model is not None:
+        contents = model.contents()
+        if len(set(contents.values())) == 1:
+            return next(iter(contents.values())).capitalize()
+        return "; ".join(f"{stage}: {what}" for stage, what in contents.items())
+    shipped = shipped_parts(parts)
+    chosen = set(shipped.values())
+    if len(chosen) > 1:
+        return "; ".join(f"{stage}: {PART_WORDS.get(p, p)}" for stage, p in shipped.items())
+    return SHIPPED_MODEL.get(chosen.pop(), "Grey-box") if chosen else "Grey-box"
 
 
 def verdict_lines(result: DemoResult) -> list[str]:
@@ -137,7 +152,7 @@ def verdict_lines(result: DemoResult) -> list[str]:
         lines.append(f"{TRAINING_PARTS}: {parts_text(result.parts)}.")
     lines += validation_lines(
         result.validation.table,
-        f"{shipped_model(result.parts)} (the exported FMU)",
+        f"{shipped_model(result.parts, result.model)} (the exported FMU)",
         f"an independent {result.settings.validation_duration:g} s recording",
     )
     engines = ", ".join(f"{a.engine} {a.worst:.1e}" for a in result.bench)
@@ -171,9 +186,7 @@ def demo_summary(result: DemoResult) -> str:
     model = result.model
     stages = list(result.validation.table)
     shipped = (
-        shipped_by_stage(
-            stages, model.chain.passed_through, [(t.effect, t.entry) for t in model.terms]
-        )
+        shipped_by_stage(model.chain.stage_names, model.chain.passed_through, model.terms)
         if model is not None
         else dict.fromkeys(stages, shipped_model(result.parts))
     )
@@ -584,7 +597,9 @@ def report_html(result: DemoResult) -> str:
             validation,
             units,
             labels,
-            f" The exported model: {shipped_model(result.parts)}." if result.parts else "",
+            f" The exported model: {shipped_model(result.parts, result.model)}."
+            if result.parts
+            else "",
         ),
         *diagnosis,
         "<h2>The exported FMU on the SSP bench</h2>",

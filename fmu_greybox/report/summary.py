@@ -9,14 +9,18 @@ to the glossary (:mod:`fmu_greybox.report.glossary`).
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fmu_greybox.report.glossary import term
 from fmu_greybox.report.html import Html, escape, percent, table
 from fmu_greybox.workflow.acceptance import FAIL, PASS, UNDECIDED, Acceptance
 
+if TYPE_CHECKING:
+    from fmu_greybox.model.terms import Term
+
 #: The parts of a comparison (:data:`fmu_greybox.workflow.parts.PARTS`) in plain words.
 PART_WORDS = {
+    "white-box": "white-box alone",
     "correctors": "correctors alone",
     "terms": "named terms alone",
     "terms+correctors": "named terms + correctors",
@@ -43,18 +47,22 @@ def parts_text(parts: Mapping[str, Any]) -> str:
         text += f", as good within {100 * parts['equal_margin']:.0f} %: " + " and ".join(
             PART_WORDS.get(p, p) for p in equal
         )
-    if "shipped" in parts:
-        text += f"; shipped: {PART_WORDS.get(parts['shipped'], parts['shipped'])}"
+    shipped = parts.get("shipped")
+    if isinstance(shipped, str):  # a model.json of an earlier version: one part everywhere
+        text += f"; shipped: {PART_WORDS.get(shipped, shipped)}"
+    elif shipped:
+        text += "; shipped: " + ", ".join(
+            f"{stage} {PART_WORDS.get(part, part)}" for stage, part in shipped.items()
+        )
     return text
 
 
 def shipped_by_stage(
-    stages: Sequence[str],
-    passed_through: Sequence[str],
-    terms: Sequence[tuple[str, int]],
+    stages: Sequence[str], passed_through: Sequence[str], terms: Sequence[Term]
 ) -> dict[str, str]:
     """What the model computes on each stage, in words: the white-box, the named terms acting
-    there (a term acts from its entry stage on), and the corrector unless it is switched off.
+    there (:meth:`~fmu_greybox.model.terms.Term.acts_at`), and the corrector unless it is
+    switched off.
 
     Parameters
     ----------
@@ -62,8 +70,8 @@ def shipped_by_stage(
         Stage names, in chain order.
     passed_through : sequence of str
         The stages whose corrector is switched off.
-    terms : sequence of (str, int)
-        Each named term's effect and entry stage index.
+    terms : sequence of Term
+        The model's named terms.
 
     Returns
     -------
@@ -71,8 +79,8 @@ def shipped_by_stage(
         Stage -> e.g. ``"white-box + supply_pressure_droop (named term), corrector off"``.
     """
     shipped = {}
-    for i, stage in enumerate(stages):
-        acting = [effect for effect, entry in terms if entry <= i]
+    for q, stage in enumerate(stages):
+        acting = [t.effect for t in terms if t.acts_at(q)]
         text = "white-box"
         if acting:
             noun = "named term" if len(acting) == 1 else "named terms"

@@ -10,10 +10,12 @@ to its own page, and the same traceability.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.model.store import GreyBoxModel, file_sha256
+from fmu_greybox.model.terms import Term
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import whitebox_path
 from fmu_greybox.report.glossary import glossary_section, term
@@ -72,14 +74,14 @@ def validation_report_html(
     """
     units, labels = stage_titles(config)
     recording = _recording_name(validation.data.recording)
-    terms = [(t.effect, t.entry) for t in model.terms]
+    terms = model.terms
     stages = model.chain.stage_names
     found = (
         [
             Html(
                 escape(
                     "The model carries the diagnosis' named terms: "
-                    + ", ".join(f"{effect} (from stage {stages[entry]})" for effect, entry in terms)
+                    + ", ".join(f"{t.effect} ({_term_stages(t, stages)})" for t in terms)
                     + "."
                 )
             )
@@ -91,7 +93,7 @@ def validation_report_html(
         summary_section(
             result_line(validation.acceptance, recording),
             found,
-            shipped_by_stage(stages, model.chain.passed_through, terms),
+            shipped_by_stage(model.chain.stage_names, model.chain.passed_through, model.terms),
             validation.table,
             next_step(validation.acceptance, USE) + worse_text(validation.table),
         )
@@ -100,7 +102,7 @@ def validation_report_html(
         sections.append(
             acceptance_section(validation.acceptance, criteria_source(config, recording))
         )
-    shipped = shipped_model(model.training.get("parts", {}))
+    shipped = shipped_model(model.training.get("parts", {}), model)
     lines = [validation.acceptance.summary()] if validation.acceptance is not None else []
     lines += validation_lines(validation.table, f"{shipped} (the model)", recording, recording)
     passed = model.chain.passed_through
@@ -216,3 +218,9 @@ def _traceability(
         for r in recordings
     ]
     return traceability_section(rows + environment_rows(command))
+
+
+def _term_stages(named: Term, stages: Sequence[str]) -> str:
+    """The stages a named term acts on, in words."""
+    acting = [stage for q, stage in enumerate(stages) if named.acts_at(q)]
+    return f"on {', '.join(acting)}" if acting else "on no stage"

@@ -1,22 +1,33 @@
-"""Never worse than its parts: named terms alone, correctors alone and both, on held-out rows.
+"""Never worse than its parts: on each stage, the white-box alone, with the named terms, with
+correctors, or with both, whichever held-out rows support.
 
-A model with named terms (from a diagnosis) is one of three candidates: the paper's correctors
-on the plain white-box (``correctors``), the white-box with the named terms and no corrector
-(``terms``), and correctors trained on top of the named terms (``terms+correctors``).
-``diagnose`` free-runs each over the rows it holds out and compares them stage by stage.
+A model with named terms (from a diagnosis) is assembled stage by stage from four parts: the
+plain white-box (``white-box``), the white-box with the named terms and no corrector
+(``terms``), the paper's correctors on the plain white-box (``correctors``), and correctors
+trained on top of the named terms (``terms+correctors``). ``diagnose`` free-runs the last three
+over the rows it holds out and compares them stage by stage.
 
 ``train --terms`` compares them forward in time on a longer stretch: correctors trained on the
 first half of the training rows, every part free-run from the recording's first row as a bench
 runs it (the chain's memory from the recorded outputs of that row only) and scored on every
 later row. The last few percent of a recording rarely leave the regimes its training rows
-cover; half a recording more often does, and that is where correctors alone, which cannot
-extrapolate, fall behind named physics. The model shipped is the best unless the user names
-another, and its correctors are then trained on all the training rows.
+cover; half a recording more often does, and that is where correctors, which cannot
+extrapolate, fall behind named physics.
+
+Each stage then ships the simplest part that the best one does not beat clearly
+(:func:`choose_stage_part`), in the order of :data:`STAGE_PARTS`: physics before data, fewer
+parts before more. Beating clearly takes two things: an RMSE lower by more than
+:data:`EQUAL_MARGIN` over the held-out rows, and a lower RMSE in most of the
+:data:`BLOCKS` consecutive blocks they are cut into, so that one stretch of the recording (a
+manoeuvre the correctors happen to know) does not decide for all. A stage that ships no named
+terms takes the plain white-box (the terms' ``stages_off``); a stage that ships no corrector
+passes it through. The user can ship one part on every stage instead (``train --ship``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -31,16 +42,31 @@ if TYPE_CHECKING:
     from fmu_greybox.model.store import GreyBoxModel
     from fmu_greybox.project.data import ProjectData
 
-#: The candidates, in the order they are reported.
+#: The candidates of the diagnosis' comparison and of ``train --ship``, in the order reported.
 PARTS = ("correctors", "terms", "terms+correctors")
-#: What ``train --ship`` accepts: the best candidate on held-out rows, or one named.
+#: What a stage can ship, simplest first (the order of preference between equally good parts).
+STAGE_PARTS = ("white-box", "terms", "correctors", "terms+correctors")
+#: What ``train --ship`` accepts: the best part of each stage, or one part on every stage.
 SHIP_CHOICES = ("best", *PARTS)
 #: Fewest held-out rows a comparison is made on; with fewer the data cannot decide.
 MIN_COMPARED_ROWS = 50
-#: A part whose score is within this share of the best part's is reported as equally good: the
-#: held-out rows cannot tell them apart (a held-out mean square within about 10 %, the margin
-#: the diagnosis uses for competing explanations).
+#: A part whose RMSE is within this share of the best part's is equally good: the held-out rows
+#: cannot tell them apart (a held-out mean square within about 10 %, the margin the diagnosis
+#: uses for competing explanations).
 EQUAL_MARGIN = 0.05
+#: Consecutive blocks the held-out rows are cut into; a part beats another clearly only when it
+#: also wins in more than half of them.
+BLOCKS = 4
+
+
+def has_terms(part: str) -> bool:
+    """Whether a part (:data:`STAGE_PARTS`) carries the named terms."""
+    return part in ("terms", "terms+correctors")
+
+
+def has_corrector(part: str) -> bool:
+    """Whether a part (:data:`STAGE_PARTS`) carries a corrector."""
+    return part in ("correctors", "terms+correctors")
 
 
 @dataclass(frozen=True)
@@ -50,25 +76,27 @@ class PartsComparison:
     Attributes
     ----------
     stages : dict
-        Stage -> ``{PART}_rmse`` for each part, and ``best`` (the part with the lowest RMSE).
+        Stage -> ``{PART}_rmse`` for each part compared, ``blocks`` (part -> RMSE in each of
+        the :data:`BLOCKS` blocks of the held-out rows), ``best`` (the part with the lowest
+        RMSE) and ``shipped`` (the part chosen for the stage, :func:`choose_stage_part`).
     score : dict
         Part -> mean over the stages of its RMSE divided by the stage's scale (its training
         target's spread).
     best : str or None
         The part with the lowest score; ``None`` when fewer than :data:`MIN_COMPARED_ROWS`
         rows were held out.
-    shipped : str
-        The part the model is.
+    shipped : dict of str to str
+        Stage -> the part the model is on that stage.
     rows : list of int
         ``[first, last]`` held-out rows compared.
     trained_rows : list of int or None
         ``[0, last]``: the rows the compared correctors were trained on (``train --terms``).
     """
 
-    stages: dict[str, dict[str, float | str]]
+    stages: dict[str, dict]
     score: dict[str, float]
     best: str | None
-    shipped: str
+    shipped: dict[str, str]
     rows: list[int]
     trained_rows: list[int] | None = None
 
@@ -79,7 +107,7 @@ class PartsComparison:
         if self.best is None:
             return []
         bound = (1.0 + EQUAL_MARGIN) * self.score[self.best]
-        return [p for p in PARTS if p != self.best and self.score[p] <= bound]
+        return [p for p in self.score if p != self.best and self.score[p] <= bound]
 
     def to_dict(self) -> dict:
         """Plain data for ``model.json``, ``metrics.json`` and ``diagnosis.json``."""
@@ -92,14 +120,25 @@ class PartsComparison:
             "best": self.best,
             "equally_good": self.equally_good,
             "equal_margin": EQUAL_MARGIN,
+            "blocks": BLOCKS,
             "shipped": self.shipped,
         }
 
 
+def shipped_parts(parts: Mapping) -> dict[str, str]:
+    """Stage -> the part shipped there, from a comparison's plain data
+    (:meth:`PartsComparison.to_dict`; ``model.json`` of earlier versions holds one part for
+    every stage; empty for a model trained without terms)."""
+    shipped = parts.get("shipped")
+    if isinstance(shipped, str):
+        return dict.fromkeys(parts.get("stages", {}), shipped)
+    return dict(shipped or {})
+
+
 def summary(parts: Mapping) -> str:
     """One line of a comparison (:meth:`PartsComparison.to_dict`): each part's score, the best
-    and what was shipped (when it says)."""
-    scores = ", ".join(f"{part} {parts['score'][part]:.3g}" for part in PARTS)
+    and what was shipped on each stage (when it says)."""
+    scores = ", ".join(f"{part} {score:.3g}" for part, score in parts["score"].items())
     if parts["best"] is None:
         best = f"too few held-out rows to compare (fewer than {MIN_COMPARED_ROWS})"
     else:
@@ -108,16 +147,67 @@ def summary(parts: Mapping) -> str:
     if equal:
         margin = 100 * parts["equal_margin"]
         best += f", equally good within {margin:.0f} %: {' and '.join(equal)}"
-    shipped = f"; shipped {parts['shipped']}" if "shipped" in parts else ""
-    return f"held-out nRMSE {scores}: {best}{shipped}"
+    shipped = shipped_parts(parts)
+    shipped_text = ", ".join(f"{stage} {part}" for stage, part in shipped.items())
+    return f"held-out nRMSE {scores}: {best}" + (f"; shipped {shipped_text}" if shipped else "")
 
 
-def passed_through_reason(parts: Mapping) -> str:
-    """Why a model's correctors are switched off, in words, from the comparison of its parts
-    (:meth:`PartsComparison.to_dict`; empty for a model trained without terms)."""
-    if parts.get("shipped") == "terms":
-        return "the named terms alone ship"
+def passed_through_reason(parts: Mapping, stage: str | None = None) -> str:
+    """Why a model's correctors (or ``stage``'s) are switched off, in words, from the comparison
+    of its parts (:meth:`PartsComparison.to_dict`; empty for a model trained without terms)."""
+    shipped = shipped_parts(parts)
+    chosen = [shipped.get(stage)] if stage is not None else list(shipped.values())
+    if chosen and all(part is not None and not has_corrector(part) for part in chosen):
+        return "the held-out comparison of the parts chose no corrector"
     return "the corrector lost to the white-box in the free-run check at training"
+
+
+def block_rmse(predicted: np.ndarray, recorded: np.ndarray, blocks: int = BLOCKS) -> list[float]:
+    """RMSE of ``predicted`` in each of ``blocks`` consecutive blocks of rows.
+
+    Parameters
+    ----------
+    predicted, recorded : ndarray, shape (m,)
+    blocks : int
+
+    Returns
+    -------
+    list of float
+        ``blocks`` values (fewer when there are fewer rows).
+    """
+    edges = np.linspace(0, recorded.size, min(blocks, recorded.size) + 1).astype(int)
+    return [rmse(predicted[a:b], recorded[a:b]) for a, b in itertools.pairwise(edges)]
+
+
+def beats_clearly(
+    better: str, worse: str, total: Mapping[str, float], blocks: Mapping[str, Sequence[float]]
+) -> bool:
+    """Whether part ``better`` beats ``worse`` by more than :data:`EQUAL_MARGIN` over all the
+    held-out rows and in more than half of the blocks."""
+    if not total[better] < (1.0 - EQUAL_MARGIN) * total[worse]:
+        return False
+    wins = sum(b < w for b, w in zip(blocks[better], blocks[worse], strict=True))
+    return wins > len(blocks[better]) / 2
+
+
+def choose_stage_part(total: Mapping[str, float], blocks: Mapping[str, Sequence[float]]) -> str:
+    """The part a stage ships: the first of :data:`STAGE_PARTS` compared that the best part
+    (lowest RMSE) does not beat clearly (:func:`beats_clearly`).
+
+    Parameters
+    ----------
+    total : mapping of str to float
+        Part -> RMSE over the held-out rows (the parts compared).
+    blocks : mapping of str to sequence of float
+        Part -> RMSE in each block.
+
+    Returns
+    -------
+    str
+    """
+    compared = [p for p in STAGE_PARTS if p in total]
+    best = min(compared, key=total.__getitem__)
+    return next(p for p in compared if p == best or not beats_clearly(best, p, total, blocks))
 
 
 def compare_parts(
@@ -128,7 +218,7 @@ def compare_parts(
     first_row: int,
     ship: str = "best",
 ) -> PartsComparison:
-    """Compare the candidates' predictions of the held-out rows.
+    """Compare the candidates' predictions of the held-out rows, stage by stage.
 
     Parameters
     ----------
@@ -137,14 +227,16 @@ def compare_parts(
     recorded : ndarray, shape (m, Q)
         Recorded stage targets of the held-out rows.
     predictions : mapping of str to ndarray, each shape (m, Q)
-        Part (each of :data:`PARTS`) -> its free run over the same rows.
+        Part (of :data:`STAGE_PARTS`; at least each of :data:`PARTS`) -> its free run over the
+        same rows.
     scale : mapping of str to float
         Stage -> spread of its training target (normalises the RMSE).
     first_row : int
         Recording row of the first held-out row.
     ship : str
-        One of :data:`SHIP_CHOICES`. ``"best"`` ships the best part, or ``terms+correctors``
-        when too few rows were held out to compare.
+        One of :data:`SHIP_CHOICES`. ``"best"`` ships on each stage the part
+        :func:`choose_stage_part` chooses, or ``terms+correctors`` when too few rows were held
+        out to compare.
 
     Returns
     -------
@@ -156,20 +248,29 @@ def compare_parts(
         ``ship`` is not one of :data:`SHIP_CHOICES`.
     """
     check_ship(ship)
-    stages: dict[str, dict[str, float | str]] = {}
-    normalised = {part: [] for part in PARTS}
-    for q, name in enumerate(names):
-        row: dict[str, float | str] = {}
-        for part in PARTS:
-            error = rmse(predictions[part][:, q], recorded[:, q])
-            row[f"{part}_rmse"] = error
-            normalised[part].append(error / (scale[name] or 1.0))
-        row["best"] = min(PARTS, key=lambda part: row[f"{part}_rmse"])
-        stages[name] = row
-    score = {part: float(np.mean(values)) for part, values in normalised.items()}
+    compared = [p for p in STAGE_PARTS if p in predictions]
     m = recorded.shape[0]
-    best = min(PARTS, key=score.__getitem__) if m >= MIN_COMPARED_ROWS else None
-    shipped = ship if ship != "best" else (best or "terms+correctors")
+    decided = m >= MIN_COMPARED_ROWS
+    stages: dict[str, dict] = {}
+    normalised: dict[str, list[float]] = {part: [] for part in compared}
+    for q, name in enumerate(names):
+        total = {p: rmse(predictions[p][:, q], recorded[:, q]) for p in compared}
+        blocks = {p: block_rmse(predictions[p][:, q], recorded[:, q]) for p in compared}
+        for part in compared:
+            normalised[part].append(total[part] / (scale[name] or 1.0))
+        if ship != "best":
+            chosen = ship
+        else:
+            chosen = choose_stage_part(total, blocks) if decided else "terms+correctors"
+        stages[name] = {
+            **{f"{part}_rmse": total[part] for part in compared},
+            "blocks": blocks,
+            "best": min(compared, key=total.__getitem__),
+            "shipped": chosen,
+        }
+    score = {part: float(np.mean(values)) for part, values in normalised.items()}
+    best = min(compared, key=score.__getitem__) if decided else None
+    shipped = {name: row["shipped"] for name, row in stages.items()}
     return PartsComparison(stages, score, best, shipped, [first_row, first_row + m - 1])
 
 
@@ -203,22 +304,6 @@ class FittedModel:
     split: int
     calibration_runs: tuple[RecordedRun, ...] = ()
 
-    def pass_through(self) -> None:
-        """Make the model the white-box with its terms: every stage passed through, and its
-        uncertainty calibrated again, on what it was calibrated on, for the chain as it now
-        runs
-        (:meth:`~fmu_greybox.model.chain.GreyBoxChain.pass_through`; ``training``'s
-        ``calibration_check`` follows)."""
-        data, rows = self.data, slice(0, self.split + 1)
-        chain = self.model.chain
-        chain.pass_through(
-            data.exo[rows],
-            data.y_wb[rows],
-            data.outputs[rows],
-            calibration_runs=self.calibration_runs,
-        )
-        self.model.training["calibration_check"] = chain.calibration_check_
-
     def bench_run(self) -> np.ndarray:
         """The chain's free run over the held-out rows, started at the recording's first row
         (memory from its recorded outputs only), as a bench runs the model; shape
@@ -248,6 +333,7 @@ def compare_fitted(named: FittedModel, plain: FittedModel, ship: str) -> PartsCo
     """
     rows = slice(named.split + 1, None)
     predictions = {
+        "white-box": plain.data.y_wb[rows],
         "correctors": plain.bench_run(),
         "terms": named.data.y_wb[rows],
         "terms+correctors": named.bench_run(),

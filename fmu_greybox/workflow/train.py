@@ -6,7 +6,7 @@ import dataclasses
 import functools
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -23,7 +23,14 @@ from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import check_sample_time, prepare, split_row, whitebox_path
 from fmu_greybox.project.fingerprint import data_rows, row_digests
 from fmu_greybox.side_by_side import run_side_by_side
-from fmu_greybox.workflow.parts import FittedModel, PartsComparison, check_ship, compare_fitted
+from fmu_greybox.workflow.parts import (
+    FittedModel,
+    PartsComparison,
+    check_ship,
+    compare_fitted,
+    has_corrector,
+    has_terms,
+)
 
 #: Fewest rows a model is trained on: fewer cannot pin down a corrector's hyperparameters, and
 #: the free-run checks of training need a tail of them.
@@ -54,10 +61,10 @@ def train_model(
     ``validate``. The uncertainty is calibrated on ``calibration_recordings`` when given, else
     on the two halves of the training rows
     (:meth:`~fmu_greybox.model.chain.GreyBoxChain.fit`). With named ``terms``, the
-    correctors alone, the terms alone and both are first compared forward in time
-    (:func:`compare_parts_forward`); the model is the part
-    ``ship`` names, by default the best, trained on all the training rows, and
-    ``training["parts"]`` keeps the comparison.
+    white-box, the terms, the correctors and both are first compared stage by stage, forward
+    in time (:func:`compare_parts_forward`); the model ships on each stage the part ``ship``
+    names, by default the stage's best (:func:`~fmu_greybox.workflow.parts.choose_stage_part`),
+    trained on all the training rows, and ``training["parts"]`` keeps the comparison.
 
     Parameters
     ----------
@@ -99,11 +106,13 @@ def train_model(
     comparison, seconds, compared = compare_parts_forward(
         config, recording, progress, target_mode, terms, ship
     )
-    shipped = comparison.shipped
+    names = list(comparison.shipped)
+    parts = [comparison.shipped[name] for name in names]
     announce(
-        f"Training pass 3 of 3: the model that ships ({comparison.shipped}), on all the "
-        f"training rows, with pass {2 if shipped == 'correctors' else 1}'s choice of targets "
-        f"(about {seconds:.0f} s left)",
+        "Training pass 3 of 3: the model that ships ("
+        + ", ".join(f"{name} {part}" for name, part in zip(names, parts, strict=True))
+        + f"), on all the training rows, with the compared chains' choice of targets (about "
+        f"{seconds:.0f} s left)",
         progress,
     )
     fitted = fit_model(
@@ -111,16 +120,38 @@ def train_model(
         recording,
         progress,
         target_mode,
-        () if shipped == "correctors" else terms,
+        terms_per_stage(terms, parts),
         calibrate_on=calibration_recordings,
-        targets_from=compared["correctors" if shipped == "correctors" else "terms"].model.chain,
+        targets_from={
+            name: compared["terms" if has_terms(part) else "correctors"].model.chain
+            for name, part in zip(names, parts, strict=True)
+        },
+        correct=[has_corrector(part) for part in parts],
     )
-    if shipped == "terms":
-        fitted.pass_through()  # its σ then describes the terms alone, not the correctors
     model = fitted.model
     model.training["parts"] = comparison.to_dict()
     model.training["seconds"] = round(model.training["seconds"] + seconds, 2)
     return model
+
+
+def terms_per_stage(terms: Sequence[Term], parts: Sequence[str]) -> list[Term]:
+    """The named terms as a model whose stages ship ``parts`` carries them: each term off on
+    the stages whose part has no terms (``stages_off``); none at all when no stage has them.
+
+    Parameters
+    ----------
+    terms : sequence of Term
+    parts : sequence of str
+        Per stage, the part shipped (:data:`~fmu_greybox.workflow.parts.STAGE_PARTS`).
+
+    Returns
+    -------
+    list of Term
+    """
+    off = tuple(q for q, part in enumerate(parts) if not has_terms(part))
+    if len(off) == len(parts):
+        return []
+    return [dataclasses.replace(t, stages_off=tuple(q for q in off if q >= t.entry)) for t in terms]
 
 
 def compare_parts_forward(
@@ -197,14 +228,16 @@ def fit_model(
     terms: Sequence[Term],
     calibrate: bool = True,
     calibrate_on: Sequence[Recording] = (),
-    targets_from: GreyBoxChain | None = None,
+    targets_from: Mapping[str, GreyBoxChain] | None = None,
+    correct: Sequence[bool] | None = None,
     pass_: str = "",
 ) -> FittedModel:
     """One chain of correctors on the white-box with ``terms`` (see :func:`train_model`);
     without ``calibrate``, its σ is the propagated variance (a chain used for its mean only).
     ``calibrate_on``: the calibration recordings (``train_model``'s
-    ``calibration_recordings``); ``targets_from``: a chain fitted on part of the same rows
-    whose target modes the fit takes (:meth:`~fmu_greybox.model.chain.GreyBoxChain.fit`);
+    ``calibration_recordings``); ``targets_from``: per stage, a chain fitted on part of the
+    same rows whose target mode of that stage the fit takes; ``correct``: per stage, whether its
+    corrector may be used (:meth:`~fmu_greybox.model.chain.GreyBoxChain.fit`);
     ``pass_``: which training pass this is, in words, for the progress lines."""
     started = time.perf_counter()
     fmu_path = whitebox_path(config)
@@ -226,6 +259,7 @@ def fit_model(
         progress=report,
         calibration_runs=runs,
         targets_from=targets_from,
+        correct=correct,
     )
     report.close()
     training = {
