@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import struct
+import threading
 from hashlib import sha256
 from pathlib import Path
 
@@ -204,3 +205,24 @@ def test_simulate_fmu_agrees_with_step_loop(simulate, whitebox_fmu: Path) -> Non
     for name in OUTPUTS:
         spread = np.ptp(loop[name])
         assert np.max(np.abs(fmpy_run[name] - loop[name])) <= 1e-12 * spread, name
+
+
+def test_instances_loaded_from_many_threads_leave_the_working_folder_alone(
+    whitebox_fmu: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """fmpy enters a binary's folder to load it. Loads from threads side by side (training's
+    fits) must not leave the process in another FMU's extraction folder, which is then removed
+    (a later load failed with 'No such file or directory' from os.getcwd)."""
+    monkeypatch.chdir(tmp_path)
+
+    def load() -> None:
+        for _ in range(10):
+            with open_fmu(whitebox_fmu) as archive, FmuInstance(archive, [], ["ram_position"]):
+                pass
+
+    threads = [threading.Thread(target=load) for _ in range(6)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert Path.cwd() == tmp_path

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import tomllib
 import zipfile
 from pathlib import Path
 
@@ -34,7 +35,7 @@ from fmu_greybox.model.simulate import simulate_with_terms
 from fmu_greybox.model.store import load_model, save_model
 from fmu_greybox.model.terms import CoulombForce, InputDelay, InputGain, SensorDelay
 from fmu_greybox.model.whitebox import NamedModel, check_terms, read_terms
-from fmu_greybox.project.config import load_config
+from fmu_greybox.project.config import load_config, parse_config
 from fmu_greybox.project.data import split_row
 from fmu_greybox.workflow.parts import (
     BLOCKS,
@@ -47,7 +48,12 @@ from fmu_greybox.workflow.parts import (
     passed_through_reason,
     summary,
 )
-from fmu_greybox.workflow.train import terms_per_stage, train_model, with_inducing
+from fmu_greybox.workflow.train import (
+    stage_correctors,
+    terms_per_stage,
+    train_model,
+    with_inducing,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 OUTPUTS = ["spool_position", "ram_position", "itfv_pressure"]
@@ -424,3 +430,46 @@ def test_train_with_terms_optimises_each_choice_once(termed, monkeypatch) -> Non
     assert len(calls) == 2 * stages * 3 + stages + 2 * active
     selection = model.training["target_selection"]
     assert set(selection) == {s.name for s in model.chain.stages}  # the comparison's choice
+
+
+def test_a_stage_ship_setting_overrides_the_comparison_and_is_checked() -> None:
+    """``[[stages]] ship`` names a stage's part: the comparison keeps it for that stage (and
+    still chooses the others); without named terms a stage shipping ``white-box`` has its
+    corrector off, and one shipping ``terms`` is refused with the field to change."""
+    config = load_config(ROOT / "bench_configs" / "hydraulic_actuator.toml")
+    names = [s.name for s in config.stages]
+    rng = np.random.default_rng(5)
+    recorded = rng.normal(size=(400, 3))
+    error = rng.normal(size=(400, 3))
+    predictions = {
+        "white-box": recorded + 3.0 * error,
+        "terms": recorded + error,
+        "correctors": recorded + 2.0 * error,
+        "terms+correctors": recorded + 0.5 * error,
+    }
+    scale = dict.fromkeys(names, 1.0)
+    forced = {names[1]: "terms"}
+    parts = compare_parts(names, recorded, predictions, scale, 100, stage_ship=forced)
+    assert parts.shipped == {
+        names[0]: "terms+correctors",
+        names[1]: "terms",
+        names[2]: "terms+correctors",
+    }
+    # --ship overrides the stage settings on every stage
+    everywhere = compare_parts(names, recorded, predictions, scale, 100, "terms", forced)
+    assert set(everywhere.shipped.values()) == {"terms"}
+    stages = list(config.stages)
+    stages[0] = dataclasses.replace(stages[0], ship="white-box")
+    assert stage_correctors(dataclasses.replace(config, stages=tuple(stages))) == [
+        False,
+        True,
+        True,
+    ]
+    stages[2] = dataclasses.replace(stages[2], ship="terms")
+    with pytest.raises(ConfigError, match=r"ships 'terms', but no named terms") as caught:
+        stage_correctors(dataclasses.replace(config, stages=tuple(stages)))
+    assert caught.value.field == "stages[2].ship"
+    raw = tomllib.loads((ROOT / "bench_configs" / "hydraulic_actuator.toml").read_text())
+    raw["stages"][0]["ship"] = "corrector"
+    with pytest.raises(ConfigError, match=r"'corrector' is not one of .*did you mean 'correctors'"):
+        parse_config(raw)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import ctypes
 import itertools
 import os
+import threading
 import weakref
 from collections import deque
 from collections.abc import Mapping, Sequence
@@ -91,6 +92,12 @@ def _callbacks(log: _LogBuffer) -> fmi2CallbackFunctions:
     return callbacks
 
 
+#: Held while fmpy loads a binary: it changes the process's working folder to the binary's and
+#: back, so two threads loading at once (fits run side by side) could leave the process in a
+#: temporary folder that is then removed.
+_LOADING = threading.Lock()
+
+
 def _load_slave(archive: FmuArchive, instance_name: str) -> FMU2Slave:
     """fmpy's slave of ``archive``, its shared library loaded.
 
@@ -100,21 +107,23 @@ def _load_slave(archive: FmuArchive, instance_name: str) -> FMU2Slave:
         If the binary cannot be loaded (not a shared library for this platform, a missing
         dependency) or lacks FMI 2.0 functions.
     """
-    cwd = os.getcwd()
-    try:
-        return FMU2Slave(
-            guid=archive.guid,
-            modelIdentifier=archive.model_identifier,
-            unzipDirectory=str(archive.unzip_dir),
-            instanceName=instance_name,
-        )
-    except Exception as exc:  # fmpy raises bare Exceptions; ctypes AttributeError for symbols
-        raise FmuArchiveError(
-            f"{archive.path}: its binary for {fmpy_platform} cannot be loaded ({exc}); rebuild "
-            f"or re-export the FMU for {fmpy_platform} with the FMI 2.0 co-simulation functions"
-        ) from exc
-    finally:
-        os.chdir(cwd)  # fmpy enters the binary's folder to load it and stays there on failure
+    with _LOADING:  # the working folder is the process's: one load at a time
+        cwd = os.getcwd()
+        try:
+            return FMU2Slave(
+                guid=archive.guid,
+                modelIdentifier=archive.model_identifier,
+                unzipDirectory=str(archive.unzip_dir),
+                instanceName=instance_name,
+            )
+        except Exception as exc:  # fmpy raises bare Exceptions; ctypes AttributeError for symbols
+            raise FmuArchiveError(
+                f"{archive.path}: its binary for {fmpy_platform} cannot be loaded ({exc}); "
+                f"rebuild or re-export the FMU for {fmpy_platform} with the FMI 2.0 "
+                "co-simulation functions"
+            ) from exc
+        finally:
+            os.chdir(cwd)  # fmpy enters the binary's folder to load it, and stays there on failure
 
 
 class FmuInstance:

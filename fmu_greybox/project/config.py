@@ -44,6 +44,11 @@ AUTO = "auto"
 #: Where training takes the earlier stages' outputs in a stage's features from.
 FEED_SOURCES = ("recorded", "free_run")
 INDUCING_METHODS = ("equispaced", "kmeans", "greedy")
+#: What a stage can ship, in the order of preference between equally good parts: fewer
+#: additions first, physics before data (:mod:`fmu_greybox.workflow.parts`).
+STAGE_PARTS = ("white-box", "terms", "terms+correctors", "correctors")
+#: A stage's ``ship`` setting: the part the held-out comparison chooses, or one named.
+BEST = "best"
 
 
 def unit_suits_role(unit: str, role: str) -> bool:
@@ -113,6 +118,9 @@ class StageConfig:
     differences : int
         Also feed the last ``differences`` step changes of each of the stage's inputs, of its
         white-box output and of each feeding stage's output (0: none).
+    ship : str
+        What the stage ships: :data:`BEST` (training's comparison of the parts chooses) or one
+        of :data:`STAGE_PARTS` (e.g. ``"terms"``: the named terms, no corrector).
     """
 
     name: str
@@ -124,6 +132,7 @@ class StageConfig:
     target_mode: str | None = None
     feed_rates: bool = False
     differences: int = 0
+    ship: str = BEST
 
 
 @dataclass(frozen=True)
@@ -568,6 +577,7 @@ def _stages(reader: _Reader, items: Any, signals: Mapping[str, Signal]) -> tuple
                 "target_mode",
                 "feed_rates",
                 "differences",
+                "ship",
             },
         )
         name = reader.get(entry, "name", str, None, where + ".", required=True)
@@ -595,6 +605,13 @@ def _stages(reader: _Reader, items: Any, signals: Mapping[str, Signal]) -> tuple
         differences = reader.get(entry, "differences", int, 0, where + ".")
         if not 0 <= differences <= 10:
             reader.fail(where + ".differences", f"{differences} is outside 0..10")
+        ship = reader.get(entry, "ship", str, BEST, where + ".")
+        if ship not in (BEST, *STAGE_PARTS):
+            reader.fail(
+                where + ".ship",
+                f"{ship!r} is not one of {', '.join((BEST, *STAGE_PARTS))}"
+                + did_you_mean(ship, (BEST, *STAGE_PARTS)),
+            )
         stages.append(
             StageConfig(
                 name=name,
@@ -608,6 +625,7 @@ def _stages(reader: _Reader, items: Any, signals: Mapping[str, Signal]) -> tuple
                 target_mode=mode,
                 feed_rates=reader.get(entry, "feed_rates", bool, False, where + "."),
                 differences=differences,
+                ship=ship,
             )
         )
     _check_order(reader, stages)

@@ -14,14 +14,16 @@ later row. The last few percent of a recording rarely leave the regimes its trai
 cover; half a recording more often does, and that is where correctors, which cannot
 extrapolate, fall behind named physics.
 
-Each stage then ships the simplest part that the best one does not beat clearly
-(:func:`choose_stage_part`), in the order of :data:`STAGE_PARTS`: physics before data, fewer
-parts before more. Beating clearly takes two things: an RMSE lower by more than
-:data:`EQUAL_MARGIN` over the held-out rows, and a lower RMSE in most of the
-:data:`BLOCKS` consecutive blocks they are cut into, so that one stretch of the recording (a
-manoeuvre the correctors happen to know) does not decide for all. A stage that ships no named
-terms takes the plain white-box (the terms' ``stages_off``); a stage that ships no corrector
-passes it through. The user can ship one part on every stage instead (``train --ship``).
+Each stage then ships the first part, in the order of
+:data:`~fmu_greybox.project.config.STAGE_PARTS`, that the best one does not beat clearly
+(:func:`choose_stage_part`): the white-box, the terms, the terms with correctors, the
+correctors alone (fewer additions first, and the named physics, which extrapolates, before data,
+which does not). Beating clearly takes two things: an RMSE lower by more than
+:data:`EQUAL_MARGIN` over the held-out rows, and a lower RMSE in most of the :data:`BLOCKS`
+consecutive blocks they are cut into, so that one stretch of the recording (a manoeuvre the
+correctors happen to know) does not decide for all. A stage that ships no named terms takes the
+plain white-box (the terms' ``stages_off``); a stage that ships no corrector passes it through.
+A stage's ``ship`` setting, or ``train --ship`` for every stage, names the part instead.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from fmu_greybox.errors import ConfigError
+from fmu_greybox.project.config import BEST, STAGE_PARTS
 from fmu_greybox.workflow.metrics import rmse
 
 if TYPE_CHECKING:
@@ -44,10 +47,8 @@ if TYPE_CHECKING:
 
 #: The candidates of the diagnosis' comparison and of ``train --ship``, in the order reported.
 PARTS = ("correctors", "terms", "terms+correctors")
-#: What a stage can ship, simplest first (the order of preference between equally good parts).
-STAGE_PARTS = ("white-box", "terms", "correctors", "terms+correctors")
 #: What ``train --ship`` accepts: the best part of each stage, or one part on every stage.
-SHIP_CHOICES = ("best", *PARTS)
+SHIP_CHOICES = (BEST, *PARTS)
 #: Fewest held-out rows a comparison is made on; with fewer the data cannot decide.
 MIN_COMPARED_ROWS = 50
 #: A part whose RMSE is within this share of the best part's is equally good: the held-out rows
@@ -216,7 +217,8 @@ def compare_parts(
     predictions: Mapping[str, np.ndarray],
     scale: Mapping[str, float],
     first_row: int,
-    ship: str = "best",
+    ship: str = BEST,
+    stage_ship: Mapping[str, str] | None = None,
 ) -> PartsComparison:
     """Compare the candidates' predictions of the held-out rows, stage by stage.
 
@@ -234,9 +236,11 @@ def compare_parts(
     first_row : int
         Recording row of the first held-out row.
     ship : str
-        One of :data:`SHIP_CHOICES`. ``"best"`` ships on each stage the part
-        :func:`choose_stage_part` chooses, or ``terms+correctors`` when too few rows were held
-        out to compare.
+        One of :data:`SHIP_CHOICES`: a part shipped on every stage, or ``"best"``: on each
+        stage the part ``stage_ship`` names, else the one :func:`choose_stage_part` chooses, or
+        ``terms+correctors`` when too few rows were held out to compare.
+    stage_ship : mapping of str to str, optional
+        Stage -> its ``ship`` setting (:attr:`~fmu_greybox.project.config.StageConfig.ship`).
 
     Returns
     -------
@@ -258,9 +262,8 @@ def compare_parts(
         blocks = {p: block_rmse(predictions[p][:, q], recorded[:, q]) for p in compared}
         for part in compared:
             normalised[part].append(total[part] / (scale[name] or 1.0))
-        if ship != "best":
-            chosen = ship
-        else:
+        chosen = ship if ship != BEST else (stage_ship or {}).get(name, BEST)
+        if chosen == BEST:
             chosen = choose_stage_part(total, blocks) if decided else "terms+correctors"
         stages[name] = {
             **{f"{part}_rmse": total[part] for part in compared},
@@ -345,5 +348,6 @@ def compare_fitted(named: FittedModel, plain: FittedModel, ship: str) -> PartsCo
         named.model.target_std,
         named.split + 1,
         ship,
+        {stage.name: stage.ship for stage in named.model.config.stages},
     )
     return dataclasses.replace(comparison, trained_rows=[0, named.split])

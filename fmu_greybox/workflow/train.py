@@ -19,7 +19,7 @@ from fmu_greybox.model.store import GreyBoxModel, file_sha256
 from fmu_greybox.model.terms import Term
 from fmu_greybox.model.whitebox import check_terms
 from fmu_greybox.progress import Progress, announce
-from fmu_greybox.project.config import ProjectConfig
+from fmu_greybox.project.config import BEST, ProjectConfig
 from fmu_greybox.project.data import check_sample_time, prepare, split_row, whitebox_path
 from fmu_greybox.project.fingerprint import data_rows, row_digests
 from fmu_greybox.side_by_side import run_side_by_side
@@ -101,7 +101,13 @@ def train_model(
         check_calibration_recording(recording, other)
     if not terms:
         return fit_model(
-            config, recording, progress, target_mode, terms, calibrate_on=calibration_recordings
+            config,
+            recording,
+            progress,
+            target_mode,
+            terms,
+            calibrate_on=calibration_recordings,
+            correct=stage_correctors(config),
         ).model
     comparison, seconds, compared = compare_parts_forward(
         config, recording, progress, target_mode, terms, ship
@@ -132,6 +138,26 @@ def train_model(
     model.training["parts"] = comparison.to_dict()
     model.training["seconds"] = round(model.training["seconds"] + seconds, 2)
     return model
+
+
+def stage_correctors(config: ProjectConfig) -> list[bool]:
+    """Per stage, whether its corrector may be used when no named terms are given: unless its
+    ``ship`` setting names a part without one.
+
+    Raises
+    ------
+    ConfigError
+        A stage ships named terms, and there are none (naming the stage's field).
+    """
+    for i, stage in enumerate(config.stages):
+        if has_terms(stage.ship):
+            raise ConfigError(
+                f"stage {stage.name} ships {stage.ship!r}, but no named terms were given; train "
+                "with --terms DIAGNOSIS.json, or set its ship to 'correctors' or 'white-box'",
+                field=f"stages[{i}].ship",
+                path=str(config.path) if config.path else None,
+            )
+    return [stage.ship in (BEST, "correctors") for stage in config.stages]
 
 
 def terms_per_stage(terms: Sequence[Term], parts: Sequence[str]) -> list[Term]:
