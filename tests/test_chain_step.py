@@ -11,6 +11,7 @@ import pytest
 from fmu_greybox import _chainstep
 from fmu_greybox.gp import SparseGPR
 from fmu_greybox.gp.predictive import packed_factor
+from fmu_greybox.model import chain_step
 from fmu_greybox.model.calibration import VarianceCalibration
 from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.model.chain_step import ChainState
@@ -49,6 +50,14 @@ def fitted_chain(
     exo, wb, out = signals()
     chain.fit(exo[:400], wb[:400], out[:400])
     return chain, (exo, wb, out)
+
+
+def fade_weight(score: float) -> float:
+    """How much of a corrector acts at a domain score (the documented smooth step)."""
+    t = np.clip(
+        (score - chain_step.FADE_NONE) / (chain_step.FADE_FULL - chain_step.FADE_NONE), 0, 1
+    )
+    return float(t * t * (3.0 - 2.0 * t))
 
 
 def numpy_step(chain: GreyBoxChain, values: np.ndarray, exo_prev, y_wb, enabled=True):
@@ -93,17 +102,27 @@ def numpy_step(chain: GreyBoxChain, values: np.ndarray, exo_prev, y_wb, enabled=
             new_cov = cov @ c
             var = var + np.sum(out_sensitivity**2 * state.out_var) + c @ new_cov
             level = memory[0] + mu if stage.target_mode == "increment" else mu
-            state.out_mean[q] = level if stage.target_mode == "output" else y + level
-            standardised = (clipped - posterior.x_mean) / posterior.x_scale
+            # the score of where the features are (the clipped point lies inside the range)
+            standardised = (x - posterior.x_mean) / posterior.x_scale
             distance = (standardised - posterior.inducing_points) / posterior.lengthscales
             kernel = np.exp(-0.5 * np.sum(distance**2, axis=1))
             score = min(score, kernel.max())
+            weight = fade_weight(kernel.max())
+            if weight < 1.0:  # the corrector's contribution fades towards the white-box
+                output = stage.target_mode == "output"
+                level = y + weight * (level - y) if output else weight * level
+                var, new_cov = weight**2 * var, weight * new_cov
+            state.out_mean[q] = level if stage.target_mode == "output" else y + level
         else:
-            var, level = 0.0, (y if stage.target_mode == "output" else 0.0)
+            weight, var, level = 1.0, 0.0, (y if stage.target_mode == "output" else 0.0)
             state.out_mean[q] = y
             state.outside[q] = 0.0
-        state.out_var[q] = chain.calibration_[q].latent_scale * var
-        state.out_var[q] += chain.calibration_[q].residual_variance
+        calibration = chain.calibration_[q]
+        faded = calibration.whitebox_variance
+        faded = calibration.residual_variance if faded is None else faded
+        # the variance moves towards the white-box's as the corrector fades
+        state.out_var[q] = calibration.latent_scale * var + weight * calibration.residual_variance
+        state.out_var[q] += (1.0 - weight) * faded
         memory[1:] = memory[:-1].copy()
         memory[0] = level
         shifted = np.zeros((n, n))
@@ -161,6 +180,38 @@ def test_compiled_step_equals_the_numpy_reference(
         assert np.linalg.eigvalsh(cov).min() >= -1e-12 * max(np.abs(cov).max(), 1e-300)
 
 
+@pytest.mark.parametrize("mode", ["residual", "increment", "output"])
+def test_a_corrector_fades_out_as_its_inputs_leave_its_domain(mode, monkeypatch) -> None:
+    """Where the domain score falls below :data:`FADE_FULL` the corrector's contribution fades
+    smoothly to nothing at :data:`FADE_NONE`, and the reported variance towards the white-box's:
+    the compiled step follows the numpy reference on a free run whose every row fades (fade
+    scores moved to 1 and 0), and far outside the domain it gives the white-box and the
+    white-box's residual variance exactly."""
+    chain, (exo, wb, out) = fitted_chain(mode, False, 2)
+    chain.calibration_ = [VarianceCalibration(1.5, 2e-6, 4e-4)] * 3
+    monkeypatch.setattr(chain_step, "FADE_FULL", 1.0)
+    monkeypatch.setattr(chain_step, "FADE_NONE", 0.0)
+    plan = chain.plan()
+    state = chain.start(out[394:400], wb[394:400], exo[394:400])
+    faded = 0
+    for j in range(400, 600):
+        expected, _ = numpy_step(chain, state.values, exo[j - 1], wb[j])
+        plan.step(state, exo[j - 1], wb[j])
+        reference = ChainState(chain.layout, state.memory_lengths, expected)
+        np.testing.assert_allclose(state.out_mean, reference.out_mean, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(state.out_var, reference.out_var, rtol=1e-5, atol=1e-15)
+        faded += int(np.any(state.out_var > 2e-6 + 1.5 * state.latent_var + 1e-12))
+        state.values[:] = expected
+    assert faded > 100  # the variance widened on most rows
+    monkeypatch.undo()
+    plan = chain.plan()  # the shipped fade scores
+    state = chain.start(out[398:400], wb[398:400], exo[398:400])
+    assert plan.step(state, exo[399] * 1e3, wb[400]) <= chain_step.FADE_NONE
+    np.testing.assert_array_equal(state.out_mean, wb[400])
+    np.testing.assert_array_equal(state.out_var, [4e-4] * 3)
+    assert np.all(state.latent_var == 0.0)
+
+
 def test_switched_off_correction_passes_the_white_box_and_keeps_memory_consistent() -> None:
     chain, (exo, wb, out) = fitted_chain("residual", True, 2)
     plan = chain.plan()
@@ -199,7 +250,10 @@ def test_buffers_of_the_wrong_kind_are_refused_with_their_name() -> None:
         )
     uncalibrated = plan._plan.copy()
     uncalibrated[0] = 1  # a plan laid out before the stages carried their calibration
-    with pytest.raises(ValueError, match=r"plan of another version \(1; this code reads version 2"):
+    with pytest.raises(
+        ValueError,
+        match=rf"plan of another version \(1; this code reads version {_chainstep.PLAN_VERSION}",
+    ):
         _chainstep.step(uncalibrated, plan._params, plan._work, state.values, exo[399], wb[400], 1)
     with pytest.raises(TypeError, match="state: a C-contiguous writable"):
         _chainstep.step(

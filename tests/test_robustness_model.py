@@ -137,11 +137,12 @@ def test_each_missing_file_is_named(saved: Path, tmp_path: Path) -> None:
         (lambda m: m["files"].pop("stage_RAM.npz"), "content does not match the hash"),
         (lambda m: m.update(format_version="1"), "format version '1'"),
         (
-            lambda m: m.update(format_version=5),
-            "format version 5; this tool reads versions 1, 2, 3, 4",
+            lambda m: m.update(format_version=FORMAT_VERSION + 1),
+            f"format version {FORMAT_VERSION + 1}; this tool reads versions "
+            + ", ".join(str(v) for v in range(1, FORMAT_VERSION + 1)),
         ),
     ],
-    ids=["dt", "stage removed", "hash removed", "version as text", "version 4"],
+    ids=["dt", "stage removed", "hash removed", "version as text", "newer version"],
 )
 def test_valid_json_edits_of_the_manifest_are_refused(
     saved: Path, tmp_path: Path, edit: Callable[[dict], Any], pattern: str
@@ -282,7 +283,7 @@ def _set_stage(index: int, **fields: Any) -> Callable[[dict], Any]:
             lambda m: m.update(
                 named_terms={"terms": [{"kind": "InputOffset", "entry": 7}], "substeps": 4}
             ),
-            r"'named_terms' is unusable .*a term entering at a stage that is not there",
+            r"'named_terms' is unusable .*a term acting at a stage that is not there",
         ),
         (lambda m: m.update(named_terms={"terms": []}), r"'named_terms' is unusable"),
     ],

@@ -69,10 +69,16 @@ class VarianceCalibration:
         ``a`` (dimensionless, >= 0).
     residual_variance : float
         ``b`` [unit of the stage output, squared], >= 0.
+    whitebox_variance : float or None
+        ``c`` [unit squared]: the mean square residual of the stage's white-box on its training
+        rows, the variance reported where the corrector fades out entirely (outside its domain,
+        :mod:`fmu_greybox.model.chain_step`); ``None`` (a model folder written before it was
+        kept): ``b``.
     """
 
     latent_scale: float = 1.0
     residual_variance: float = 0.0
+    whitebox_variance: float | None = None
 
     def variance(self, latent_var: FloatArray) -> FloatArray:
         """The reported variance for propagated variances ``latent_var`` (any shape)."""

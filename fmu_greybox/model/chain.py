@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import dataclasses
 import functools
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -402,7 +403,7 @@ class GreyBoxChain:
             folds = self._halves(training, progress)
         calibration = [UNCALIBRATED] * len(self.stages)
         for q, name in enumerate(self.stage_names):
-            residual, latent_var = [], []
+            residual, latent_var, whitebox = [], [], []
             for chain, run, first, stop in folds:
                 for run_by in (chain, self):  # the stages before q already calibrated
                     run_by.calibration_ = calibration
@@ -414,9 +415,16 @@ class GreyBoxChain:
                 )
                 residual.append(run.outputs[first:stop, q] - held_out.mean[:, q])
                 latent_var.append(shipped.latent_var[:, q])
+                whitebox.append(run.outputs[first:stop, q] - run.y_wb[first:stop, q])
             shares = left_out_shares(residual, latent_var)
             residual, latent_var = np.concatenate(residual), np.concatenate(latent_var)
-            calibration[q] = fit_calibration(residual, latent_var)
+            whitebox = np.concatenate(whitebox)
+            # what the stage reports where its corrector fades out: the white-box's residual,
+            # calibrated as for a stage passed through
+            faded = fit_calibration(whitebox, np.zeros_like(whitebox)).residual_variance
+            calibration[q] = dataclasses.replace(
+                fit_calibration(residual, latent_var), whitebox_variance=faded
+            )
             std = np.sqrt(calibration[q].variance(latent_var))
             self.calibration_check_[name] = {
                 "rows": int(residual.size),

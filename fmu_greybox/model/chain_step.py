@@ -59,6 +59,12 @@ class FittedChain(Protocol):
 #: the features lie farther than about 2.1 length-scales from every inducing point of some stage
 #: (domain score below 0.1), or when some feature had to be clipped to its widened range.
 DEFAULT_OOD_THRESHOLD = 0.1
+#: Domain scores between which a corrector fades out: it acts fully at and above
+#: :data:`FADE_FULL` (the default ``out_of_domain`` threshold, about 2.1 length-scales from every
+#: inducing point) and not at all at and below :data:`FADE_NONE` (about 3 length-scales), where
+#: the stage reports its white-box with the white-box's residual variance.
+FADE_FULL = DEFAULT_OOD_THRESHOLD
+FADE_NONE = 0.01
 #: Target mode codes of the compiled step (``MODE_*`` in chain_core.c).
 MODE_CODES = {"residual": 0, "increment": 1, "output": 2}
 
@@ -168,6 +174,19 @@ class ChainState:
         self.values[:] = flat
 
 
+def _calibration_block(calibration: VarianceCalibration) -> tuple[float, ...]:
+    """A stage's calibration as the compiled step reads it: ``a``, ``b``, the white-box's
+    residual variance ``c`` (``b`` when not known), :data:`FADE_FULL`, :data:`FADE_NONE`."""
+    c = calibration.whitebox_variance
+    return (
+        calibration.latent_scale,
+        calibration.residual_variance,
+        calibration.residual_variance if c is None else c,
+        FADE_FULL,
+        FADE_NONE,
+    )
+
+
 class ChainPlan:
     """Everything the compiled chain step reads, laid out once for a fitted chain.
 
@@ -180,7 +199,8 @@ class ChainPlan:
     Layout: the plan is int64, a header then one record per stage (params offset, M, D, width
     of the feature map, memory length, target mode, active, memory offset in the state,
     calibration offset in params); params is float64, per active stage its packed posterior,
-    feature map and range (each block on a cache line), then ``a, b`` of every stage.
+    feature map and range (each block on a cache line), then of every stage ``a, b, c`` and the
+    fade scores (:func:`_calibration_block`).
     """
 
     def __init__(self, chain: FittedChain) -> None:
@@ -223,11 +243,11 @@ class ChainPlan:
             offset += -(-block.size // 8) * 8  # each posterior on a cache-line boundary
             memory_offset += stage.memory_length * (1 + stage.memory_length)
             work = max(work, 2 * m + 5 * d + 2 * stage.memory_length + 1)
-        calibration = [(c.latent_scale, c.residual_variance) for c in chain.calibration_]
+        calibration = [_calibration_block(c) for c in chain.calibration_]
         for q, record in enumerate(records):
-            record.append(offset + 2 * q)
+            record.append(offset + _chainstep.CALIBRATION * q)
         blocks.append((offset, np.ravel(calibration)))
-        offset += 2 * n_stages
+        offset += _chainstep.CALIBRATION * n_stages
         self._params = aligned_zeros(offset)
         for start, block in blocks:
             self._params[start : start + block.size] = block

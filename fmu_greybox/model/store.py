@@ -49,9 +49,10 @@ from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS, NamedModel
 from fmu_greybox.project.config import ProjectConfig, parse_config
 
 #: Version written; versions read (1: no named terms; 1 and 2: no training-row digests; 1 to 3:
-#: no variance calibration, read as uncalibrated).
-FORMAT_VERSION = 4
-READABLE_VERSIONS = (1, 2, 3, 4)
+#: no variance calibration, read as uncalibrated; 1 to 4: no white-box variance, read as the
+#: residual variance, and named terms on every stage from their entry on).
+FORMAT_VERSION = 5
+READABLE_VERSIONS = (1, 2, 3, 4, 5)
 MANIFEST = "model.json"
 WHITEBOX = "whitebox.fmu"
 #: First version whose stages carry their variance calibration.
@@ -466,18 +467,25 @@ def _feature_bounds(stage: Mapping[str, Any], n_features: int) -> np.ndarray:
     return np.array([low, high])
 
 
+#: The calibration's optional third number (:class:`VarianceCalibration`).
+WHITEBOX_VARIANCE = "whitebox_variance"
+
+
 def _calibration(stage: Mapping[str, Any], calibrated: bool) -> VarianceCalibration:
     """A stage's variance calibration, checked finite and non-negative; uncalibrated in a
     folder written before calibration existed (``calibrated`` false), required after."""
     stored = stage.get("calibration")
     if stored is None and not calibrated:
         return UNCALIBRATED
-    if not isinstance(stored, Mapping) or set(stored) != {"latent_scale", "residual_variance"}:
+    names = {"latent_scale", "residual_variance"}
+    if not isinstance(stored, Mapping) or not names <= set(stored) <= names | {WHITEBOX_VARIANCE}:
         raise ValueError(
-            f"stage {stage['name']!r} has a calibration that is not a table of latent_scale "
-            "and residual_variance"
+            f"stage {stage['name']!r} has a calibration that is not a table of latent_scale, "
+            "residual_variance and (optional) whitebox_variance"
         )
     values = [stored["latent_scale"], stored["residual_variance"]]
+    if stored.get(WHITEBOX_VARIANCE) is not None:  # kept from format 5 on
+        values.append(stored[WHITEBOX_VARIANCE])
     if not all(
         isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
         for v in values
@@ -486,7 +494,7 @@ def _calibration(stage: Mapping[str, Any], calibrated: bool) -> VarianceCalibrat
             f"stage {stage['name']!r} has a calibration with a value that is not a finite "
             "number >= 0"
         )
-    return VarianceCalibration(float(values[0]), float(values[1]))
+    return VarianceCalibration(*(float(v) for v in values))
 
 
 def _load_corrector(stem: Path) -> SparseGPR:

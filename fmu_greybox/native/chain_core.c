@@ -25,7 +25,8 @@
  * Plan, int64 (fmu_greybox/model/chain_step.py, ChainPlan):
  *   version, Q, n_exo, params length, work length, state length, history depth H
  *   per stage: params offset, M, D, sources S, memory length n, target mode, active,
- *              memory offset in the state, calibration offset (a, b) in params
+ *              memory offset in the state, calibration offset in params (CHAIN_CALIBRATION
+ *              doubles: a, b, the white-box residual variance c, the fade scores full, none)
  */
 #include "chain_core.h"
 
@@ -243,8 +244,8 @@ static double predict_point(const PosteriorView *p, const double *x, double *mea
  *   per stage, at memory_offset: levels[n] (most recent first), their covariance[n * n]
  * A stage's sources are the shared ones followed by its own stored levels; its features are
  * A s, A (D x (S0 + n)) row-major in its params block (at an offset that is a multiple of 8):
- * packed posterior, then A, low[D], high[D]. Every stage's variance calibration a, b lies at
- * its calibration offset in params (fmu_greybox/model/calibration.py). */
+ * packed posterior, then A, low[D], high[D]. Every stage's variance calibration lies at its
+ * calibration offset in params (fmu_greybox/model/calibration.py). */
 typedef struct {
     ptrdiff_t params_offset, m, d, s, memory, mode, active, memory_offset, calibration;
 } StageRecord;
@@ -293,8 +294,28 @@ static double calibrated_variance(const double *calibration, double var) {
     return calibration[0] * var + calibration[1];
 }
 
+/* The largest kernel correlation between the raw point x (D) and an inducing point (work: M + D
+ * doubles). */
+static double largest_correlation(const PosteriorView *p, const double *x, double *work) {
+    double *k = work, *xs = work + p->m;
+    for (ptrdiff_t i = 0; i < p->d; i++) xs[i] = x[i] * p->weight[i] - p->offset[i];
+    return kernel_row(p, xs, k, NULL, NULL) / p->s2;
+}
+
+/* How much of a corrector acts at domain score `score`: 1 at and above `full`, 0 at and below
+ * `none`, smooth in between (a cubic with zero slope at both ends). */
+static double fade_weight(double score, double full, double none) {
+    if (!(score < full)) return 1.0;
+    if (!(score > none)) return 0.0;
+    const double t = (score - none) / (full - none);
+    return t * t * (3.0 - 2.0 * t);
+}
+
 /* One stage of one step. Returns the stage's domain score (largest kernel correlation), or
- * 2.0 when the stage passes its white-box through. */
+ * 2.0 when the stage passes its white-box through. Below the stage's full-action score its
+ * corrector's contribution (the residual level, or the distance of the output from the
+ * white-box) fades with fade_weight, its propagated variance with the square of it, and the
+ * reported variance moves from a V + b towards the white-box's residual variance c. */
 static double stage_step(const StageRecord *r, const Layout *l, const double *params,
                          double *state, ptrdiff_t q, int enabled, double *work) {
     const ptrdiff_t n_stages = l->n_stages, shared = l->shared;
@@ -302,7 +323,8 @@ static double stage_step(const StageRecord *r, const Layout *l, const double *pa
     double *memory = state + r->memory_offset, *memory_cov = memory + r->memory;
     double *cov = work; /* the new level's covariance with the stored ones (memory long) */
     const double y = state[q]; /* this row's white-box output */
-    double level, var = 0.0, score = 2.0;
+    const double *calibration = params + r->calibration;
+    double level, var = 0.0, score = 2.0, weight = 1.0;
 
     work += r->memory;
 
@@ -319,15 +341,20 @@ static double stage_step(const StageRecord *r, const Layout *l, const double *pa
             double v = 0.0;
             for (ptrdiff_t j = 0; j < shared; j++) v += row[j] * state[j];
             for (ptrdiff_t j = 0; j < n; j++) v += row[shared + j] * memory[j];
-            /* NaN compares false and passes unclipped, as it came */
+            /* NaN compares false and passes unclipped, as it came; clipped keeps how far the
+             * feature lay beyond its range (0 when inside) */
             clipped[i] = 0.0;
-            if (v < low[i]) v = low[i], clipped[i] = 1.0;
-            else if (v > high[i]) v = high[i], clipped[i] = 1.0;
-            any_clipped += clipped[i];
+            if (v < low[i]) clipped[i] = v - low[i], v = low[i];
+            else if (v > high[i]) clipped[i] = v - high[i], v = high[i];
+            any_clipped += clipped[i] != 0.0;
             x[i] = v;
         }
         outside[q] = any_clipped > 0.0 ? 1.0 : 0.0;
         score = predict_point(&p, x, &mu, &var_gp, grad, rest) / p.s2;
+        if (any_clipped > 0.0) { /* the score of where the features are, not of the clipped */
+            for (ptrdiff_t i = 0; i < d; i++) rest[i] = x[i] + clipped[i];
+            score = largest_correlation(&p, rest, rest + d);
+        }
         /* a clipped feature no longer moves the output */
         for (ptrdiff_t i = 0; i < d; i++) {
             if (clipped[i] != 0.0) grad[i] = 0.0;
@@ -352,6 +379,12 @@ static double stage_step(const StageRecord *r, const Layout *l, const double *pa
             var += c[k] * pc;
         }
         level = r->mode == MODE_INCREMENT ? memory[0] + mu : mu;
+        weight = fade_weight(score, calibration[3], calibration[4]);
+        if (weight < 1.0) {
+            level = r->mode == MODE_OUTPUT ? y + weight * (level - y) : weight * level;
+            var *= weight * weight;
+            for (ptrdiff_t k = 0; k < n; k++) cov[k] *= weight;
+        }
         out[q] = r->mode == MODE_OUTPUT ? level : y + level;
     } else {
         outside[q] = 0.0;
@@ -360,7 +393,9 @@ static double stage_step(const StageRecord *r, const Layout *l, const double *pa
         for (ptrdiff_t k = 0; k < r->memory; k++) cov[k] = 0.0;
     }
     push_level(memory, memory_cov, r->memory, level, var, cov);
-    out_var[q] = calibrated_variance(params + r->calibration, var);
+    out_var[q] = weight < 1.0 ? calibration[0] * var + weight * calibration[1] +
+                                    (1.0 - weight) * calibration[2]
+                              : calibrated_variance(calibration, var);
     return score;
 }
 
@@ -371,7 +406,8 @@ int chain_plan_sizes(const int64_t *plan, ptrdiff_t length, ChainSizes *sizes, c
     if (length < CHAIN_PLAN_HEADER || plan[0] != CHAIN_PLAN_VERSION) {
         snprintf(message, size,
                  "plan of another version (%lld; this code reads version %d, whose stages "
-                 "carry their variance calibration): export the FMU again with this fmu-greybox",
+                 "carry their variance calibration and domain fade): export the FMU again with "
+                 "this fmu-greybox",
                  length < 1 ? -1LL : (long long)plan[0], CHAIN_PLAN_VERSION);
         return -1;
     }

@@ -16,10 +16,13 @@
 #include <stdint.h>
 
 /* Layout version of the plan and its fixed sizes (mirrored by ChainPlan). */
-#define CHAIN_PLAN_VERSION 2
+#define CHAIN_PLAN_VERSION 3
 #define CHAIN_PLAN_HEADER 7
 #define CHAIN_STAGE_RECORD 9
 #define CHAIN_POSTERIOR_SCALARS 4
+/* Doubles of a stage's calibration: a, b, the white-box's residual variance, and the domain
+ * scores at and above which its corrector acts fully, at and below which not at all. */
+#define CHAIN_CALIBRATION 5
 
 /* Sizes a plan declares: stages, exogenous inputs, history depth, and the lengths (in doubles)
  * of the parameters, the scratch space and the chain state it needs. */
@@ -46,7 +49,9 @@ void chain_predict(const double *posterior, ptrdiff_t m, ptrdiff_t d, const doub
 
 /* Advance the chain by one communication step, in place on state: exo_prev holds the exogenous
  * inputs of the previous row, y_wb this row's white-box stage outputs; enabled = 0 passes the
- * white-box through. Returns the domain score (1.0 when no corrector ran). */
+ * white-box through. A corrector whose domain score falls below its stage's full-action score
+ * fades out smoothly towards the white-box, and the stage's variance towards the white-box's
+ * residual variance. Returns the domain score (1.0 when no corrector ran). */
 double chain_step(const int64_t *plan, const double *params, double *work, double *state,
                   const double *exo_prev, const double *y_wb, int enabled);
 

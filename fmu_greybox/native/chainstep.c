@@ -312,6 +312,7 @@ PyMODINIT_FUNC PyInit__chainstep(void) {
     PyObject *m = PyModule_Create(&module);
     if (m == NULL) return NULL;
     if (PyModule_AddIntConstant(m, "PLAN_VERSION", CHAIN_PLAN_VERSION) ||
+        PyModule_AddIntConstant(m, "CALIBRATION", CHAIN_CALIBRATION) ||
         PyModule_AddIntConstant(m, "PLAN_HEADER", CHAIN_PLAN_HEADER) ||
         PyModule_AddIntConstant(m, "STAGE_RECORD", CHAIN_STAGE_RECORD) ||
         PyModule_AddIntConstant(m, "POSTERIOR_SCALARS", CHAIN_POSTERIOR_SCALARS)) {
