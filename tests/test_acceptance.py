@@ -224,14 +224,13 @@ def test_a_band_calibrated_on_few_independent_rows_says_it_cannot_vouch_for_the_
     assert note in few[f"{SHARE_INSIDE} ±1.96σ"]
     # and how many would (100 rows: every count from there puts the range inside 0.9-0.99)
     assert (
-        "about 100 would vouch for 0.9-0.99: a training recording about 19 times as long, "
-        "unless its errors grow with the run (a drift's do), or about 36 more free runs like "
-        "the 2 it was calibrated on (train --calibrate-on: one per recording)"
-        in (few[f"{SHARE_INSIDE} ±1.96σ"])
-    )  # 5.3 rows from the two halves: 2.65 a free run, 36 more make 100
+        "about 100 would vouch for 0.9-0.99. A recording given to train --calibrate-on adds "
+        "about 5.3 (a recording's errors drift as one): about 18 more recordings like the "
+        "training one would vouch" in (few[f"{SHARE_INSIDE} ±1.96σ"])
+    )  # 5.3 rows from the two halves of one recording: 18 more make 100
     recorded = notes({**row, "calibration_recordings": 10})[f"{SHARE_INSIDE} ±1.96σ"]
     assert "σ rests on about 5 independent rows of 10 calibration recordings" in recorded
-    assert "or about 179 more free runs like the 10 it was" in recorded  # 0.53 rows a run
+    assert "about 179 more recordings like those would vouch" in recorded  # 0.53 rows each
     assert rows_to_vouch((0.9, 0.99)) == 100
     for n in (100, 101, 150, 1000):
         assert 0.9 <= calibration_spread(n)[0] and calibration_spread(n)[1] <= 0.99

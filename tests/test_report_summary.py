@@ -126,8 +126,9 @@ def test_the_next_step_warns_where_the_correctors_do_worse() -> None:
         "RAM": {"wb_rmse": 5.8e-5, "named_rmse": 2.3e-5, "gb_rmse": 3.6e-5},
     }
     assert worse_text(table) == (
-        " On RAM the correctors do worse than the named terms alone on this recording: for "
-        "those outputs use the exported FMU with correction_enabled = false (it gives the "
-        "named terms alone), or retrain on a recording like this one."
+        " On RAM the correctors do worse than the named terms alone on this recording: set "
+        'ship = "terms" under those stages in the project file and train again (their '
+        "correctors are then off, the other stages keep theirs), or add a recording like this "
+        "one to the training."
     )
     assert worse_text({"EHV": table["EHV"]}) == ""

@@ -52,6 +52,43 @@ def training_ranges(names: Sequence[str], rows: np.ndarray) -> dict[str, list[fl
     }
 
 
+def beyond_training(
+    ranges: Mapping[str, Sequence[float]], names: Sequence[str], rows: np.ndarray
+) -> str:
+    """The inputs whose range over ``rows`` reaches beyond their training range (by more than
+    1 % of its span), in words: what a training recording would have to cover for the rows to
+    lie inside the correctors' domain.
+
+    Parameters
+    ----------
+    ranges : mapping of str to [low, high]
+        Per input its training range (:func:`training_ranges`); inputs not in it are skipped.
+    names : sequence of str
+        The inputs, in the columns' order.
+    rows : ndarray, shape (n, len(names))
+
+    Returns
+    -------
+    str
+        E.g. ``"valve_current -3.2 to 2.1 (trained on -1.64 to 0.81)"``, ``"; "``-joined;
+        ``""`` when every input stayed within its range or there are no rows.
+    """
+    if not rows.size:
+        return ""
+    texts = []
+    for i, name in enumerate(names):
+        if name not in ranges:
+            continue
+        low, high = ranges[name]
+        margin = 0.01 * (high - low)
+        seen_low, seen_high = float(np.min(rows[:, i])), float(np.max(rows[:, i]))
+        if seen_low < low - margin or seen_high > high + margin:
+            texts.append(
+                f"{name} {seen_low:.3g} to {seen_high:.3g} (trained on {low:.3g} to {high:.3g})"
+            )
+    return "; ".join(texts)
+
+
 @dataclass(frozen=True)
 class InputDomain:
     """Per input the interval it must lie in.

@@ -218,10 +218,12 @@ def worse_text(table_: Mapping[str, Mapping[str, float]]) -> str:
     worse, than = worse_stages(table_)
     if not worse:
         return ""
+    part = "terms" if than == "the named terms alone" else "white-box"
     return (
-        f" On {', '.join(worse)} the correctors do worse than {than} on this recording: "
-        f"for those outputs use the exported FMU with correction_enabled = false (it gives "
-        f"{than}), or retrain on a recording like this one."
+        f" On {', '.join(worse)} the correctors do worse than {than} on this recording: set "
+        f'ship = "{part}" under those stages in the project file and train again (their '
+        "correctors are then off, the other stages keep theirs), or add a recording like this "
+        "one to the training."
     )
 
 

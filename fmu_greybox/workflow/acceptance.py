@@ -116,6 +116,7 @@ def evaluate(
     table: Mapping[str, Mapping[str, float]],
     responses: Sequence[FrequencyResponse],
     outside_share: float = 0.0,
+    beyond: str = "",
 ) -> Acceptance:
     """Check every stage of a validation table against its criteria.
 
@@ -131,6 +132,10 @@ def evaluate(
     outside_share : float
         Share of the scored rows on which the correctors were outside their domain; a coverage
         check that does not pass says so in its note.
+    beyond : str
+        The inputs that went beyond their training range, in words
+        (:func:`~fmu_greybox.export.domain.beyond_training`): the note says a training
+        recording should cover them.
 
     Returns
     -------
@@ -143,7 +148,7 @@ def evaluate(
         if limits.max_nrmse is not None:
             checks.append(_at_most(stage, "nRMSE", row["gb_nrmse"], limits.max_nrmse))
         checks += _frequency_checks(stage, limits, by_stage.get(stage))
-        checks += _coverage_checks(stage, limits, row, outside_share)
+        checks += _coverage_checks(stage, limits, row, outside_share, beyond)
     return Acceptance(tuple(checks))
 
 
@@ -210,14 +215,15 @@ SHARE_INSIDE = "share of rows inside"
 
 
 def _coverage_checks(
-    stage: str, limits: Criteria, row: Mapping[str, float], outside_share: float
+    stage: str, limits: Criteria, row: Mapping[str, float], outside_share: float, beyond: str = ""
 ) -> list[Check]:
     """The stage's coverage criteria checked against the shares of ``row``."""
     checks = []
     for key, z, width in (("coverage95", Z95, "±1.96σ"), ("coverage68", 1.0, "±1σ")):
         bounds = getattr(limits, key)
         if bounds is not None:
-            checks.append(_share_inside(stage, (z, width), row, key, bounds, outside_share))
+            check = _share_inside(stage, (z, width), row, key, bounds, (outside_share, beyond))
+            checks.append(check)
     return checks
 
 
@@ -227,12 +233,13 @@ def _share_inside(
     row: Mapping[str, float],
     key: str,
     bounds: tuple[float, float],
-    outside_share: float,
+    domain: tuple[float, str],
 ) -> Check:
     """A coverage check: ``FAIL`` only when the share's confidence interval (``key_low`` ..
     ``key_high`` in ``row``, when it has them) lies wholly outside the limits; a share outside
     them whose interval still reaches them is ``UNDECIDED`` (too few independent rows). A check
-    that does not pass names ``outside_share``, the rows no calibration vouches for, if any, and
+    that does not pass names ``domain``'s share, the rows outside the correctors' domain, which
+    no calibration vouches for, if any, with the inputs a training recording should cover, and
     a recording whose errors are not the size of those the band was calibrated on, when that
     alone accounts for the miss (:func:`share_at_error_ratio`). ``band``: ``z`` and the band in
     words (``±1.96σ``)."""
@@ -252,10 +259,16 @@ def _share_inside(
             f"independent ones, and the share's 95 % interval {low:.3g}-{high:.3g} reaches the "
             "limits: a longer recording, or more of them validated together, decides"
         )
+    outside_share, beyond = domain
     if outside_share > 0.0:
         notes.append(
             f"on {100 * outside_share:.3g} % of the rows the correctors were outside their "
             "domain (out_of_domain), where no calibration vouches for the band"
+            + (
+                f"; a training recording that also covers {beyond} would bring them in"
+                if beyond
+                else ""
+            )
         )
     notes += _error_size(row, z, bounds, narrow=check.value < bounds[0])
     if key == "coverage95":
@@ -350,13 +363,16 @@ def _calibration_worth(row: Mapping[str, float], bounds: tuple[float, float]) ->
         return []
     needed = rows_to_vouch((float(bounds[0]), float(bounds[1])))
     if needed is not None and needed > rows:
-        runs = calibration_free_runs(row)
-        more = math.ceil((needed - rows) / (rows / runs))
+        # a recording is worth what its free runs were: both halves, or one calibration run
+        halves = not row.get("calibration_recordings")
+        per_recording = rows if halves else rows / calibration_free_runs(row)
+        more = math.ceil((needed - rows) / per_recording)
         text += (
-            f"; about {needed} would vouch for {bounds[0]:g}-{bounds[1]:g}: a training "
-            f"recording about {needed / rows:.2g} times as long, unless its errors "
-            f"grow with the run (a drift's do), or about {more} more free runs like the "
-            f"{runs} it was calibrated on (train --calibrate-on: one per recording)"
+            f"; about {needed} would vouch for {bounds[0]:g}-{bounds[1]:g}. A recording "
+            f"given to train --calibrate-on adds about {per_recording:.2g} (a recording's "
+            f"errors drift as one): about {more} more recordings like "
+            + ("the training one" if halves else "those")
+            + " would vouch"
         )
     return [text]
 

@@ -13,6 +13,7 @@ import numpy as np
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError, RecordingError
+from fmu_greybox.export.domain import beyond_training
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.store import GreyBoxModel
 from fmu_greybox.project.config import AcceptanceConfig, ProjectConfig
@@ -174,11 +175,19 @@ def validate_model(
     skipped = int(trained[run.rows].sum())
     held_out = f"{scored.size} rows not used in training ({_ranges_text(scored)})"
     outside = rows_outside(run, scored)
+    beyond = beyond_training(
+        model.training.get("input_ranges", {}),
+        data.binding.inputs,
+        data.binding.matrix(data.recording)[scored],
+    )
     if outside:
         held_out += (
             f"; on {outside} of them the correctors were outside their domain (where the "
-            "exported FMU sets out_of_domain at its default threshold)"
+            "exported FMU sets out_of_domain at its default threshold, and the correctors fade "
+            "out)"
         )
+    if beyond:
+        held_out += f"; inputs beyond the training recording's: {beyond}"
     if skipped:
         held_out += f"; {skipped} training rows in the run not scored"
     names, recorded = model.chain.stage_names, data.outputs[run.rows][keep]
@@ -209,7 +218,7 @@ def validate_model(
         scored=scored,
         responses=responses,
         criteria=criteria,
-        acceptance=evaluate(criteria, table, responses, (outside or 0) / scored.size),
+        acceptance=evaluate(criteria, table, responses, (outside or 0) / scored.size, beyond),
     )
 
 
