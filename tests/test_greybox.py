@@ -17,7 +17,7 @@ from fmu_greybox.data.recording import Recording, save_recording
 from fmu_greybox.errors import ModelFormatError
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.chain import GreyBoxChain
-from fmu_greybox.model.store import MANIFEST, file_sha256, load_model, save_model
+from fmu_greybox.model.store import FORMAT_VERSION, MANIFEST, file_sha256, load_model, save_model
 from fmu_greybox.project.config import Criteria, parse_config
 from fmu_greybox.project.data import prepare, split_row
 from fmu_greybox.report.validation import REPORT
@@ -165,7 +165,7 @@ def test_correction_off_passes_the_white_box_through(model, data) -> None:
 def test_model_folder_round_trip_and_tamper_detection(model, data, tmp_path: Path) -> None:
     folder = save_model(model, tmp_path / "model")
     manifest = json.loads((folder / MANIFEST).read_text())
-    assert manifest["format_version"] == 4
+    assert manifest["format_version"] == FORMAT_VERSION
     assert manifest["named_terms"] == {"terms": [], "substeps": 4}
     assert manifest["training"]["recording_sha256"] == data.recording.sha256()
     assert len(manifest["whitebox_sha256"]) == 64

@@ -63,6 +63,12 @@ class GreyBoxChain:
     calibrate : bool
         Estimate each stage's reported variance on rows its corrector was not fitted to
         (:attr:`calibration_`); ``False`` reports the propagated variance as it is.
+    fade : bool
+        Fade a corrector out where its features leave its domain
+        (:mod:`~fmu_greybox.model.chain_step`). ``False`` for a chain trained on part of the
+        rows to stand in for one trained on all of them, whose domain is larger: the
+        calibration's halves (its free runs must err as the shipped chain would) and the
+        comparison of the parts.
 
     Attributes
     ----------
@@ -104,6 +110,7 @@ class GreyBoxChain:
         target_mode: str | None = None,
         check_tail: float | None = SELECTION_TAIL,
         calibrate: bool = True,
+        fade: bool = True,
     ) -> None:
         mode = target_mode or config.gp.target
         if mode not in (*TARGET_MODES, AUTO):
@@ -114,6 +121,7 @@ class GreyBoxChain:
         self.target_mode = mode
         self.check_tail = check_tail
         self.calibrate = calibrate
+        self.fade = fade
         self.exo_names: list[str] = []
         for stage in config.stages:
             self.exo_names += [s for s in stage.inputs if s not in self.exo_names]
@@ -374,8 +382,10 @@ class GreyBoxChain:
 
     def _copy(self) -> GreyBoxChain:
         """A copy whose correctors, feature ranges and active stages can change on their own
-        (the fitted correctors themselves are shared, not copied)."""
+        (the fitted correctors themselves are shared, not copied), to be trained on part of the
+        rows as a stand-in for this chain: it does not fade (``fade``)."""
         chain = copy.copy(self)
+        chain.fade = False
         chain.correctors_ = list(self.correctors_)
         chain.feature_bounds_ = list(self.feature_bounds_)
         chain.active_ = self.active_.copy()

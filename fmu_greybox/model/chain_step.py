@@ -53,6 +53,7 @@ class FittedChain(Protocol):
     correctors_: list[SparseGPR | None]
     feature_bounds_: list[np.ndarray | None]
     calibration_: list[VarianceCalibration]
+    fade: bool
 
 
 #: Default ``ood_threshold`` of the exported FMU: a step is out of its corrector's domain when
@@ -174,16 +175,16 @@ class ChainState:
         self.values[:] = flat
 
 
-def _calibration_block(calibration: VarianceCalibration) -> tuple[float, ...]:
+def _calibration_block(calibration: VarianceCalibration, fade: bool) -> tuple[float, ...]:
     """A stage's calibration as the compiled step reads it: ``a``, ``b``, the white-box's
-    residual variance ``c`` (``b`` when not known), :data:`FADE_FULL`, :data:`FADE_NONE`."""
+    residual variance ``c`` (``b`` when not known), :data:`FADE_FULL`, :data:`FADE_NONE` (0 and
+    0 without ``fade``: a corrector that never fades)."""
     c = calibration.whitebox_variance
     return (
         calibration.latent_scale,
         calibration.residual_variance,
         calibration.residual_variance if c is None else c,
-        FADE_FULL,
-        FADE_NONE,
+        *((FADE_FULL, FADE_NONE) if fade else (0.0, 0.0)),
     )
 
 
@@ -243,7 +244,7 @@ class ChainPlan:
             offset += -(-block.size // 8) * 8  # each posterior on a cache-line boundary
             memory_offset += stage.memory_length * (1 + stage.memory_length)
             work = max(work, 2 * m + 5 * d + 2 * stage.memory_length + 1)
-        calibration = [_calibration_block(c) for c in chain.calibration_]
+        calibration = [_calibration_block(c, chain.fade) for c in chain.calibration_]
         for q, record in enumerate(records):
             record.append(offset + _chainstep.CALIBRATION * q)
         blocks.append((offset, np.ravel(calibration)))

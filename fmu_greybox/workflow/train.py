@@ -224,6 +224,7 @@ def compare_parts_forward(
                 target_mode,
                 chosen,
                 calibrate=False,
+                fade=False,  # stand-ins for the chain trained on all the rows
                 pass_=pass_,
             )
             for chosen, pass_ in ((terms, "pass 1"), ((), "pass 2"))
@@ -256,6 +257,7 @@ def fit_model(
     calibrate_on: Sequence[Recording] = (),
     targets_from: Mapping[str, GreyBoxChain] | None = None,
     correct: Sequence[bool] | None = None,
+    fade: bool = True,
     pass_: str = "",
 ) -> FittedModel:
     """One chain of correctors on the white-box with ``terms`` (see :func:`train_model`);
@@ -263,11 +265,13 @@ def fit_model(
     ``calibrate_on``: the calibration recordings (``train_model``'s
     ``calibration_recordings``); ``targets_from``: per stage, a chain fitted on part of the
     same rows whose target mode of that stage the fit takes; ``correct``: per stage, whether its
-    corrector may be used (:meth:`~fmu_greybox.model.chain.GreyBoxChain.fit`);
-    ``pass_``: which training pass this is, in words, for the progress lines."""
+    corrector may be used (:meth:`~fmu_greybox.model.chain.GreyBoxChain.fit`); ``fade``:
+    whether its correctors fade out of their domain
+    (:class:`~fmu_greybox.model.chain.GreyBoxChain`); ``pass_``: which training pass this is,
+    in words, for the progress lines."""
     started = time.perf_counter()
     fmu_path = whitebox_path(config)
-    chain = GreyBoxChain(config, target_mode, calibrate=calibrate)
+    chain = GreyBoxChain(config, target_mode, calibrate=calibrate, fade=fade)
     check_training_size(config, chain, recording)
     with open_fmu(fmu_path) as archive:
         config.check_against_fmu(archive)
