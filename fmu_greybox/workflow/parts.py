@@ -41,7 +41,6 @@ from fmu_greybox.project.config import BEST, STAGE_PARTS
 from fmu_greybox.workflow.metrics import rmse
 
 if TYPE_CHECKING:
-    from fmu_greybox.model.chain import RecordedRun
     from fmu_greybox.model.store import GreyBoxModel
     from fmu_greybox.project.data import ProjectData
 
@@ -297,15 +296,11 @@ class FittedModel:
         The recording arranged for its chain (``y_wb``: the white-box with its terms).
     split : int
         Last training row; the rows after it are held out.
-    calibration_runs : tuple of RecordedRun
-        The calibration recordings σ is calibrated on (empty: the halves of the training
-        rows).
     """
 
     model: GreyBoxModel
     data: ProjectData
     split: int
-    calibration_runs: tuple[RecordedRun, ...] = ()
 
     def bench_run(self) -> np.ndarray:
         """The chain's free run over the held-out rows, started at the recording's first row

@@ -329,7 +329,7 @@ def fit_model(
             [row_digests(data_rows(d)) for d in calibration] + [row_digests(data_rows(data)[rows])]
         ),
     )
-    return FittedModel(model, data, split, tuple(runs))
+    return FittedModel(model, data, split)
 
 
 class FitProgress:
