@@ -657,14 +657,15 @@ def _write_validation(
 def _print_validation(ctx: click.Context, model: GreyBoxModel, result: Validation) -> None:
     """A validation's held-out rows, table, passed-through stages and acceptance, as text."""
     from fmu_greybox.workflow.metrics import format_table
-    from fmu_greybox.workflow.parts import passed_through_reason
+    from fmu_greybox.workflow.parts import passed_through_text
 
     _info(ctx, f"held out: {result.held_out}")
     click.echo(format_table(result.table, model.training["target_unit"]))
     passed = model.chain.passed_through
     if passed:
-        reason = passed_through_reason(model.training.get("parts", {}))
-        _info(ctx, f"passed through ({reason}): {', '.join(passed)}")
+        _info(
+            ctx, f"passed through: {passed_through_text(model.training.get('parts', {}), passed)}"
+        )
     if result.acceptance is not None:
         click.echo(result.acceptance.summary())
 

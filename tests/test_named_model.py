@@ -46,6 +46,7 @@ from fmu_greybox.workflow.parts import (
     compare_parts,
     has_corrector,
     passed_through_reason,
+    passed_through_text,
     summary,
 )
 from fmu_greybox.workflow.train import (
@@ -206,6 +207,12 @@ def test_parts_within_the_margin_are_equally_good(factor: float, equal: bool) ->
     assert "chose no corrector" in passed_through_reason(payload)
     lost = passed_through_reason({**payload, "shipped": "terms+correctors"})
     assert lost == passed_through_reason({}) and "free-run check" in lost
+    # stage by stage: a part without a corrector, or a corrector that lost
+    mixed = {**payload, "shipped": {"A": "terms", "B": "terms+correctors"}}
+    assert passed_through_text(mixed, ["A", "B"]) == (
+        "A (the held-out comparison of the parts chose no corrector); "
+        f"B ({passed_through_reason({})})"
+    )
 
 
 def _stage_errors(scales: dict[str, list[float]], rows: int = 400) -> tuple[dict, dict]:

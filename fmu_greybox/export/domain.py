@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fmu_greybox.fmi.archive import FmuArchive
+from fmu_greybox.model.chain import RANGE_MARGIN
 
 #: Multiples of an input's training scale the domain extends beyond its training range.
 INPUT_MARGIN = 1.0
@@ -55,9 +56,10 @@ def training_ranges(names: Sequence[str], rows: np.ndarray) -> dict[str, list[fl
 def beyond_training(
     ranges: Mapping[str, Sequence[float]], names: Sequence[str], rows: np.ndarray
 ) -> str:
-    """The inputs whose range over ``rows`` reaches beyond their training range (by more than
-    1 % of its span), in words: what a training recording would have to cover for the rows to
-    lie inside the correctors' domain.
+    """The inputs whose range over ``rows`` reaches beyond their training range widened as the
+    correctors' features are (:data:`~fmu_greybox.model.chain.RANGE_MARGIN` of its span), in
+    words: what a training recording would have to cover for the rows to lie inside the
+    correctors' domain.
 
     Parameters
     ----------
@@ -80,7 +82,7 @@ def beyond_training(
         if name not in ranges:
             continue
         low, high = ranges[name]
-        margin = 0.01 * (high - low)
+        margin = RANGE_MARGIN * (high - low)
         seen_low, seen_high = float(np.min(rows[:, i])), float(np.max(rows[:, i]))
         if seen_low < low - margin or seen_high > high + margin:
             texts.append(

@@ -38,7 +38,7 @@ from fmu_greybox.report.summary import (
     summary_section,
 )
 from fmu_greybox.workflow.metrics import INTERVAL_NOTE, coverage_text, error_ratio
-from fmu_greybox.workflow.parts import passed_through_reason
+from fmu_greybox.workflow.parts import passed_through_text
 from fmu_greybox.workflow.validate import PooledValidation, Validation
 
 #: Name of the page in each folder ``validate`` writes.
@@ -108,8 +108,8 @@ def validation_report_html(
     passed = model.chain.passed_through
     if passed:
         lines.append(
-            f"Correctors switched off ({passed_through_reason(model.training.get('parts', {}))}"
-            f"; σ is the stage's residual alone): {', '.join(passed)}."
+            "Correctors switched off (σ is the stage's residual alone): "
+            f"{passed_through_text(model.training.get('parts', {}), passed)}."
         )
     sections += [
         verdict(lines),

@@ -162,6 +162,16 @@ def passed_through_reason(parts: Mapping, stage: str | None = None) -> str:
     return "the corrector lost to the white-box in the free-run check at training"
 
 
+def passed_through_text(parts: Mapping, passed: Sequence[str]) -> str:
+    """The stages whose correctors are switched off, each with why
+    (:func:`passed_through_reason`), e.g. ``"EHV (the held-out comparison of the parts chose
+    no corrector), RAM (the corrector lost to ...)"``."""
+    by_reason: dict[str, list[str]] = {}
+    for stage in passed:
+        by_reason.setdefault(passed_through_reason(parts, stage), []).append(stage)
+    return "; ".join(f"{', '.join(stages)} ({reason})" for reason, stages in by_reason.items())
+
+
 def block_rmse(predicted: np.ndarray, recorded: np.ndarray, blocks: int = BLOCKS) -> list[float]:
     """RMSE of ``predicted`` in each of ``blocks`` consecutive blocks of rows.
 
