@@ -92,7 +92,14 @@ def test_demo_model_carries_the_named_terms_and_improves_the_ram(demo: tuple[Pat
     diagnosis = json.loads((out / "diagnosis.json").read_text())
     manifest = json.loads((out / "model" / "model.json").read_text())
     found = [t for f in diagnosis["findings"] for t in f.get("terms", [])]
-    assert manifest["named_terms"]["terms"] == found and found
+    carried = manifest["named_terms"]["terms"]
+    assert [{k: v for k, v in t.items() if k != "stages_off"} for t in carried] == found and found
+    # each term is off on the stages that ship without the terms (the comparison's choice)
+    stages = [s["name"] for s in manifest["stages"]]
+    shipped = manifest["training"]["parts"]["shipped"]
+    without = [q for q, stage in enumerate(stages) if shipped[stage] in ("white-box", "correctors")]
+    for term in carried:
+        assert term.get("stages_off", []) == [q for q in without if q >= term["entry"]]
     metrics = json.loads((out / "metrics.json").read_text())["stages"]
     assert metrics["RAM"]["named_rmse"] < 0.5 * metrics["RAM"]["wb_rmse"]
     assert summary["validation"]["RAM"]["improvement"] < -0.5
