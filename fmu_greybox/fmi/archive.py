@@ -214,9 +214,7 @@ def open_fmu(path: str | Path) -> FmuArchive:
     except BaseException:
         shutil.rmtree(unzip_dir, ignore_errors=True)
         raise
-    archive = FmuArchive(
-        path=path, unzip_dir=unzip_dir, model_description=description, kind=kind
-    )
+    archive = FmuArchive(path=path, unzip_dir=unzip_dir, model_description=description, kind=kind)
     archive.variables = _variables(description)
     return archive
 

@@ -968,8 +968,12 @@ def build_fmu(
     extension = fmi2_platform()[1]
     folder = kind.binary_folder
     c_files = sorted(
-        [*FRAMEWORK_DIR.glob("*.h"), *_framework_sources(kind), *SHA256_SOURCES]
-        + [*model_dir.glob("*.[ch]")]
+        [
+            *FRAMEWORK_DIR.glob("*.h"),
+            *_framework_sources(kind),
+            *SHA256_SOURCES,
+            *model_dir.glob("*.[ch]"),
+        ]
     )
     guid = _guid(table, entry.identifier, c_files)
     header, source = variables_c_sources(table, entry.identifier, guid)

@@ -106,7 +106,9 @@ def binary_path(unzip_dir: Path, kind: FmuKind, identifier: str) -> Path:
     return unzip_dir / "binaries" / kind.binary_folder / f"{identifier}{sharedLibraryExtension}"
 
 
-def require_native(kind: FmuKind, path: Path, what: str) -> None:
+def require_native(
+    kind: FmuKind, path: Path, what: str, error: type[Exception] = FmuArchiveError
+) -> None:
     """Refuse a white-box the C paths cannot load.
 
     Parameters
@@ -116,15 +118,17 @@ def require_native(kind: FmuKind, path: Path, what: str) -> None:
         The white-box FMU (for the message).
     what : str
         What needs it, e.g. ``"the native grey-box export"``.
+    error : type of Exception
+        What to raise.
 
     Raises
     ------
-    FmuArchiveError
-        If ``kind`` is not :data:`FMI2_CS`.
+    error
+        If ``kind`` is not :data:`FMI2_CS`; the message says how to go on.
     """
     if not kind.native:
-        raise FmuArchiveError(
-            f"{path}: {what} carries FMI 2.0 co-simulation white-boxes only, and this one is "
-            f"{kind.label}; export with --runtime python, or give an FMI 2.0 co-simulation "
-            "white-box"
+        raise error(
+            f"{path}: {what} loads FMI 2.0 co-simulation white-boxes only, and this one is "
+            f"{kind.label}; export with --runtime python (it steps the white-box with fmpy), "
+            "or give an FMI 2.0 co-simulation white-box"
         )
