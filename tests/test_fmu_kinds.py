@@ -11,10 +11,12 @@ to 1e-12 of each signal's scale where the numbers pass through an optimiser
 from __future__ import annotations
 
 import dataclasses
+import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
+from fmpy import simulate_fmu
 from fmpy.validation import validate_fmu
 
 from fmu_greybox.diagnosis import Diagnosis
@@ -28,7 +30,8 @@ from fmu_greybox.model.native_run import run_native
 from fmu_greybox.model.simulate import simulate_with_terms
 from fmu_greybox.model.store import save_model
 from fmu_greybox.model.terms import ParameterChange
-from fmu_greybox.project.config import load_config
+from fmu_greybox.project.config import load_config, parse_config
+from fmu_greybox.project.starter import starter_text
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 from fmu_greybox.workflow.train import train_model, with_inducing
 
@@ -151,7 +154,7 @@ def test_the_diagnosis_names_concealed_friction_through_fmi3(
     assert [(f.effect, f.stage) for f in diagnosis.findings_] == [("coulomb_friction", "RAM")]
 
 
-def test_a_greybox_trained_through_fmi3_equals_the_fmi2_one_and_exports_in_python(
+def test_a_greybox_trained_through_fmi3_equals_the_fmi2_one_and_runs_exported_in_python(
     whitebox_fmu, truth_fmu, fmi3_whitebox, tmp_path
 ) -> None:
     bench = recording(whitebox_fmu, truth_fmu, {"coulomb_friction": 600.0}, seed=11, duration=2)
@@ -164,9 +167,45 @@ def test_a_greybox_trained_through_fmi3_equals_the_fmi2_one_and_exports_in_pytho
     for (plan2, params2), (plan3, params3) in [(plans[FMI2_CS], plans[FMI3_CS])]:
         np.testing.assert_array_equal(plan3, plan2)
         assert_close(params3, params2, "trained parameters")
-    folder = tmp_path / "model"
-    save_model(models[FMI3_CS], folder)
-    with pytest.raises(ExportError, match=r"FMI 3\.0 co-simulation; export with --runtime python"):
-        export_greybox(folder, tmp_path / "native.fmu", runtime="native")
-    exported = export_greybox(folder, tmp_path / "python.fmu", runtime="python").path
-    assert validate_fmu(str(exported)) == []
+    exported = {}
+    for kind, model in models.items():
+        folder = tmp_path / f"model_fmi{kind.fmi_version}"
+        save_model(model, folder)
+        exported[kind] = export_greybox(folder, folder.with_suffix(".fmu"), runtime="python").path
+    refused = r"FMI 3\.0 co-simulation; export with --runtime python"
+    with pytest.raises(ExportError, match=refused):
+        export_greybox(tmp_path / "model_fmi3.0", tmp_path / "native.fmu", runtime="native")
+    assert validate_fmu(str(exported[FMI3_CS])) == []
+    names = ["ram_position", "ram_position_std", "ram_position_wb", "itfv_pressure"]
+    runs = {kind: run_exported(path, bench, names, 300) for kind, path in exported.items()}
+    assert np.ptp(runs[FMI2_CS]["ram_position_wb"]) > 1e-4  # the white-box inside moved
+    for name in names:
+        assert_close(runs[FMI3_CS][name], runs[FMI2_CS][name], name)
+
+
+def run_exported(fmu: Path, bench, names: list[str], rows: int) -> dict[str, np.ndarray]:
+    """fmpy's ``simulate_fmu`` of an exported grey-box over the first ``rows`` of ``bench``."""
+    signal = np.zeros(rows, dtype=[("time", float)] + [(n, float) for n in INPUTS])
+    signal["time"] = bench.time[:rows] - bench.time[0]
+    for name in INPUTS:
+        signal[name] = bench[name][:rows]
+    result = simulate_fmu(
+        str(fmu),
+        stop_time=signal["time"][-1],
+        step_size=bench.dt,
+        output_interval=bench.dt,
+        input=signal,
+        output=names,
+    )
+    return {name: result[name] for name in names}
+
+
+def test_the_starter_project_reads_the_same_roles_and_units_from_fmi3(
+    whitebox_fmu, fmi3_whitebox
+) -> None:
+    with open_fmu(whitebox_fmu) as fmi2, open_fmu(fmi3_whitebox) as fmi3:
+        text = starter_text(fmi3, "actuator.fmu")
+        assert text == starter_text(fmi2, "actuator.fmu")
+        config = parse_config(tomllib.loads(text), Path("project.toml"))
+        config.check_against_fmu(fmi3)
+    assert config.signals["ram_position"].unit == "m"

@@ -6,14 +6,9 @@ the running instance (:func:`fmu_greybox.fmi.instance.fmu_instance`) picks its F
 kind, and the C paths (the native simulation runner and the native grey-box export, which
 ``dlopen`` an FMI 2.0 co-simulation binary) ask :attr:`FmuKind.native`.
 
-Accepted today (``docs/bench.md``, "White-box FMUs accepted"):
-
-========================  ===================  ==================================
-kind                      binary folder        stepped by
-========================  ===================  ==================================
-FMI 2.0 co-simulation     ``binaries/linux64``  fmpy, or the C runner
-FMI 3.0 co-simulation     ``binaries/x86_64-linux``  fmpy (the C paths refuse it)
-========================  ===================  ==================================
+Accepted today (``docs/config.md``, "White-box FMUs accepted"): FMI 2.0 co-simulation
+(``binaries/linux64``; stepped by fmpy or the C runner) and FMI 3.0 co-simulation
+(``binaries/x86_64-linux``; stepped by fmpy, refused by the C paths).
 """
 
 from __future__ import annotations
