@@ -145,13 +145,25 @@ def test_fmi3_runs_in_python_where_the_c_runner_cannot_load_it(whitebox_fmu, fmi
 
 
 # ------------------------------------------------------------------------ diagnosis and training
-def test_the_diagnosis_names_concealed_friction_through_fmi3(
+def test_the_diagnosis_names_concealed_friction_through_fmi3_as_through_fmi2(
     whitebox_fmu, truth_fmu, fmi3_whitebox
 ) -> None:
-    bench = recording(whitebox_fmu, truth_fmu, {"coulomb_friction": 700.0}, seed=23, duration=3)
-    config = dataclasses.replace(load_config(reference_project()), fmu=str(fmi3_whitebox))
-    diagnosis = Diagnosis(config, greybox=None).fit(bench)
-    assert [(f.effect, f.stage) for f in diagnosis.findings_] == [("coulomb_friction", "RAM")]
+    """Through FMI 3.0 the hypotheses step in Python, through FMI 2.0 in C: the same numbers
+    (``tests/test_native_run.py``), so the same findings, magnitudes and explained fractions."""
+    bench = recording(whitebox_fmu, truth_fmu, {"coulomb_friction": 700.0}, seed=23, duration=2)
+    project = load_config(reference_project())
+    found = {}
+    for kind, path in ((FMI2_CS, whitebox_fmu), (FMI3_CS, fmi3_whitebox)):
+        config = dataclasses.replace(project, fmu=str(path))
+        found[kind] = Diagnosis(config, greybox=None).fit(bench).findings_
+    assert [(f.effect, f.stage) for f in found[FMI3_CS]] == [("coulomb_friction", "RAM")]
+    for fmi3, fmi2 in zip(found[FMI3_CS], found[FMI2_CS], strict=True):
+        assert (fmi3.effect, fmi3.summary, fmi3.magnitude) == (
+            fmi2.effect,
+            fmi2.summary,
+            fmi2.magnitude,
+        )
+        assert fmi3.explained_fraction == pytest.approx(fmi2.explained_fraction, rel=RTOL)
 
 
 def test_a_greybox_trained_through_fmi3_equals_the_fmi2_one_and_runs_exported_in_python(
