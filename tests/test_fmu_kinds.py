@@ -121,6 +121,7 @@ def test_fmi3_refusals_name_the_fmi3_call_and_the_reason(fmi3_whitebox) -> None:
         with pytest.raises(FmuError, match=r"bulk_modulus = -1e\+09 must be positive") as info:
             fmu_instance(archive, INPUTS, OUTPUTS, parameters={"bulk_modulus": -1e9})
         assert (info.value.call, info.value.status) == ("fmi3ExitInitializationMode", "fmi3Error")
+        assert "[fmi3Error] bulk_modulus" in str(info.value)  # the FMU's log, as FMI 3.0 words it
         with fmu_instance(archive, INPUTS, OUTPUTS) as inst:
             negative = r"communicationStepSize = -0\.001 s must be positive"
             with pytest.raises(FmuError, match=negative) as info:

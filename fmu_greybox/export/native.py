@@ -94,7 +94,14 @@ def package_native(plan: ExportPlan, archive: FmuArchive, out: Path) -> None:
     """
     from fmu_greybox.export.fmu import check_valid
 
-    require_native(archive.kind, archive.path, "the native grey-box export", ExportError)
+    require_native(
+        archive.kind,
+        archive.path,
+        "the native grey-box export",
+        "export with --runtime python (it steps the white-box with fmpy), or give an FMI 2.0 "
+        "co-simulation white-box",
+        ExportError,
+    )
     identifier = plan.settings["model_identifier"]
     with tempfile.TemporaryDirectory(prefix="fmu_greybox_native_") as tmp:
         root = Path(tmp) / "fmu"

@@ -47,12 +47,13 @@ def status_label(status: int, prefix: str = "fmi2") -> str:
 class _LogBuffer:
     """Keeps the FMU's last log messages so an error can quote them."""
 
-    def __init__(self, size: int = 20) -> None:
+    def __init__(self, size: int = 20, prefix: str = "fmi2") -> None:
         self.messages: deque[str] = deque(maxlen=size)
+        self.prefix = prefix
 
     def __call__(self, env, instance, status, category, message) -> None:
         text = message.decode("utf-8", "replace") if message else ""
-        self.messages.append(f"[{status_label(status)}] {text}")
+        self.messages.append(f"[{status_label(status, self.prefix)}] {text}")
 
     def last(self, n: int = 3) -> str:
         return " | ".join(list(self.messages)[-n:])
@@ -156,7 +157,7 @@ class FmuInstance:
     ) -> None:
         self.archive = archive
         self.time = float(start_time)
-        self._log = _LogBuffer()
+        self._log = _LogBuffer(prefix=self.PREFIX)
         self._slave = _load_slave(archive, instance_name, self.SLAVE)
         self._bind_calls(self._slave._functions)
         self._instantiate()
@@ -169,6 +170,8 @@ class FmuInstance:
 
     #: fmpy's class of the slave.
     SLAVE: type = FMU2Slave
+    #: Prefix of the FMI names of calls and statuses.
+    PREFIX = "fmi2"
     #: The FMI function behind each operation, named in errors.
     CALLS: ClassVar[dict[str, str]] = {
         "instantiate": "fmi2Instantiate",
@@ -248,7 +251,7 @@ class FmuInstance:
     # ------------------------------------------------------------------ stepping
     def _check(self, call: str, status: int) -> None:
         if status > _WARNING:
-            raise FmuError(call, status_label(status, call[:4]), self.time, self._log.last())
+            raise FmuError(call, status_label(status, self.PREFIX), self.time, self._log.last())
 
     def _guarded(self, call: str, fn, *args, **kwargs):
         try:
@@ -258,7 +261,7 @@ class FmuInstance:
         except Exception as exc:
             status = getattr(exc, "status", None)
             known = isinstance(status, int)
-            label = status_label(status, call[:4]) if known else type(exc).__name__
+            label = status_label(status, self.PREFIX) if known else type(exc).__name__
             raise FmuError(call, label, self.time, self._log.last() or str(exc)) from exc
 
     def step(self, u: Sequence[float] | np.ndarray, h: float) -> np.ndarray:
@@ -380,6 +383,7 @@ class Fmu3Instance(FmuInstance):
     that is not variadic)."""
 
     SLAVE = FMU3Slave
+    PREFIX = "fmi3"
     CALLS: ClassVar[dict[str, str]] = {
         "instantiate": "fmi3InstantiateCoSimulation",
         "enter": "fmi3EnterInitializationMode",

@@ -102,7 +102,7 @@ def binary_path(unzip_dir: Path, kind: FmuKind, identifier: str) -> Path:
 
 
 def require_native(
-    kind: FmuKind, path: Path, what: str, error: type[Exception] = FmuArchiveError
+    kind: FmuKind, path: Path, what: str, mend: str, error: type[Exception] = FmuArchiveError
 ) -> None:
     """Refuse a white-box the C paths cannot load.
 
@@ -113,17 +113,18 @@ def require_native(
         The white-box FMU (for the message).
     what : str
         What needs it, e.g. ``"the native grey-box export"``.
+    mend : str
+        How to go on without it, e.g. ``"export with --runtime python"``.
     error : type of Exception
         What to raise.
 
     Raises
     ------
     error
-        If ``kind`` is not :data:`FMI2_CS`; the message says how to go on.
+        If ``kind`` is not :data:`FMI2_CS`.
     """
     if not kind.native:
         raise error(
             f"{path}: {what} loads FMI 2.0 co-simulation white-boxes only, and this one is "
-            f"{kind.label}; export with --runtime python (it steps the white-box with fmpy), "
-            "or give an FMI 2.0 co-simulation white-box"
+            f"{kind.label}; {mend}"
         )

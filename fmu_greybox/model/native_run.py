@@ -161,7 +161,12 @@ def run_native(
     """
     from fmu_greybox.export.native import whitebox_sections  # the export imports this package
 
-    require_native(archive.kind, archive.path, "the native simulation runner")
+    require_native(
+        archive.kind,
+        archive.path,
+        "the native simulation runner",
+        "step it in Python (simulate_with_terms does so by itself for such a white-box)",
+    )
     runner = native_runner()
     if runner is None:
         raise FmuError("fgb_simulate", "nothing", detail="the native runner is not built")

@@ -25,12 +25,16 @@ typedef struct {
     int logging;
 } Shell;
 
-/* The FMI 2.0 logger of the inner instance: hands its (already formatted) message on. */
+/* The FMI 2.0 logger of the inner instance: hands its (already formatted) message on, without
+ * the name of the FMI 2.0 function it starts with (the master knows which FMI 3.0 call failed). */
 static void relay(fmi2ComponentEnvironment environment, fmi2String instanceName,
                   fmi2Status status, fmi2String category, fmi2String message, ...) {
     const Shell *shell = (const Shell *)environment;
+    const char *call_end =
+        message && strncmp(message, "fmi2", 4) == 0 ? strstr(message, ": ") : NULL;
     (void)instanceName;
-    if (shell && shell->log) shell->log(shell->environment, (fmi3Status)status, category, message);
+    if (!shell || !shell->log) return;
+    shell->log(shell->environment, (fmi3Status)status, category, call_end ? call_end + 2 : message);
 }
 
 static fmi3Status status3(fmi2Status status) {
