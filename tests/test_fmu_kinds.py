@@ -11,7 +11,9 @@ to 1e-12 of each signal's scale where the numbers pass through an optimiser
 from __future__ import annotations
 
 import dataclasses
+import re
 import tomllib
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +24,7 @@ from fmpy.validation import validate_fmu
 from fmu_greybox.diagnosis import Diagnosis
 from fmu_greybox.errors import ExportError, FmuArchiveError, FmuError
 from fmu_greybox.export.fmu import export_greybox
-from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.archive import open_fmu, real_outputs
 from fmu_greybox.fmi.builtin import model_fmus, reference_project
 from fmu_greybox.fmi.instance import Fmu3Instance, fmu_instance
 from fmu_greybox.fmi.kinds import FMI2_CS, FMI3_CS
@@ -90,6 +92,25 @@ def test_the_fmi3_build_passes_fmpy_validation_and_opens_as_fmi3(fmi3_fmus) -> N
         assert (position.type, position.unit, position.causality) == ("Real", "m", "output")
         assert archive.variable("time").causality == "independent"
         assert archive.inputs == list(INPUTS)
+
+
+def test_an_fmi3_array_variable_is_not_taken_for_a_real(fmi3_whitebox, tmp_path) -> None:
+    """Arrays (FMI 3.0 ``Dimension``) are exchanged with other calls than scalars: the archive
+    names their type so that no role, binding or term reads one as a Real."""
+    with zipfile.ZipFile(fmi3_whitebox) as source:
+        xml = source.read("modelDescription.xml").decode()
+        members = {name: source.read(name) for name in source.namelist()}
+    tag = re.search(r'<Float64 name="pressure_b"[^>]*?(/>)', xml)
+    xml = xml[: tag.start(1)] + '><Dimension start="2"/></Float64>' + xml[tag.end(1) :]
+    members["modelDescription.xml"] = xml.encode()
+    arrays = tmp_path / "arrays.fmu"
+    with zipfile.ZipFile(arrays, "w", zipfile.ZIP_DEFLATED) as target:
+        for name, data in members.items():
+            target.writestr(name, data)
+    with open_fmu(arrays) as archive:
+        assert archive.variable("pressure_b").type == "Float64 array"
+        assert "pressure_b" not in real_outputs(archive)
+        assert "pressure_a" in real_outputs(archive)
 
 
 def test_fmi3_steps_bit_for_bit_as_fmi2(whitebox_fmu, fmi3_whitebox) -> None:

@@ -51,8 +51,9 @@ class FmuVariable:
         The FMI value reference.
     type : str
         ``"Real"``, ``"Integer"``, ``"Boolean"``, ``"String"`` or ``"Enumeration"``; FMI 3.0
-        ``Float64`` and ``Int32`` read as ``"Real"`` and ``"Integer"`` (the other FMI 3.0 types
-        keep their names).
+        scalar ``Float64`` and ``Int32`` read as ``"Real"`` and ``"Integer"`` (the other FMI 3.0
+        types keep their names, an array variable reads e.g. ``"Float64 array"``: no scalar
+        role, binding or term takes it).
     start : float or None
         Start value when declared and numeric.
     minimum, maximum : float or None
@@ -383,7 +384,7 @@ def _variables(description: object) -> dict[str, FmuVariable]:
         result[v.name] = FmuVariable(
             name=v.name,
             value_reference=int(v.valueReference),
-            type=FMI2_TYPE.get(v.type, v.type),
+            type=f"{v.type} array" if v.dimensions else FMI2_TYPE.get(v.type, v.type),
             causality=v.causality,
             variability=v.variability,
             unit=unit,
