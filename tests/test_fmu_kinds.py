@@ -18,9 +18,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 from fmpy import simulate_fmu
 from fmpy.validation import validate_fmu
 
+from fmu_greybox.cli import main
 from fmu_greybox.diagnosis import Diagnosis
 from fmu_greybox.errors import ExportError, FmuArchiveError, FmuError
 from fmu_greybox.export.fmu import export_greybox
@@ -92,6 +94,15 @@ def test_the_fmi3_build_passes_fmpy_validation_and_opens_as_fmi3(fmi3_fmus) -> N
         assert (position.type, position.unit, position.causality) == ("Real", "m", "output")
         assert archive.variable("time").causality == "independent"
         assert archive.inputs == list(INPUTS)
+
+
+def test_the_fmu_build_command_builds_fmi3(tmp_path) -> None:
+    done = CliRunner().invoke(main, ["fmu", "build", "--fmi", "3", "--out", str(tmp_path)])
+    assert done.exit_code == 0, done.output
+    assert "built HydraulicActuator (FMI 3.0 co-simulation)" in done.output
+    for name in ("HydraulicActuator", "HydraulicActuatorTruth"):
+        with open_fmu(tmp_path / f"{name}.fmu") as archive:
+            assert archive.kind == FMI3_CS
 
 
 def test_an_fmi3_array_variable_is_not_taken_for_a_real(fmi3_whitebox, tmp_path) -> None:

@@ -1001,13 +1001,15 @@ def build_fmu(
     return target
 
 
-def build_reference_fmus(out_dir: Path) -> dict[str, Path]:
+def build_reference_fmus(out_dir: Path, kind: FmuKind = FMI2_CS) -> dict[str, Path]:
     """Build the reference actuator FMUs (white-box and truth), in parallel.
 
     Parameters
     ----------
     out_dir : Path
         Where the FMUs are written.
+    kind : FmuKind
+        Their kind (see :func:`build_fmu`).
 
     Returns
     -------
@@ -1019,7 +1021,7 @@ def build_reference_fmus(out_dir: Path) -> dict[str, Path]:
     FmuBuildError
         As :func:`build_fmu`.
     """
-    return build_model_pair(REFERENCE_MODEL_DIR, out_dir)
+    return build_model_pair(REFERENCE_MODEL_DIR, out_dir, kind)
 
 
 def build_model_pair(model_dir: Path, out_dir: Path, kind: FmuKind = FMI2_CS) -> dict[str, Path]:
