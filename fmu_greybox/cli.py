@@ -222,7 +222,7 @@ def fmu_build_cmd(ctx: click.Context, out_dir: Path, fmi_version: str) -> None:
     out_dir.mkdir(parents=True, exist_ok=True)
     kind = FMI3_CS if fmi_version == "3" else FMI2_CS
     for name, path in build_reference_fmus(out_dir, kind).items():
-        _info(ctx, f"built {name} ({kind.label}): {path}")
+        _info(ctx, f"built {name}: {path} ({kind.label})")
 
 
 @main.command()

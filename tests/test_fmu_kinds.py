@@ -99,7 +99,8 @@ def test_the_fmi3_build_passes_fmpy_validation_and_opens_as_fmi3(fmi3_fmus) -> N
 def test_the_fmu_build_command_builds_fmi3(tmp_path) -> None:
     done = CliRunner().invoke(main, ["fmu", "build", "--fmi", "3", "--out", str(tmp_path)])
     assert done.exit_code == 0, done.output
-    assert "built HydraulicActuator (FMI 3.0 co-simulation)" in done.output
+    path = tmp_path / "HydraulicActuator.fmu"
+    assert f"built HydraulicActuator: {path} (FMI 3.0 co-simulation)" in done.output
     for name in ("HydraulicActuator", "HydraulicActuatorTruth"):
         with open_fmu(tmp_path / f"{name}.fmu") as archive:
             assert archive.kind == FMI3_CS
