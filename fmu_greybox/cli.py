@@ -199,19 +199,30 @@ def fmu() -> None:
 
 @fmu.command("build")
 @out_option("fmus", "Folder receiving the reference FMUs", folder=True)
+@click.option(
+    "--fmi",
+    "fmi_version",
+    type=click.Choice(["2", "3"]),
+    default="2",
+    show_default=True,
+    help="FMI version of the co-simulation FMUs (3: the framework with its FMI 3.0 shell).",
+)
 @click.pass_context
-def fmu_build_cmd(ctx: click.Context, out_dir: Path) -> None:
+def fmu_build_cmd(ctx: click.Context, out_dir: Path, fmi_version: str) -> None:
     """Compile the reference actuator FMUs from fmu_sources/.
 
     \b
-    Example:
+    Examples:
       fmu-greybox fmu build --out fmus/
+      fmu-greybox fmu build --fmi 3 --out fmus3/
     """
     from fmu_greybox.fmi.build import build_reference_fmus
+    from fmu_greybox.fmi.kinds import FMI2_CS, FMI3_CS
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    for name, path in build_reference_fmus(out_dir).items():
-        _info(ctx, f"built {name}: {path}")
+    kind = FMI3_CS if fmi_version == "3" else FMI2_CS
+    for name, path in build_reference_fmus(out_dir, kind).items():
+        _info(ctx, f"built {name}: {path} ({kind.label})")
 
 
 @main.command()

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fmpy import platform as fmpy_platform
+from fmpy import platform_tuple as fmpy_platform_tuple
 
 from fmu_greybox.errors import FmuArchiveError, FmuError
 from fmu_greybox.fmi.archive import MAX_COMPRESSION_RATIO, open_fmu
@@ -125,9 +126,10 @@ PROBLEMS = {
     "zip bomb": r"member 'resources/zeros\.bin' expands \d+ times; refused as a likely zip bomb",
     "not a zip": r"not a zip archive, so not an FMU",
     "no model description": r"no modelDescription\.xml at the archive root",
-    "model exchange only": r"a model exchange FMU; fmu-greybox needs co-simulation",
-    "FMI 3.0": r"FMI version 3\.0; fmu-greybox runs FMI 2\.0 FMUs",
-    "no binary for this platform": rf"no binary for this platform \({fmpy_platform}\)",
+    "model exchange only": r"an FMI 2\.0 model exchange FMU; fmu-greybox needs co-simulation "
+    r"\(FMI 2\.0 co-simulation or FMI 3\.0 co-simulation\)",
+    "FMI 3.0": rf"no binary for this platform \({fmpy_platform_tuple}, FMI 3\.0 co-simulation\)",
+    "no binary for this platform": rf"no binary for this platform \({fmpy_platform}, FMI 2\.0 ",
     "corrupt XML": r"unreadable modelDescription\.xml",
 }
 

@@ -42,6 +42,7 @@ from fmu_greybox.export.native_terms import encode_term, kind_code, kind_defines
 from fmu_greybox.export.slave import MODEL_FOLDER, STEP_RTOL
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.fmi.build import c_compiler, fmi2_headers, fmi2_platform
+from fmu_greybox.fmi.kinds import require_native
 from fmu_greybox.model.store import file_sha256
 from fmu_greybox.model.whitebox import PartLayout, part_layouts
 
@@ -87,10 +88,20 @@ def package_native(plan: ExportPlan, archive: FmuArchive, out: Path) -> None:
     Raises
     ------
     ExportError
-        A term has no native implementation, compiling fails, or the FMU fails validation.
+        The white-box is not FMI 2.0 co-simulation (``native/whitebox.c`` loads that kind
+        only), a term has no native implementation, compiling fails, or the FMU fails
+        validation.
     """
     from fmu_greybox.export.fmu import check_valid
 
+    require_native(
+        archive.kind,
+        archive.path,
+        "the native grey-box export",
+        "export with --runtime python (it steps the white-box with fmpy), or give an FMI 2.0 "
+        "co-simulation white-box",
+        ExportError,
+    )
     identifier = plan.settings["model_identifier"]
     with tempfile.TemporaryDirectory(prefix="fmu_greybox_native_") as tmp:
         root = Path(tmp) / "fmu"

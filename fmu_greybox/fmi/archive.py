@@ -4,7 +4,8 @@ An FMU is a zip file from a supplier, a tool or a colleague: treat it as untrust
 byte is written to disk the archive is checked for paths escaping the extraction folder,
 absolute paths, links, encryption, compression methods FMI does not allow, absurd declared sizes
 (per member, in total, and as a compression ratio) and a missing ``modelDescription.xml``; then
-the model must be an FMI 2.0 co-simulation FMU with a binary for this platform.
+the model must be of a kind fmu-greybox runs (:mod:`fmu_greybox.fmi.kinds`) with a binary for
+this platform.
 """
 
 from __future__ import annotations
@@ -18,10 +19,10 @@ import zlib
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
-from fmpy import platform as fmpy_platform
-from fmpy import read_model_description, sharedLibraryExtension
+from fmpy import read_model_description
 
 from fmu_greybox.errors import FmuArchiveError
+from fmu_greybox.fmi.kinds import FmuKind, binary_path, fmu_kind
 from fmu_greybox.suggest import did_you_mean
 
 #: Largest total uncompressed size accepted [bytes].
@@ -34,6 +35,8 @@ MAX_MEMBERS = 100_000
 MAX_COMPRESSION_RATIO = 1000.0
 #: Compression methods the FMI standard allows in an FMU: stored and deflate.
 FMI_COMPRESSION = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflate"}
+#: FMI 3.0 types read as the FMI 2.0 type they exchange the same values as.
+FMI2_TYPE = {"Float64": "Real", "Int32": "Integer"}
 
 
 @dataclass(frozen=True)
@@ -47,7 +50,10 @@ class FmuVariable:
     value_reference : int
         The FMI value reference.
     type : str
-        ``"Real"``, ``"Integer"``, ``"Boolean"``, ``"String"`` or ``"Enumeration"``.
+        ``"Real"``, ``"Integer"``, ``"Boolean"``, ``"String"`` or ``"Enumeration"``; FMI 3.0
+        scalar ``Float64`` and ``Int32`` read as ``"Real"`` and ``"Integer"`` (the other FMI 3.0
+        types keep their names, an array variable reads e.g. ``"Float64 array"``: no scalar
+        role, binding or term takes it).
     start : float or None
         Start value when declared and numeric.
     minimum, maximum : float or None
@@ -81,6 +87,8 @@ class FmuArchive:
         Folder it was extracted to.
     model_description : fmpy.model_description.ModelDescription
         The parsed model description.
+    kind : FmuKind
+        Its FMI version and interface.
     variables : dict[str, FmuVariable]
         Every scalar variable by name.
     """
@@ -88,6 +96,7 @@ class FmuArchive:
     path: Path
     unzip_dir: Path
     model_description: object
+    kind: FmuKind
     variables: dict[str, FmuVariable] = field(default_factory=dict)
 
     @property
@@ -165,7 +174,8 @@ def real_outputs(archive: FmuArchive) -> list[str]:
 
 
 def open_fmu(path: str | Path) -> FmuArchive:
-    """Check, extract and describe an FMI 2.0 co-simulation FMU.
+    """Check, extract and describe a white-box FMU of an accepted kind
+    (:data:`fmu_greybox.fmi.kinds.ACCEPTED`).
 
     Parameters
     ----------
@@ -182,7 +192,7 @@ def open_fmu(path: str | Path) -> FmuArchive:
     FmuArchiveError
         If the file is missing, not a zip archive, hostile (a path escaping the folder, a link,
         an absurd declared size or compression ratio), encrypted or compressed in a way FMI does
-        not allow, damaged, not FMI 2.0 co-simulation, lacks a binary for this platform, or is
+        not allow, damaged, of a kind not accepted, lacks a binary for this platform, or is
         a pythonfmu FMU without the slave module its binary loads.
     """
     path = Path(path)
@@ -199,12 +209,13 @@ def open_fmu(path: str | Path) -> FmuArchive:
     try:
         _extract_checked(path, unzip_dir)
         description = _read_description(path, unzip_dir)
-        _check_binary(path, unzip_dir, description)
+        kind = fmu_kind(path, description)
+        _check_binary(path, unzip_dir, description, kind)
         _check_python_runtime(path, unzip_dir, description)
     except BaseException:
         shutil.rmtree(unzip_dir, ignore_errors=True)
         raise
-    archive = FmuArchive(path=path, unzip_dir=unzip_dir, model_description=description)
+    archive = FmuArchive(path=path, unzip_dir=unzip_dir, model_description=description, kind=kind)
     archive.variables = _variables(description)
     return archive
 
@@ -317,38 +328,27 @@ def _gib(size: int) -> str:
 
 
 def _read_description(path: Path, unzip_dir: Path) -> object:
-    """Parse the model description and require FMI 2.0 co-simulation."""
+    """Parse the model description."""
     try:
         description = read_model_description(str(unzip_dir / "modelDescription.xml"))
     except Exception as exc:  # fmpy raises bare Exceptions for schema problems
         raise FmuArchiveError(
-            f"{path}: unreadable modelDescription.xml: {exc}. It must be valid FMI 2.0 XML; "
+            f"{path}: unreadable modelDescription.xml: {exc}. It must be valid FMI XML; "
             "re-export the FMU"
         ) from exc
-    if description.fmiVersion != "2.0":
-        raise FmuArchiveError(
-            f"{path}: FMI version {description.fmiVersion}; fmu-greybox runs FMI 2.0 FMUs. "
-            "Export the model as FMI 2.0 co-simulation"
-        )
-    if description.coSimulation is None:
-        kinds = "model exchange" if description.modelExchange is not None else "no interface"
-        raise FmuArchiveError(
-            f"{path}: a {kinds} FMU; fmu-greybox needs co-simulation. Re-export the model "
-            "with the co-simulation interface (with its own solver)"
-        )
     return description
 
 
-def _check_binary(path: Path, unzip_dir: Path, description: object) -> None:
+def _check_binary(path: Path, unzip_dir: Path, description: object, kind: FmuKind) -> None:
     """Require the shared library for this platform."""
-    identifier = description.coSimulation.modelIdentifier
-    library = unzip_dir / "binaries" / fmpy_platform / f"{identifier}{sharedLibraryExtension}"
+    library = binary_path(unzip_dir, kind, description.coSimulation.modelIdentifier)
     if not library.is_file():
         binaries = unzip_dir / "binaries"
         found = sorted(p.name for p in binaries.iterdir()) if binaries.is_dir() else []
         raise FmuArchiveError(
-            f"{path}: no binary for this platform ({fmpy_platform}); the FMU has "
-            f"{found or 'no binaries'}. Rebuild or re-export it for {fmpy_platform}"
+            f"{path}: no binary for this platform ({kind.binary_folder}, {kind.label}); the "
+            f"FMU has {found or 'no binaries'}. Rebuild or re-export it for "
+            f"{kind.binary_folder}"
         )
 
 
@@ -384,7 +384,7 @@ def _variables(description: object) -> dict[str, FmuVariable]:
         result[v.name] = FmuVariable(
             name=v.name,
             value_reference=int(v.valueReference),
-            type=v.type,
+            type=f"{v.type} array" if v.dimensions else FMI2_TYPE.get(v.type, v.type),
             causality=v.causality,
             variability=v.variability,
             unit=unit,

@@ -39,6 +39,7 @@ from xml.etree import ElementTree as ET
 from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.errors import FmuBuildError
+from fmu_greybox.fmi.kinds import FMI2_CS, FMI3_CS, FmuKind
 from fmu_greybox.resources import data_path
 from fmu_greybox.units import BASE_UNITS, PREFIXES, SYMBOLS, UnitSyntaxError, si_unit
 
@@ -47,6 +48,8 @@ SOURCES_DIR = data_path("fmu_sources")
 
 FRAMEWORK_DIR = SOURCES_DIR / "framework"
 """The generic FMI 2.0 co-simulation framework."""
+FMI3_SHELL_DIR = FRAMEWORK_DIR / "fmi3"
+"""The FMI 3.0 co-simulation shell around the framework's FMI 2.0 functions."""
 SHA256_SOURCES = tuple(
     Path(__file__).resolve().parents[1] / "native" / n for n in ("sha256.c", "sha256.h")
 )
@@ -504,6 +507,40 @@ def model_description(table: VariableTable, identifier: str, guid: str) -> bytes
             "providesDirectionalDerivative": "false",
         },
     )
+    _units_logging_experiment(root, table, variables)
+    scalars = ET.SubElement(root, "ModelVariables")
+    index_of: dict[str, int] = {}
+    for position, v in enumerate(variables, start=1):
+        index_of[v.name] = position
+        attributes = {
+            "name": v.name,
+            "valueReference": str(v.value_reference),
+            "description": v.description,
+            "causality": v.causality,
+            "variability": v.variability,
+        }
+        scalar = ET.SubElement(scalars, "ScalarVariable", attributes)
+        ET.SubElement(scalar, v.type, _typed_attributes(v))
+    structure = ET.SubElement(root, "ModelStructure")
+    outputs = ET.SubElement(structure, "Outputs")
+    initial = ET.SubElement(structure, "InitialUnknowns")
+    for v in variables:
+        if v.causality != "output":
+            continue
+        attributes = {"index": str(index_of[v.name])}
+        if v.dependencies is not None:
+            deps = [v2 for v2 in v.dependencies if v2 in index_of]
+            attributes["dependencies"] = " ".join(str(index_of[d]) for d in deps)
+            attributes["dependenciesKind"] = " ".join("dependent" for _ in deps)
+        ET.SubElement(outputs, "Unknown", attributes)
+        ET.SubElement(initial, "Unknown", {"index": str(index_of[v.name])})
+    ET.indent(root, space="  ")
+    return ET.tostring(root, encoding="UTF-8", xml_declaration=True) + b"\n"
+
+
+def _units_logging_experiment(root: ET.Element, table: VariableTable, variables: list) -> None:
+    """Append the elements FMI 2.0 and 3.0 write alike: UnitDefinitions (one Unit per unit
+    used), LogCategories and DefaultExperiment."""
     declared = sorted({v.unit for v in variables if v.unit})
     units = ET.SubElement(root, "UnitDefinitions") if declared else None
     for unit in declared:
@@ -527,10 +564,90 @@ def model_description(table: VariableTable, identifier: str, guid: str) -> bytes
         "DefaultExperiment",
         {experiment[k]: _number(v) for k, v in table.default_experiment.items()},
     )
+
+
+def _typed_attributes(v: Variable) -> dict[str, str]:
+    """Unit, start, min and max of a variable as XML attributes (those it declares)."""
+    typed: dict[str, str] = {}
+    if v.unit:
+        typed["unit"] = v.unit
+    if v.start is not None:
+        typed["start"] = _start_text(v)
+    if v.min is not None:
+        typed["min"] = _number(v.min)
+    if v.max is not None:
+        typed["max"] = _number(v.max)
+    return typed
+
+
+def model_description_fmi3(table: VariableTable, identifier: str, token: str) -> bytes:
+    """Generate an FMI 3.0 co-simulation ``modelDescription.xml`` for one model of a table.
+
+    The same variables, value references, units and dependencies as
+    :func:`model_description`, for the FMI 3.0 shell (``framework/fmi3``): Real variables as
+    ``Float64``, Integer as ``Int32``.
+
+    Parameters
+    ----------
+    table : VariableTable
+    identifier : str
+        Model identifier.
+    token : str
+        The instantiation token the binary is compiled with (its GUID).
+
+    Returns
+    -------
+    bytes
+        UTF-8 XML, with the independent variable ``time`` (value reference one past the
+        table's) that FMI 3.0 requires.
+    """
+    entry = table.model(identifier)
+    time = Variable(  # FMI 3.0 requires the independent variable; the shell serves it
+        name="time",
+        value_reference=max(v.value_reference for v in table.variables_of(identifier)) + 1,
+        causality="independent",
+        variability="continuous",
+        type="Real",
+        unit="s",
+        description="Simulation time",
+        start=None,
+        min=None,
+        max=None,
+        dependencies=None,
+        models=None,
+    )
+    variables = [time, *table.variables_of(identifier)]
+    root = ET.Element(
+        "fmiModelDescription",
+        {
+            "fmiVersion": "3.0",
+            "modelName": table.model_name,
+            "instantiationToken": token,
+            "description": entry.description,
+            "generationTool": f"fmu-greybox {__version__}",
+            "variableNamingConvention": "flat",
+        },
+    )
+    ET.SubElement(
+        root,
+        "CoSimulation",
+        {
+            "modelIdentifier": identifier,
+            "needsExecutionTool": "false",
+            "canBeInstantiatedOnlyOncePerProcess": "false",
+            "canGetAndSetFMUState": "true",
+            "canSerializeFMUState": "true",
+            "providesDirectionalDerivatives": "false",
+            "canHandleVariableCommunicationStepSize": "true",
+            "maxOutputDerivativeOrder": "0",
+            "providesIntermediateUpdate": "false",
+            "hasEventMode": "false",
+        },
+    )
+    _units_logging_experiment(root, table, variables)
+    element = {"Real": "Float64", "Integer": "Int32", "Boolean": "Boolean", "String": "String"}
     scalars = ET.SubElement(root, "ModelVariables")
-    index_of: dict[str, int] = {}
-    for position, v in enumerate(variables, start=1):
-        index_of[v.name] = position
+    for v in variables:
         attributes = {
             "name": v.name,
             "valueReference": str(v.value_reference),
@@ -538,30 +655,26 @@ def model_description(table: VariableTable, identifier: str, guid: str) -> bytes
             "causality": v.causality,
             "variability": v.variability,
         }
-        scalar = ET.SubElement(scalars, "ScalarVariable", attributes)
-        typed: dict[str, str] = {}
-        if v.unit:
-            typed["unit"] = v.unit
-        if v.start is not None:
-            typed["start"] = _start_text(v)
-        if v.min is not None:
-            typed["min"] = _number(v.min)
-        if v.max is not None:
-            typed["max"] = _number(v.max)
-        ET.SubElement(scalar, v.type, typed)
+        typed = _typed_attributes(v)
+        if v.type == "String":  # an FMI 3.0 String's start value is a child element
+            start = typed.pop("start", None)
+            scalar = ET.SubElement(scalars, "String", {**attributes, **typed})
+            if start is not None:
+                ET.SubElement(scalar, "Start", {"value": start})
+        else:
+            ET.SubElement(scalars, element[v.type], {**attributes, **typed})
     structure = ET.SubElement(root, "ModelStructure")
-    outputs = ET.SubElement(structure, "Outputs")
-    initial = ET.SubElement(structure, "InitialUnknowns")
-    for v in variables:
-        if v.causality != "output":
-            continue
-        attributes = {"index": str(index_of[v.name])}
+    reference = {v.name: str(v.value_reference) for v in variables}
+    outputs = [v for v in variables if v.causality == "output"]
+    for v in outputs:
+        attributes = {"valueReference": reference[v.name]}
         if v.dependencies is not None:
-            deps = [v2 for v2 in v.dependencies if v2 in index_of]
-            attributes["dependencies"] = " ".join(str(index_of[d]) for d in deps)
+            deps = [d for d in v.dependencies if d in reference]
+            attributes["dependencies"] = " ".join(reference[d] for d in deps)
             attributes["dependenciesKind"] = " ".join("dependent" for _ in deps)
-        ET.SubElement(outputs, "Unknown", attributes)
-        ET.SubElement(initial, "Unknown", {"index": str(index_of[v.name])})
+        ET.SubElement(structure, "Output", attributes)
+    for v in outputs:
+        ET.SubElement(structure, "InitialUnknown", {"valueReference": reference[v.name]})
     ET.indent(root, space="  ")
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True) + b"\n"
 
@@ -766,9 +879,17 @@ def c_compiler() -> str:
     return found
 
 
-def _compile(model_dir: Path, entry: ModelEntry, generated: Path, library: Path) -> None:
+def _framework_sources(kind: FmuKind) -> list[Path]:
+    """The framework's C files for ``kind``: the FMI 2.0 framework, plus the FMI 3.0 shell."""
+    shell = sorted(FMI3_SHELL_DIR.glob("*.c")) if kind == FMI3_CS else []
+    return [*sorted(FRAMEWORK_DIR.glob("*.c")), *shell]
+
+
+def _compile(
+    model_dir: Path, entry: ModelEntry, generated: Path, library: Path, kind: FmuKind
+) -> None:
     sources = [
-        *sorted(FRAMEWORK_DIR.glob("*.c")),
+        *_framework_sources(kind),
         SHA256_SOURCES[0],
         *sorted(model_dir.glob("*.c")),
         generated / "fmu_variables.c",
@@ -808,7 +929,9 @@ def _index_html(entry: ModelEntry, readme: str) -> bytes:
     ).encode()
 
 
-def build_fmu(model_dir: Path, out_dir: Path, identifier: str | None = None) -> Path:
+def build_fmu(
+    model_dir: Path, out_dir: Path, identifier: str | None = None, kind: FmuKind = FMI2_CS
+) -> Path:
     """Build one co-simulation FMU from a model folder.
 
     Parameters
@@ -820,6 +943,10 @@ def build_fmu(model_dir: Path, out_dir: Path, identifier: str | None = None) -> 
         Where ``<identifier>.fmu`` is written (created if missing).
     identifier : str or None
         Which model of the table to build; the first one if ``None``.
+    kind : FmuKind
+        :data:`~fmu_greybox.fmi.kinds.FMI2_CS` (the framework) or
+        :data:`~fmu_greybox.fmi.kinds.FMI3_CS` (the framework with its FMI 3.0 shell, the
+        same numbers).
 
     Returns
     -------
@@ -836,11 +963,22 @@ def build_fmu(model_dir: Path, out_dir: Path, identifier: str | None = None) -> 
     out_dir = Path(out_dir)
     table = load_variable_table(model_dir / "variables.toml")
     entry = table.model(identifier)
-    folder, extension = fmi2_platform()
-    c_files = sorted([*FRAMEWORK_DIR.glob("*.[ch]"), *SHA256_SOURCES, *model_dir.glob("*.[ch]")])
+    if kind not in (FMI2_CS, FMI3_CS):
+        raise FmuBuildError(f"the builder makes co-simulation FMUs, not {kind.label}")
+    extension = fmi2_platform()[1]
+    folder = kind.binary_folder
+    c_files = sorted(
+        [
+            *FRAMEWORK_DIR.glob("*.h"),
+            *_framework_sources(kind),
+            *SHA256_SOURCES,
+            *model_dir.glob("*.[ch]"),
+        ]
+    )
     guid = _guid(table, entry.identifier, c_files)
     header, source = variables_c_sources(table, entry.identifier, guid)
-    description = model_description(table, entry.identifier, guid)
+    describe = model_description_fmi3 if kind == FMI3_CS else model_description
+    description = describe(table, entry.identifier, guid)
 
     out_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix=f"fmu-build-{entry.identifier}-") as tmp:
@@ -848,7 +986,7 @@ def build_fmu(model_dir: Path, out_dir: Path, identifier: str | None = None) -> 
         (generated / "fmu_variables.h").write_text(header, encoding="utf-8")
         (generated / "fmu_variables.c").write_text(source, encoding="utf-8")
         library = generated / f"{entry.identifier}{extension}"
-        _compile(model_dir, entry, generated, library)
+        _compile(model_dir, entry, generated, library, kind)
         target = out_dir / f"{entry.identifier}.fmu"
         with atomic_write(target, "wb") as stream, zipfile.ZipFile(stream, "w") as archive:
             _zip_write(archive, "modelDescription.xml", description)
@@ -863,13 +1001,15 @@ def build_fmu(model_dir: Path, out_dir: Path, identifier: str | None = None) -> 
     return target
 
 
-def build_reference_fmus(out_dir: Path) -> dict[str, Path]:
+def build_reference_fmus(out_dir: Path, kind: FmuKind = FMI2_CS) -> dict[str, Path]:
     """Build the reference actuator FMUs (white-box and truth), in parallel.
 
     Parameters
     ----------
     out_dir : Path
         Where the FMUs are written.
+    kind : FmuKind
+        Their kind (see :func:`build_fmu`).
 
     Returns
     -------
@@ -881,10 +1021,10 @@ def build_reference_fmus(out_dir: Path) -> dict[str, Path]:
     FmuBuildError
         As :func:`build_fmu`.
     """
-    return build_model_pair(REFERENCE_MODEL_DIR, out_dir)
+    return build_model_pair(REFERENCE_MODEL_DIR, out_dir, kind)
 
 
-def build_model_pair(model_dir: Path, out_dir: Path) -> dict[str, Path]:
+def build_model_pair(model_dir: Path, out_dir: Path, kind: FmuKind = FMI2_CS) -> dict[str, Path]:
     """Build every model a folder's table declares (white-box and truth), in parallel.
 
     Parameters
@@ -894,6 +1034,8 @@ def build_model_pair(model_dir: Path, out_dir: Path) -> dict[str, Path]:
         and then the truth model, whose truth-only variables carry ``models``.
     out_dir : Path
         Where the FMUs are written.
+    kind : FmuKind
+        Their kind (see :func:`build_fmu`).
 
     Returns
     -------
@@ -908,5 +1050,5 @@ def build_model_pair(model_dir: Path, out_dir: Path) -> dict[str, Path]:
     table = load_variable_table(Path(model_dir) / "variables.toml")
     identifiers = [m.identifier for m in table.models]
     with ThreadPoolExecutor(max_workers=len(identifiers)) as pool:
-        paths = pool.map(lambda i: build_fmu(model_dir, out_dir, i), identifiers)
+        paths = pool.map(lambda i: build_fmu(model_dir, out_dir, i, kind), identifiers)
         return dict(zip(identifiers, paths, strict=True))

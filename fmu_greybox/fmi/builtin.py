@@ -13,6 +13,7 @@ import os
 from pathlib import Path
 
 from fmu_greybox.errors import FmuArchiveError
+from fmu_greybox.fmi.kinds import FMI2_CS, FmuKind
 from fmu_greybox.resources import PREFIX, bench_config, sources_root
 
 #: The reference actuator's models (white-box, truth).
@@ -64,13 +65,16 @@ def reference_fmus() -> dict[str, Path]:
     return model_fmus(BUILTIN_MODELS[REFERENCE_MODELS[0]])
 
 
-def model_fmus(model_folder: str) -> dict[str, Path]:
+def model_fmus(model_folder: str, kind: FmuKind = FMI2_CS) -> dict[str, Path]:
     """Paths of the built-in FMUs of one model folder, building them once if needed.
 
     Parameters
     ----------
     model_folder : str
         A folder named in :data:`BUILTIN_MODELS`, e.g. ``"ElectroMechanicalPositioner"``.
+    kind : FmuKind
+        Their kind; other kinds than FMI 2.0 co-simulation (the built-in names) are cached
+        in a sub-folder named after the FMI version, e.g. ``fmi3.0/``.
 
     Returns
     -------
@@ -79,12 +83,12 @@ def model_fmus(model_folder: str) -> dict[str, Path]:
     """
     from fmu_greybox.fmi.build import build_model_pair
 
-    folder = cache_dir()
+    folder = cache_dir() if kind == FMI2_CS else cache_dir() / f"fmi{kind.fmi_version}"
     names = [name for name, source in BUILTIN_MODELS.items() if source == model_folder]
     paths = {name: folder / f"{name}.fmu" for name in names}
     if not all(p.is_file() for p in paths.values()):
         folder.mkdir(parents=True, exist_ok=True)
-        paths = build_model_pair(sources_root() / model_folder, folder)
+        paths = build_model_pair(sources_root() / model_folder, folder, kind)
     return paths
 
 

@@ -1,10 +1,11 @@
-"""A running FMI 2.0 co-simulation instance, stepped the way a bench steps it.
+"""A running co-simulation instance, stepped the way a bench steps it.
 
-:class:`FmuInstance` wraps fmpy's ``FMU2Slave``. The per-step path (set inputs, ``fmi2DoStep``,
-get outputs) calls the FMU's C functions directly with preallocated ``ctypes`` buffers, so a
-step costs a few microseconds of Python. Every failing FMI call raises
-:class:`~fmu_greybox.errors.FmuError` carrying the call, its status, the simulation time and the
-last messages the FMU logged.
+:class:`FmuInstance` wraps fmpy's ``FMU2Slave`` (FMI 2.0), :class:`Fmu3Instance` its
+``FMU3Slave`` (FMI 3.0); :func:`fmu_instance` picks the one for an FMU's kind
+(:mod:`fmu_greybox.fmi.kinds`). The per-step path (set inputs, ``DoStep``, get outputs) calls
+the FMU's C functions directly with preallocated ``ctypes`` buffers, so a step costs a few
+microseconds of Python. Every failing FMI call raises :class:`~fmu_greybox.errors.FmuError`
+carrying the call, its status, the simulation time and the last messages the FMU logged.
 """
 
 from __future__ import annotations
@@ -16,42 +17,44 @@ import threading
 import weakref
 from collections import deque
 from collections.abc import Mapping, Sequence
+from typing import ClassVar
 
 import numpy as np
 from fmpy import calloc as fmpy_calloc
 from fmpy import free as fmpy_free
-from fmpy import platform as fmpy_platform
 from fmpy.fmi2 import (
     FMU2Slave,
     fmi2CallbackAllocateMemoryTYPE,
     fmi2CallbackFreeMemoryTYPE,
     fmi2CallbackFunctions,
     fmi2CallbackLoggerTYPE,
-    fmi2FMUstate,
     printLogMessage,
 )
+from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64
 
 from fmu_greybox.errors import FmuArchiveError, FmuError
 from fmu_greybox.fmi.archive import FmuArchive
+from fmu_greybox.fmi.kinds import FMI2_CS, FMI3_CS
 
-_STATUS = ("fmi2OK", "fmi2Warning", "fmi2Discard", "fmi2Error", "fmi2Fatal", "fmi2Pending")
+_STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
 _WARNING = 1
 
 
-def status_label(status: int) -> str:
-    """Name of an ``fmi2Status`` code."""
-    return _STATUS[status] if 0 <= status < len(_STATUS) else f"illegal status {status}"
+def status_label(status: int, prefix: str = "fmi2") -> str:
+    """Name of an ``fmi2Status`` code (of an ``fmi3Status`` code with ``prefix="fmi3"``)."""
+    return prefix + _STATUS[status] if 0 <= status < len(_STATUS) else f"illegal status {status}"
 
 
 class _LogBuffer:
     """Keeps the FMU's last log messages so an error can quote them."""
 
-    def __init__(self, size: int = 20) -> None:
+    def __init__(self, size: int = 20, prefix: str = "fmi2") -> None:
         self.messages: deque[str] = deque(maxlen=size)
+        self.prefix = prefix
 
     def __call__(self, env, instance, status, category, message) -> None:
         text = message.decode("utf-8", "replace") if message else ""
-        self.messages.append(f"[{status_label(status)}] {text}")
+        self.messages.append(f"[{status_label(status, self.prefix)}] {text}")
 
     def last(self, n: int = 3) -> str:
         return " | ".join(list(self.messages)[-n:])
@@ -98,19 +101,20 @@ def _callbacks(log: _LogBuffer) -> fmi2CallbackFunctions:
 _LOADING = threading.Lock()
 
 
-def _load_slave(archive: FmuArchive, instance_name: str) -> FMU2Slave:
-    """fmpy's slave of ``archive``, its shared library loaded.
+def _load_slave(archive: FmuArchive, instance_name: str, slave_class: type) -> object:
+    """fmpy's slave of ``archive`` (an instance of ``slave_class``), its library loaded.
 
     Raises
     ------
     FmuArchiveError
         If the binary cannot be loaded (not a shared library for this platform, a missing
-        dependency) or lacks FMI 2.0 functions.
+        dependency) or lacks functions of its FMI version.
     """
+    kind = archive.kind
     with _LOADING:  # the working folder is the process's: one load at a time
         cwd = os.getcwd()
         try:
-            return FMU2Slave(
+            return slave_class(
                 guid=archive.guid,
                 modelIdentifier=archive.model_identifier,
                 unzipDirectory=str(archive.unzip_dir),
@@ -118,16 +122,18 @@ def _load_slave(archive: FmuArchive, instance_name: str) -> FMU2Slave:
             )
         except Exception as exc:  # fmpy raises bare Exceptions; ctypes AttributeError for symbols
             raise FmuArchiveError(
-                f"{archive.path}: its binary for {fmpy_platform} cannot be loaded ({exc}); "
-                f"rebuild or re-export the FMU for {fmpy_platform} with the FMI 2.0 "
-                "co-simulation functions"
+                f"{archive.path}: its binary for {kind.binary_folder} cannot be loaded ({exc}); "
+                f"rebuild or re-export the FMU for {kind.binary_folder} with the {kind.label} "
+                "functions"
             ) from exc
         finally:
             os.chdir(cwd)  # fmpy enters the binary's folder to load it, and stays there on failure
 
 
 class FmuInstance:
-    """One instance of a co-simulation FMU, initialised and ready to step.
+    """One instance of an FMI 2.0 co-simulation FMU, initialised and ready to step.
+
+    Make one with :func:`fmu_instance`, which picks the class for the FMU's kind.
 
     Parameters
     ----------
@@ -159,13 +165,9 @@ class FmuInstance:
     ) -> None:
         self.archive = archive
         self.time = float(start_time)
-        self._log = _LogBuffer()
-        self._slave = _load_slave(archive, instance_name)
-        fn = self._slave._functions
-        self._set_real = fn["fmi2SetReal"]
-        self._get_real = fn["fmi2GetReal"]
-        self._do_step = fn["fmi2DoStep"]
-        self._callbacks = _callbacks(self._log)
+        self._log = _LogBuffer(prefix=self.PREFIX)
+        self._slave = _load_slave(archive, instance_name, self.SLAVE)
+        self._bind_calls(self._slave._functions)
         self._instantiate()
         try:
             self._initialise(start_time, {**(parameters or {}), **(start_values or {})})
@@ -174,20 +176,64 @@ class FmuInstance:
             self.close()
             raise
 
+    #: fmpy's class of the slave.
+    SLAVE: type = FMU2Slave
+    #: Prefix of the FMI names of calls and statuses.
+    PREFIX = "fmi2"
+    #: The FMI function behind each operation, named in errors.
+    CALLS: ClassVar[dict[str, str]] = {
+        "instantiate": "fmi2Instantiate",
+        "enter": "fmi2EnterInitializationMode",
+        "exit": "fmi2ExitInitializationMode",
+        "set": "fmi2SetReal",
+        "get": "fmi2GetReal",
+        "step": "fmi2DoStep",
+        "get_state": "fmi2GetFMUstate",
+        "set_state": "fmi2SetFMUstate",
+        "free_state": "fmi2FreeFMUstate",
+        "serialize": "fmi2SerializeFMUstate",
+        "deserialize": "fmi2DeSerializeFMUstate",
+        "reset": "fmi2Reset",
+    }
+    #: fmpy's slave method behind each FMU-state operation.
+    STATE_METHODS: ClassVar[dict[str, str]] = {
+        "get_state": "getFMUstate",
+        "set_state": "setFMUstate",
+        "free_state": "freeFMUstate",
+        "serialize": "serializeFMUstate",
+        "deserialize": "deSerializeFMUstate",
+    }
+
     # ------------------------------------------------------------------ set-up
+    def _bind_calls(self, functions: Mapping[str, object]) -> None:
+        """Keep the C functions of the per-step path: ``_set_real(component, refs, n, values)``,
+        ``_get_real`` alike and ``_do_step(component, time, h, no_set_prior)``."""
+        self._set_real = functions["fmi2SetReal"]
+        self._get_real = functions["fmi2GetReal"]
+        self._do_step = functions["fmi2DoStep"]
+
     def _instantiate(self) -> None:
+        self._callbacks = _callbacks(self._log)
         try:
             self._slave.instantiate(callbacks=self._callbacks, loggingOn=False)
         except Exception as exc:
-            raise FmuError("fmi2Instantiate", "NULL", self.time, self._log.last()) from exc
+            raise FmuError(self.CALLS["instantiate"], "NULL", self.time, self._log.last()) from exc
         self._component = self._slave.component
 
-    def _initialise(self, start_time: float, values: Mapping[str, float]) -> None:
+    def _setup(self, start_time: float) -> None:
+        """What comes before the start values: FMI 2.0 sets up the experiment."""
         self._guarded("fmi2SetupExperiment", self._slave.setupExperiment, startTime=start_time)
+
+    def _enter(self, start_time: float) -> None:
+        """Enter initialisation mode (FMI 2.0 took the start time in :meth:`_setup`)."""
+        self._guarded(self.CALLS["enter"], self._slave.enterInitializationMode)
+
+    def _initialise(self, start_time: float, values: Mapping[str, float]) -> None:
+        self._setup(start_time)
         if values:
             self.set_real(list(values), list(values.values()))
-        self._guarded("fmi2EnterInitializationMode", self._slave.enterInitializationMode)
-        self._guarded("fmi2ExitInitializationMode", self._slave.exitInitializationMode)
+        self._enter(start_time)
+        self._guarded(self.CALLS["exit"], self._slave.exitInitializationMode)
         self.time = float(start_time)
 
     def bind(self, inputs: Sequence[str], outputs: Sequence[str]) -> None:
@@ -213,7 +259,7 @@ class FmuInstance:
     # ------------------------------------------------------------------ stepping
     def _check(self, call: str, status: int) -> None:
         if status > _WARNING:
-            raise FmuError(call, status_label(status), self.time, self._log.last())
+            raise FmuError(call, status_label(status, self.PREFIX), self.time, self._log.last())
 
     def _guarded(self, call: str, fn, *args, **kwargs):
         try:
@@ -222,7 +268,8 @@ class FmuInstance:
             raise
         except Exception as exc:
             status = getattr(exc, "status", None)
-            label = status_label(status) if isinstance(status, int) else type(exc).__name__
+            known = isinstance(status, int)
+            label = status_label(status, self.PREFIX) if known else type(exc).__name__
             raise FmuError(call, label, self.time, self._log.last() or str(exc)) from exc
 
     def step(self, u: Sequence[float] | np.ndarray, h: float) -> np.ndarray:
@@ -245,9 +292,10 @@ class FmuInstance:
         if n_in:
             self._in_buf[:] = u
             self._check(
-                "fmi2SetReal", self._set_real(self._component, self._in_vr, n_in, self._in_buf)
+                self.CALLS["set"],
+                self._set_real(self._component, self._in_vr, n_in, self._in_buf),
             )
-        self._check("fmi2DoStep", self._do_step(self._component, self.time, h, 1))
+        self._check(self.CALLS["step"], self._do_step(self._component, self.time, h, 1))
         self.time += h
         return self.read_outputs()
 
@@ -256,7 +304,8 @@ class FmuInstance:
         n_out = len(self._out_buf)
         if n_out:
             self._check(
-                "fmi2GetReal", self._get_real(self._component, self._out_vr, n_out, self._out_buf)
+                self.CALLS["get"],
+                self._get_real(self._component, self._out_vr, n_out, self._out_buf),
             )
         return self._out_view
 
@@ -264,46 +313,46 @@ class FmuInstance:
         """Set Real variables by name (parameters, inputs)."""
         refs = self._references(names)
         buf = (ctypes.c_double * len(names))(*map(float, values))
-        self._check("fmi2SetReal", self._set_real(self._component, refs, len(names), buf))
+        self._check(self.CALLS["set"], self._set_real(self._component, refs, len(names), buf))
 
     def get_real(self, names: Sequence[str]) -> np.ndarray:
         """Read Real variables by name; returns shape (len(names),)."""
         refs = self._references(names)
         buf = (ctypes.c_double * len(names))()
-        self._check("fmi2GetReal", self._get_real(self._component, refs, len(names), buf))
+        self._check(self.CALLS["get"], self._get_real(self._component, refs, len(names), buf))
         return np.array(buf[:], dtype=np.float64)
 
     # ------------------------------------------------------------------ state
-    def get_state(self) -> tuple[fmi2FMUstate, float]:
-        """Capture the FMU state and the master's time; free it with :meth:`free_state`."""
-        state = self._guarded("fmi2GetFMUstate", self._slave.getFMUstate)
-        return state, self.time
+    def _state_call(self, operation: str, *args: object) -> object:
+        """Call fmpy's FMU-state method for ``operation`` (see :attr:`STATE_METHODS`)."""
+        method = getattr(self._slave, self.STATE_METHODS[operation])
+        return self._guarded(self.CALLS[operation], method, *args)
 
-    def set_state(self, snapshot: tuple[fmi2FMUstate, float]) -> None:
+    def get_state(self) -> tuple[object, float]:
+        """Capture the FMU state and the master's time; free it with :meth:`free_state`."""
+        return self._state_call("get_state"), self.time
+
+    def set_state(self, snapshot: tuple[object, float]) -> None:
         """Restore a state captured by :meth:`get_state`."""
         state, time = snapshot
-        self._guarded("fmi2SetFMUstate", self._slave.setFMUstate, state)
+        self._state_call("set_state", state)
         self.time = time
 
-    def free_state(self, snapshot: tuple[fmi2FMUstate, float]) -> None:
+    def free_state(self, snapshot: tuple[object, float]) -> None:
         """Release a captured state."""
-        self._guarded("fmi2FreeFMUstate", self._slave.freeFMUstate, snapshot[0])
+        self._state_call("free_state", snapshot[0])
 
     def serialize_state(self) -> bytes:
         """The FMU state as bytes followed by nothing else (the time is kept by the caller)."""
         state, _ = self.get_state()
         try:
-            return bytes(
-                self._guarded("fmi2SerializeFMUstate", self._slave.serializeFMUstate, state)
-            )
+            return bytes(self._state_call("serialize", state))
         finally:
             self.free_state((state, self.time))
 
     def deserialize_state(self, data: bytes, time: float) -> None:
         """Restore a state produced by :meth:`serialize_state` at master time ``time``."""
-        state = self._guarded(
-            "fmi2DeSerializeFMUstate", self._slave.deSerializeFMUstate, bytes(data)
-        )
+        state = self._state_call("deserialize", bytes(data))
         try:
             self.set_state((state, time))
         finally:
@@ -315,7 +364,7 @@ class FmuInstance:
         start_time: float = 0.0,
     ) -> None:
         """``fmi2Reset`` then initialise again, optionally with new parameter values."""
-        self._guarded("fmi2Reset", self._slave.reset)
+        self._guarded(self.CALLS["reset"], self._slave.reset)
         self._initialise(start_time, dict(parameters or {}))
 
     def close(self) -> None:
@@ -334,3 +383,90 @@ class FmuInstance:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class Fmu3Instance(FmuInstance):
+    """One instance of an FMI 3.0 co-simulation FMU: :class:`FmuInstance` with the FMI 3.0
+    calls (``Float64`` for Real, the start time given on entering initialisation, a logger
+    that is not variadic)."""
+
+    SLAVE = FMU3Slave
+    PREFIX = "fmi3"
+    CALLS: ClassVar[dict[str, str]] = {
+        "instantiate": "fmi3InstantiateCoSimulation",
+        "enter": "fmi3EnterInitializationMode",
+        "exit": "fmi3ExitInitializationMode",
+        "set": "fmi3SetFloat64",
+        "get": "fmi3GetFloat64",
+        "step": "fmi3DoStep",
+        "get_state": "fmi3GetFMUState",
+        "set_state": "fmi3SetFMUState",
+        "free_state": "fmi3FreeFMUState",
+        "serialize": "fmi3SerializeFMUState",
+        "deserialize": "fmi3DeserializeFMUState",
+        "reset": "fmi3Reset",
+    }
+    STATE_METHODS: ClassVar[dict[str, str]] = {
+        "get_state": "getFMUState",
+        "set_state": "setFMUState",
+        "free_state": "freeFMUState",
+        "serialize": "serializeFMUState",
+        "deserialize": "deserializeFMUState",
+    }
+
+    def _bind_calls(self, functions: Mapping[str, object]) -> None:
+        """The FMI 3.0 functions behind the FMI 2.0 signatures of the per-step path (FMI 3.0
+        adds the number of values, and the step's event, termination and early-return
+        outputs, which this co-simulation master does not use)."""
+        set_float, get_float = functions["fmi3SetFloat64"], functions["fmi3GetFloat64"]
+        do_step = functions["fmi3DoStep"]
+        flags = [fmi3Boolean() for _ in range(3)]
+        last = fmi3Float64()
+        outputs = (*(ctypes.byref(f) for f in flags), ctypes.byref(last))
+
+        self._set_real = lambda c, refs, n, values: set_float(c, refs, n, values, n)
+        self._get_real = lambda c, refs, n, values: get_float(c, refs, n, values, n)
+        self._do_step = lambda c, t, h, no_prior: do_step(c, t, h, bool(no_prior), *outputs)
+
+    def _instantiate(self) -> None:
+        log = self._log
+
+        def message(env, status, category, text) -> None:
+            log(env, None, status, category, text)
+
+        try:
+            self._slave.instantiate(loggingOn=False, logMessage=message)
+        except Exception as exc:
+            raise FmuError(self.CALLS["instantiate"], "NULL", self.time, log.last()) from exc
+        self._component = self._slave.component
+
+    def _setup(self, start_time: float) -> None:
+        """Nothing: FMI 3.0 takes the start time on entering initialisation mode."""
+
+    def _enter(self, start_time: float) -> None:
+        self._guarded(
+            self.CALLS["enter"], self._slave.enterInitializationMode, startTime=start_time
+        )
+
+
+#: The instance class of each accepted kind.
+INSTANCE_CLASSES: dict = {FMI2_CS: FmuInstance, FMI3_CS: Fmu3Instance}
+
+
+def fmu_instance(archive: FmuArchive, *args: object, **kwargs: object) -> FmuInstance:
+    """An instance of ``archive`` of the class for its kind; arguments as
+    :class:`FmuInstance`.
+
+    Raises
+    ------
+    FmuArchiveError
+        For a kind no instance class steps (:func:`~fmu_greybox.fmi.archive.open_fmu` refuses
+        those before).
+    """
+    try:
+        instance_class = INSTANCE_CLASSES[archive.kind]
+    except KeyError:
+        raise FmuArchiveError(
+            f"{archive.path}: {archive.kind.label} FMUs cannot be stepped here"
+        ) from None
+    return instance_class(archive, *args, **kwargs)

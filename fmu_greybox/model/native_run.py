@@ -36,6 +36,7 @@ from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.fmi.build import c_compiler, fmi2_headers
 from fmu_greybox.fmi.builtin import cache_dir
 from fmu_greybox.fmi.instance import status_label
+from fmu_greybox.fmi.kinds import require_native
 from fmu_greybox.model.terms import Term
 from fmu_greybox.model.whitebox import part_layouts
 
@@ -120,7 +121,8 @@ def native_runner() -> ctypes.CDLL | None:
 
 def runs_natively(terms: Sequence[Term]) -> bool:
     """Whether :func:`run_native` can run these terms (every kind has a C implementation) and
-    the runner is built."""
+    the runner is built (the white-box's kind must be one it loads too,
+    :attr:`~fmu_greybox.fmi.kinds.FmuKind.native`)."""
     kinds = all(type(t).__name__ in NATIVE_KINDS for t in terms)
     return kinds and native_runner() is not None
 
@@ -153,9 +155,18 @@ def run_native(
         The white-box refused a call (the call, its status, the time and the white-box's last
         messages, as the Python loop raises it), its data could not be loaded, or the runner
         is not built (:func:`runs_natively` says so beforehand).
+    FmuArchiveError
+        The white-box is of a kind the runner does not load (:func:`runs_natively` says so
+        beforehand).
     """
     from fmu_greybox.export.native import whitebox_sections  # the export imports this package
 
+    require_native(
+        archive.kind,
+        archive.path,
+        "the native simulation runner",
+        "step it in Python (simulate_with_terms does so by itself for such a white-box)",
+    )
     runner = native_runner()
     if runner is None:
         raise FmuError("fgb_simulate", "nothing", detail="the native runner is not built")

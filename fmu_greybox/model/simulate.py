@@ -84,7 +84,8 @@ def simulate_with_terms(
     """Run the white-box open-loop over recorded inputs with correction terms applied.
 
     The run is stepped in C (:mod:`~fmu_greybox.model.native_run`, the same numbers without
-    Python between the steps) unless a progress bar is asked for or the runner cannot be built.
+    Python between the steps) unless a progress bar is asked for, the runner cannot be built or
+    the white-box is of a kind it does not load (FMI 3.0: stepped by fmpy in Python).
 
     Parameters
     ----------
@@ -118,7 +119,7 @@ def simulate_with_terms(
             y[:, columns] = cache[key]
             continue
         levels_of = [level] * len(names)
-        if not progress and runs_natively(active):
+        if not progress and archive.kind.native and runs_natively(active):
             y[:, columns] = run_native(
                 archive, inputs, u, dt, names, active, levels_of, parameters, start_time, substeps
             )

@@ -25,7 +25,7 @@ import numpy as np
 
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.fmi.archive import FmuArchive
-from fmu_greybox.fmi.instance import FmuInstance
+from fmu_greybox.fmi.instance import fmu_instance
 from fmu_greybox.model.terms import Term, term_from_dict
 
 #: FMU steps per communication step while a feedback term is active.
@@ -176,7 +176,7 @@ class _Part:
         self.substeps = layout.substeps
         self.dt = dt
         self.n_out = len(layout.outputs)
-        self.instance = FmuInstance(
+        self.instance = fmu_instance(
             archive,
             inputs=inputs,
             outputs=layout.bound,

@@ -26,7 +26,7 @@ import numpy as np
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.fmi.archive import FmuArchive, FmuVariable, real_outputs
-from fmu_greybox.fmi.instance import FmuInstance
+from fmu_greybox.fmi.instance import fmu_instance
 from fmu_greybox.progress import track
 from fmu_greybox.suggest import did_you_mean
 from fmu_greybox.synth.loop import Loop, is_loop_effect, parse_loop_effects
@@ -413,7 +413,7 @@ def _closed_loop(
     loop = Loop(request.effects, INPUTS, outputs, profile.dt)
     parameters = {k: v for k, v in request.effects.items() if not is_loop_effect(k)}
     start = {"supply_pressure": float(supply[0]), "engage": 1.0}
-    with FmuInstance(truth, INPUTS, outputs, parameters, start, "synth") as inst:
+    with fmu_instance(truth, INPUTS, outputs, parameters, start, "synth") as inst:
         true = inst.read_outputs().copy()
         for k in track(range(n), "Recording the truth model in closed loop", n, progress):
             y[k] = loop.sensed(true)

@@ -23,7 +23,7 @@ import numpy as np
 
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.fmi.archive import FmuArchive, real_outputs
-from fmu_greybox.fmi.instance import FmuInstance
+from fmu_greybox.fmi.instance import fmu_instance
 from fmu_greybox.synth.actuator import check_effects, coloured_noise, pilot_reference
 
 INPUTS = ("motor_voltage", "load_force")
@@ -181,7 +181,7 @@ def _closed_loop(
     u = np.empty((n, len(INPUTS)))
     y = np.empty((n, len(outputs)))
     integral = 0.0  # integral of the position error [m.s]
-    with FmuInstance(truth, INPUTS, outputs, effects, {}, "positioner synth") as inst:
+    with fmu_instance(truth, INPUTS, outputs, effects, {}, "positioner synth") as inst:
         y[0] = inst.read_outputs()
         for k in range(n):
             error = reference[k] - (y[k, at["position"]] + noise["position"][k])

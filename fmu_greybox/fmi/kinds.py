@@ -1,0 +1,130 @@
+"""The kinds of FMU fmu-greybox accepts as a white-box, and where each keeps its binary.
+
+The one place that knows FMI versions, interfaces and binary folders: the archive check
+(:func:`fmu_greybox.fmi.archive.open_fmu`) asks :func:`fmu_kind` whether an FMU is accepted,
+the running instance (:func:`fmu_greybox.fmi.instance.fmu_instance`) picks its FMI calls by
+kind, and the C paths (the native simulation runner and the native grey-box export, which
+``dlopen`` an FMI 2.0 co-simulation binary) ask :attr:`FmuKind.native`.
+
+Accepted today (``docs/config.md``, "White-box FMUs accepted"): FMI 2.0 co-simulation
+(``binaries/linux64``; stepped by fmpy or the C runner) and FMI 3.0 co-simulation
+(``binaries/x86_64-linux``; stepped by fmpy, refused by the C paths).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from fmpy import platform as fmi2_folder
+from fmpy import platform_tuple as fmi3_folder
+from fmpy import sharedLibraryExtension
+
+from fmu_greybox.errors import FmuArchiveError
+
+CO_SIMULATION = "co-simulation"
+MODEL_EXCHANGE = "model exchange"
+
+
+@dataclass(frozen=True)
+class FmuKind:
+    """An FMI version and interface.
+
+    Attributes
+    ----------
+    fmi_version : str
+        ``"2.0"`` or ``"3.0"``.
+    interface : str
+        :data:`CO_SIMULATION` or :data:`MODEL_EXCHANGE`.
+    """
+
+    fmi_version: str
+    interface: str
+
+    @property
+    def label(self) -> str:
+        """E.g. ``"FMI 3.0 co-simulation"``."""
+        return f"FMI {self.fmi_version} {self.interface}"
+
+    @property
+    def binary_folder(self) -> str:
+        """Folder under ``binaries/`` holding this machine's library, e.g. ``"linux64"``."""
+        return fmi2_folder if self.fmi_version == "2.0" else fmi3_folder
+
+    @property
+    def native(self) -> bool:
+        """Whether the C paths (the native simulation runner, the native grey-box export) can
+        load it: they call the FMI 2.0 co-simulation functions."""
+        return self == FMI2_CS
+
+
+FMI2_CS = FmuKind("2.0", CO_SIMULATION)
+FMI3_CS = FmuKind("3.0", CO_SIMULATION)
+#: The kinds :func:`fmu_kind` accepts.
+ACCEPTED = (FMI2_CS, FMI3_CS)
+
+
+def fmu_kind(path: Path, description: object) -> FmuKind:
+    """The kind of an FMU from its parsed model description, when accepted.
+
+    Parameters
+    ----------
+    path : Path
+        The ``.fmu`` file (for messages).
+    description : fmpy.model_description.ModelDescription
+
+    Raises
+    ------
+    FmuArchiveError
+        For an FMI version or interface fmu-greybox does not run; the message says what is
+        accepted.
+    """
+    version = "3.0" if str(description.fmiVersion).startswith("3.") else description.fmiVersion
+    accepted = " or ".join(k.label for k in ACCEPTED)
+    if version not in {k.fmi_version for k in ACCEPTED}:
+        raise FmuArchiveError(
+            f"{path}: FMI version {description.fmiVersion}; fmu-greybox runs {accepted} FMUs. "
+            "Export the model as one of these"
+        )
+    if description.coSimulation is None:
+        kinds = "model exchange" if description.modelExchange is not None else "no interface"
+        raise FmuArchiveError(
+            f"{path}: an FMI {version} {kinds} FMU; fmu-greybox needs co-simulation "
+            f"({accepted}). Re-export the model with the co-simulation interface (with its "
+            "own solver)"
+        )
+    return FmuKind(version, CO_SIMULATION)
+
+
+def binary_path(unzip_dir: Path, kind: FmuKind, identifier: str) -> Path:
+    """Where an extracted FMU of ``kind`` keeps its shared library for this machine."""
+    return unzip_dir / "binaries" / kind.binary_folder / f"{identifier}{sharedLibraryExtension}"
+
+
+def require_native(
+    kind: FmuKind, path: Path, what: str, mend: str, error: type[Exception] = FmuArchiveError
+) -> None:
+    """Refuse a white-box the C paths cannot load.
+
+    Parameters
+    ----------
+    kind : FmuKind
+    path : Path
+        The white-box FMU (for the message).
+    what : str
+        What needs it, e.g. ``"the native grey-box export"``.
+    mend : str
+        How to go on without it, e.g. ``"export with --runtime python"``.
+    error : type of Exception
+        What to raise.
+
+    Raises
+    ------
+    error
+        If ``kind`` is not :data:`FMI2_CS`.
+    """
+    if not kind.native:
+        raise error(
+            f"{path}: {what} loads FMI 2.0 co-simulation white-boxes only, and this one is "
+            f"{kind.label}; {mend}"
+        )
