@@ -137,11 +137,11 @@ def test_each_missing_file_is_named(saved: Path, tmp_path: Path) -> None:
         (lambda m: m["files"].pop("stage_RAM.npz"), "content does not match the hash"),
         (lambda m: m.update(format_version="1"), "format version '1'"),
         (
-            lambda m: m.update(format_version=5),
-            "format version 5; this tool reads versions 1, 2, 3, 4",
+            lambda m: m.update(format_version=6),
+            "format version 6; this tool reads versions 1, 2, 3, 4, 5",
         ),
     ],
-    ids=["dt", "stage removed", "hash removed", "version as text", "version 4"],
+    ids=["dt", "stage removed", "hash removed", "version as text", "version 6"],
 )
 def test_valid_json_edits_of_the_manifest_are_refused(
     saved: Path, tmp_path: Path, edit: Callable[[dict], Any], pattern: str

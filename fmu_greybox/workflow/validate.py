@@ -15,7 +15,7 @@ from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError, ModelFormatError, RecordingError
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.store import TRAINING_ROWS, GreyBoxModel
-from fmu_greybox.project.config import AcceptanceConfig, ProjectConfig
+from fmu_greybox.project.config import AcceptanceConfig, ProjectConfig, check_bands
 from fmu_greybox.project.data import ProjectData, check_sample_time, prepare, split_row
 from fmu_greybox.project.fingerprint import (
     copy_message,
@@ -151,6 +151,8 @@ def validate_model(
     Validation
     """
     check_sample_time(recording, model.dt, "the model (the step it was trained at)")
+    criteria = acceptance if acceptance is not None else model.config.acceptance
+    check_bands(criteria, model.dt, model.config.path)
     with open_fmu(model.whitebox_fmu) as archive:
         data = prepare(model.config, model.chain, archive, recording, progress)
     trained, older = _trained(model, data)
@@ -206,7 +208,6 @@ def validate_model(
         if shares:
             table[name]["calibration_share_low"] = min(shares)
             table[name]["calibration_share_high"] = max(shares)
-    criteria = acceptance if acceptance is not None else model.config.acceptance
     responses = validation_responses(model, data, run, scored, criteria)
     return Validation(
         run=run,
