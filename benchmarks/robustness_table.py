@@ -49,6 +49,7 @@ from fmu_greybox.model.simulate import simulate_recording  # noqa: E402
 from fmu_greybox.model.store import (  # noqa: E402
     MANIFEST,
     MANIFEST_HASH,
+    TRAINING_ROWS,
     file_sha256,
     load_model,
     manifest_digest,
@@ -58,7 +59,11 @@ from fmu_greybox.project.config import load_config, parse_config  # noqa: E402
 from fmu_greybox.project.data import load_project_recording  # noqa: E402
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise  # noqa: E402
 from fmu_greybox.workflow.train import train_model  # noqa: E402
-from fmu_greybox.workflow.validate import check_project, validate_model  # noqa: E402
+from fmu_greybox.workflow.validate import (  # noqa: E402
+    check_project,
+    validate_model,
+    validate_recordings,
+)
 
 REFERENCE = ROOT / "bench_configs" / "hydraulic_actuator.toml"
 WIDTH = 190
@@ -366,6 +371,18 @@ def config_cases(tmp: Path) -> list[Case]:
         ),
         Case(
             "config", "project: `[whitebox]` missing", edited(lambda r: r.pop("whitebox")), fields
+        ),
+        Case(
+            "config",
+            "project: an acceptance band above the Nyquist frequency of `step` or `resample` "
+            "(issue 42, item 10: accepted, then every frequency check UNDECIDED for another "
+            "reason)",
+            edited(
+                lambda r: r.update(
+                    whitebox={**r["whitebox"], "step": 0.001}, acceptance={"band": [600, 900]}
+                )
+            ),
+            "test_acceptance.py::test_a_band_above_the_nyquist_frequency_is_refused_at_load",
         ),
         Case(
             "config",
@@ -875,6 +892,7 @@ def workflow_cases(tmp: Path, whitebox: Path, recording: Recording, saved: Path)
     from fmu_greybox.diagnosis import Diagnosis
 
     flow = "test_robustness_workflow.py::"
+    evidence = "test_robustness_evidence.py::"
     model = load_model(saved)
     config = parse_config(small_project(whitebox), REFERENCE)
     save_recording(recording, tmp / "train.csv")
@@ -889,6 +907,40 @@ def workflow_cases(tmp: Path, whitebox: Path, recording: Recording, saved: Path)
         shutil.copyfile(tmp / "train.csv", tmp / "copy.csv")  # without train.csv.units.json
         result = validate_model(model, load_project_recording(config, tmp / "copy.csv"))
         return "scored", f"copy.csv: {result.held_out}"
+
+    def rounded(digits: int, name: str) -> Path:
+        """train.csv re-saved with ``digits`` significant digits, no units file."""
+        header, *lines = (tmp / "train.csv").read_text(encoding="utf-8").splitlines()
+        rows = [",".join(f"{float(v):.{digits}g}" for v in line.split(",")) for line in lines]
+        (tmp / name).write_text("\n".join([header, *rows]) + "\n", encoding="utf-8")
+        return tmp / name
+
+    def rounded_copy(digits: int) -> tuple[str, str]:
+        copy = rounded(digits, f"sig{digits}.csv")
+        result = validate_model(model, load_project_recording(config, copy))
+        return "scored", f"{copy.name}: {result.held_out}"
+
+    def calibrate_on_itself() -> object:
+        training = load_project_recording(config, tmp / "train.csv")
+        copy = load_project_recording(config, rounded(12, "calibration.csv"))
+        return train_model(config, training, calibration_recordings=[copy])
+
+    def validate_twice() -> object:
+        same = load_project_recording(config, tmp / "train.csv")
+        copy = load_project_recording(config, rounded(15, "again.csv"))
+        return validate_recordings(model, {"1-train": same, "2-again": copy})
+
+    def older_folder() -> tuple[str, str]:
+        folder = tmp / "model_v2"
+        shutil.copytree(saved, folder)
+        manifest = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
+        manifest["format_version"] = 2
+        del manifest["files"][TRAINING_ROWS]
+        (folder / TRAINING_ROWS).unlink()
+        manifest[MANIFEST_HASH] = manifest_digest(manifest)
+        (folder / MANIFEST).write_text(json.dumps(manifest), encoding="utf-8")
+        copy = load_project_recording(config, rounded(12, "old.csv"))
+        return "scored", f"old.csv: {validate_model(load_model(folder), copy).held_out}"
 
     def resampled(step: float, source: str) -> Recording:
         grid = np.arange(0.0, recording.duration + step / 2, step)
@@ -947,6 +999,40 @@ def workflow_cases(tmp: Path, whitebox: Path, recording: Recording, saved: Path)
             "validate: a byte copy of the training CSV without its units file",
             byte_copy,
             flow + "test_byte_copy_without_units_scores_only_the_held_out_rows",
+        ),
+        *(
+            Case(
+                "workflow",
+                f"validate: the training CSV re-saved with {digits} significant digits "
+                "(issue 42, item 5: every row was scored as unseen)",
+                lambda digits=digits: rounded_copy(digits),
+                evidence + "test_a_rounded_copy_of_the_training_csv_scores_only_its_held_out_rows",
+            )
+            for digits in (15, 12)
+        ),
+        Case(
+            "workflow",
+            "`train --calibrate-on` the training recording, or a copy (byte, rounded) (issue 42, "
+            "item 6: σ was calibrated on the training rows)",
+            calibrate_on_itself,
+            evidence + "test_calibrating_on_the_training_recording_is_refused",
+        ),
+        Case(
+            "workflow",
+            "`validate` given one recording twice (a copy, rounded or with other time stamps) "
+            "(issue 42, item 7: it counted twice, narrowing the coverage interval); "
+            "`train --calibrate-on` likewise",
+            validate_twice,
+            evidence + "test_the_same_recording_twice_to_validate_is_refused",
+        ),
+        Case(
+            "workflow",
+            "validate: a model folder of format 2 (no row digests) with a rounded copy of its "
+            "training CSV (issue 42, item 9: every row scored, silently); format 3-4 (exact "
+            "digests) likewise",
+            older_folder,
+            evidence + "test_an_older_model_folder_recognises_a_rounded_copy_by_its_spread_and_"
+            "says_so",
         ),
         Case(
             "workflow",

@@ -15,6 +15,14 @@ if ! command -v chromium >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; 
       $sudo_ apt-get install -y -qq --no-install-recommends chromium >/dev/null; } \
     || echo "could not install chromium; the report rendering test will fail in CI" >&2
 fi
+# the fuzz targets' short runs (tests/test_fuzz.py) need clang with libFuzzer and the sanitizers
+if ! command -v clang >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; then
+  sudo_=""
+  [ "$(id -u)" -eq 0 ] || sudo_="sudo -n"
+  { $sudo_ apt-get update -qq && DEBIAN_FRONTEND=noninteractive \
+      $sudo_ apt-get install -y -qq --no-install-recommends clang libclang-rt-dev >/dev/null; } \
+    || echo "could not install clang; the fuzz tests will fail in CI" >&2
+fi
 # the package as a user installs it: wheel, fresh venv, a short run away from the checkout
 bash scripts/wheel_check.sh
 status=0

@@ -78,7 +78,13 @@ def restored(run: Run, state: bytes) -> bool:
 
 
 def sweep(
-    fmu: Path, names: list[str], rows: np.ndarray, folder: Path, header: int, sample: int
+    fmu: Path,
+    names: list[str],
+    rows: np.ndarray,
+    folder: Path,
+    header: int,
+    sample: int,
+    env: dict[str, str] | None = None,
 ) -> dict[str, object]:
     """Run the sweep over ``fmu`` in a process of its own; its counts.
 
@@ -94,6 +100,8 @@ def sweep(
         Where the rows are written for the process.
     header, sample : int
         Bytes flipped bit by bit from the start; bits drawn from the rest (seed 42).
+    env : dict, optional
+        The process's environment (e.g. a sanitizer runtime preloaded); by default this one's.
 
     Returns
     -------
@@ -103,7 +111,7 @@ def sweep(
     rows_file = folder / "flip_rows.npy"
     np.save(rows_file, rows)
     command = [sys.executable, __file__, str(fmu), str(rows_file), str(header), str(sample), "42"]
-    done = subprocess.run([*command, *names], capture_output=True, text=True, timeout=900)
+    done = subprocess.run([*command, *names], capture_output=True, text=True, timeout=900, env=env)
     assert done.returncode == 0, (
         f"the sweep's process ended with exit code {done.returncode} (-11: a segfault):\n"
         f"{done.stderr[-3000:]}"

@@ -365,3 +365,58 @@ def test_a_pass_on_thin_evidence_is_marked_and_says_why() -> None:
     result, check = share(firm | {"independent_rows": 5000.0, "calibration_independent_rows": 5e3})
     assert check.verdict == PASS and not check.thin and check.note == ""
     assert result.thin == [] and "thin" not in result.summary()
+
+
+def test_every_criterion_switched_off_is_undecided_not_a_pass() -> None:
+    """Issue 42, item 10: with every criterion set to false the verdict was "PASS (0 of 0
+    checks pass)" and ``validate --strict`` exited 0. No check shows nothing: UNDECIDED."""
+    off = {
+        name: False
+        for name in (
+            "max_nrmse",
+            "max_gain_error_db",
+            "max_phase_error_deg",
+            "min_coherence",
+            "coverage95",
+            "coverage68",
+        )
+    }
+    criteria = parsed({**off, "ITFV": {"input": "load_force"}})
+    table = {name: dict(ROW) for name in ("EHV", "RAM", "ITFV")}
+    result = evaluate(criteria, table, [noisy_response(n, 1.0) for n in table])
+    assert result.checks == ()
+    assert result.verdict == UNDECIDED and result.to_dict()["verdict"] == UNDECIDED
+    assert result.summary().startswith("Acceptance: UNDECIDED (no criterion to check")
+    assert "0 of 0" not in result.summary()
+    pooled = across_recordings(criteria, {"a": result, "b": result}, {})
+    assert pooled.verdict == UNDECIDED
+
+
+@pytest.mark.parametrize(
+    ("tables", "field"),
+    [
+        ({"whitebox": {"step": 0.001}, "acceptance": {"band": [600.0, 900.0]}}, "acceptance.band"),
+        (
+            {"whitebox": {"step": 0.01}, "acceptance": {"RAM": {"band": [50.0, 80.0]}}},
+            "acceptance.RAM.band",
+        ),
+        (
+            {"recording": {"resample": 0.002}, "acceptance": {"band": [250.0, 300.0]}},
+            "acceptance.band",
+        ),
+    ],
+)
+def test_a_band_above_the_nyquist_frequency_is_refused_at_load(tables: dict, field: str) -> None:
+    """Issue 42, item 10: such a band was accepted, then every frequency check was UNDECIDED
+    for a reason that did not say the band was out of reach."""
+    raw = copy.deepcopy(RAW)
+    for name, values in tables.items():
+        raw[name] = {**raw.get(name, {}), **values}
+    with pytest.raises(ConfigError) as info:
+        parse_config(raw, REFERENCE)
+    assert info.value.field == field
+    assert "Nyquist frequency of the sample time" in str(info.value)
+    assert str(REFERENCE) in str(info.value)
+    below = copy.deepcopy(raw)
+    below["acceptance"] = {"band": [0.0, 900.0]}  # reaching beyond it only: what lies below
+    assert parse_config(below, REFERENCE).acceptance.default.band == (0.0, 900.0)

@@ -26,7 +26,7 @@ from fmu_greybox.campaign.page import trend_figure
 from fmu_greybox.campaign.run import RecordingOutcome, campaign_order
 from fmu_greybox.campaign.trends import Z95, campaign_trends, drift_test
 from fmu_greybox.cli import main
-from fmu_greybox.data.recording import save_recording
+from fmu_greybox.data.recording import load_recording, save_recording
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 
@@ -209,6 +209,38 @@ def test_an_edited_diagnosis_is_not_reused(campaign_run, dask_cluster, tmp_path)
     (trend,) = payload["trends"]
     assert trend["values"][1] is None and 4795.0 not in trend["values"]
     assert (copy / "campaign.html").is_file()
+
+
+def test_a_copy_of_a_flight_counts_once(campaign_run, dask_cluster, flights, tmp_path):
+    """Issue 42, item 7: a flight given again (a byte copy, or re-saved as CSV with 12
+    significant digits) gave the drift test more points from one flight. Now each copy is
+    left out, naming the flight it copies, and the trend holds one point per flight."""
+    args, out, _ = campaign_run
+    copy = tmp_path / "campaign"
+    shutil.copytree(out, copy)
+    first = flights[next(iter(FRICTION))]
+    same = tmp_path / "same.parquet"
+    shutil.copyfile(first, same)
+    recording = load_recording(first)
+    signals = {
+        n: np.array([float(f"{v:.12g}") for v in values]) for n, values in recording.signals.items()
+    }
+    rounded = tmp_path / "rounded.csv"
+    save_recording(dataclasses.replace(recording, signals=signals), rounded)
+    given = [*args[2:-2], str(same), str(rounded)]
+    rerun = ["campaign", args[1], *given, "--out", str(copy)]
+    result = CliRunner().invoke(main, [*rerun, "--scheduler", dask_cluster[0], "--no-greybox"])
+    assert result.exit_code == 1, result.output
+    assert "3 of 6 recordings failed" in result.output
+    payload = json.loads((copy / "campaign.json").read_text())
+    by_source = {Path(r["source"]).name: r for r in payload["recordings"]}
+    for name in ("same.parquet", "rounded.csv"):
+        record = by_source[name]
+        assert record["status"] == "failed" and record["findings"] is None
+        assert f"100.0% of its rows are rows of {first}" in record["error"]
+        assert "count each recording once" in record["error"]
+    (trend,) = payload["trends"]
+    assert sum(v is not None for v in trend["values"]) == 3
 
 
 def test_one_diagnosis_runs_its_simulations_on_the_cluster(

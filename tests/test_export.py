@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from fmpy import extract, read_model_description, simulate_fmu
+from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 from lxml import etree
@@ -360,6 +361,71 @@ def test_restored_state_continues_identically(greybox_fmu: Path, validation: Rec
     second.k = 200
     np.testing.assert_array_equal(second.run(u[200:]), reference)
     second.close()
+
+
+def _damaged(saved: dict, how: str) -> dict:
+    """A saved Python FMU state with one field damaged as ``how`` says."""
+    damaged = json.loads(json.dumps(saved))
+    if how == "reals cut short":
+        damaged["reals"] = damaged["reals"][:-3]
+    elif how == "time a string":
+        damaged["time"] = "later"
+    elif how == "an input NaN":
+        damaged["reals"][0] = float("nan")
+    elif how == "threshold NaN":
+        damaged["reals"][-1] = float("nan")
+    elif how == "chain cut short":
+        damaged["run"]["chain"] = damaged["run"]["chain"][:10]
+    elif how == "white-box not base64":
+        damaged["run"]["whitebox"][0]["fmu"] = "%%%"
+    elif how == "a key more":
+        damaged["extra"] = 1
+    return damaged
+
+
+@pytest.mark.parametrize(
+    ("how", "field"),
+    [
+        ("reals cut short", "reals"),
+        ("time a string", "time"),
+        ("an input NaN", "reals"),
+        ("threshold NaN", "ood_threshold"),
+        ("chain cut short", "run.chain"),
+        ("white-box not base64", "run.whitebox[0].fmu"),
+        ("a key more", "its keys"),
+    ],
+)
+def test_a_damaged_python_state_is_refused_at_fmi2_set_fmu_state(
+    tmp_path_factory: pytest.TempPathFactory,
+    validation: Recording,
+    how: str,
+    field: str,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Issue 42, item 10: a damaged JSON state was taken in part at fmi2SetFMUstate (the
+    instance's values replaced, its list of values even shortened) and failed only at a later
+    call. Now every field is checked before any is used: the refusal is reported at
+    fmi2SetFMUstate naming the field, nothing is set, and the next fmi2DoStep is refused.
+    (pythonfmu 0.7 answers fmi2Fatal and frees the instance on any Python exception, so the
+    status of fmi2SetFMUstate itself stays fmi2OK.)"""
+    u = input_rows(validation)[:60]
+    run = Slave(trained(tmp_path_factory)["fmus"]["python"], "damaged", u)
+    run.run(u[:30])
+    state = run.slave.getFMUstate()
+    saved = json.loads(bytes(run.slave.serializeFMUstate(state)))
+    run.slave.freeFMUstate(state)
+    run.run(u[30:40])
+    before = run.slave.getReal([*run.inputs, run.refs["ood_threshold"]])
+    text = json.dumps(_damaged(saved, how)).encode()
+    restored = run.slave.deSerializeFMUstate(text)
+    with caplog.at_level(logging.ERROR, logger=LOGGER):
+        run.slave.setFMUstate(restored)
+    run.slave.freeFMUstate(restored)
+    assert f"fmi2SetFMUstate failed: ValueError: damaged FMU state: {field} " in caplog.text
+    assert run.slave.getReal([*run.inputs, run.refs["ood_threshold"]]) == before
+    with pytest.raises(FMICallException):
+        run.slave.doStep(40 * float(run.dt), float(run.dt))
+    run.close()
 
 
 def test_instances_in_one_process_are_independent(greybox_fmu: Path, validation: Recording) -> None:

@@ -8,7 +8,9 @@ Uses the session's model and FMUs of ``test_export``. "Equal to 1e-9" as there: 
 from __future__ import annotations
 
 import hashlib
+import os
 import re
+import shutil
 import struct
 import subprocess
 import zipfile
@@ -19,6 +21,7 @@ import numpy as np
 import pytest
 import state_flips
 from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
 from fmpy.model_description import read_build_description
 from libcosimpy.CosimExecution import CosimExecution
 from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
@@ -190,6 +193,29 @@ def test_single_bit_flips_of_a_saved_state_are_refused_never_crash(
     assert counts["refused"] == counts["tried"], counts
 
 
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), -0.1, 1.5])
+def test_an_ood_threshold_that_is_no_score_is_refused_at_fmi2_set_real(
+    native_fmu: Path, validation, value: float
+) -> None:
+    """Issue 42, item 10: ``ood_threshold = NaN`` was taken, and switched the domain flag off
+    (``score < NaN`` is never true). Now fmi2SetReal answers fmi2Error and sets nothing: the
+    run goes on with the threshold it had."""
+    rows = input_rows(validation)[:20]
+    run = state_flips.Run(str(native_fmu), list(INPUTS), rows)
+    reference = state_flips.Run(str(native_fmu), list(INPUTS), rows)
+    threshold = next(
+        v.valueReference
+        for v in read_model_description(str(native_fmu)).modelVariables
+        if v.name == "ood_threshold"
+    )
+    with pytest.raises(FMICallException, match="fmi2SetReal"):
+        run.slave.setReal([threshold], [value])
+    assert run.slave.getReal([threshold]) == reference.slave.getReal([threshold])
+    np.testing.assert_array_equal(run.steps(0, 20), reference.steps(0, 20))
+    run.slave.setReal([threshold], [0.5])  # a score is still taken
+    assert run.slave.getReal([threshold]) == [0.5]
+
+
 def forged(state: bytes, index: int, value: float) -> bytes:
     """The serialised grey-box state with value ``index`` of its doubles replaced and its
     SHA-256 trailer recomputed, as a forger would (layout: greybox_fmu.c, StateHeader)."""
@@ -306,11 +332,15 @@ def test_two_native_instances_in_libcosim_give_the_masters_outputs(
 
 
 # ---------------------------------------------------------------------------- sources, checks
-def test_rebuild_from_the_shipped_sources_runs_identically(
-    native_fmu: Path, validation, tmp_path: Path
-) -> None:
-    """A bench rebuilds the binary as buildDescription.xml says, with nothing but gcc."""
-    unpacked = Path(extract(str(native_fmu), str(tmp_path / "fmu")))
+def rebuilt(native_fmu: Path, folder: Path, extra: tuple[str, ...] = ()) -> tuple[Path, Path]:
+    """The native FMU unpacked into ``folder``, its binary rebuilt from its sources as its
+    buildDescription.xml says (with gcc), with ``extra`` compiler options after its own.
+
+    Returns
+    -------
+    (unpacked folder, binary)
+    """
+    unpacked = Path(extract(str(native_fmu), str(folder)))
     configuration = read_build_description(str(unpacked))[0]  # checked against FMI's schema
     identifier = configuration.modelIdentifier
     description = (unpacked / "sources" / BUILD_DESCRIPTION).read_text(encoding="utf-8")
@@ -320,13 +350,69 @@ def test_rebuild_from_the_shipped_sources_runs_identically(
     sources_c = [str(sources / f) for s in configuration.sourceFileSets for f in s.sourceFiles]
     binary = unpacked / "binaries" / "linux64" / f"{identifier}.so"
     binary.unlink()
-    command = ["gcc", *options, "-shared", f"-I{sources}", *sources_c, "-o", str(binary)]
+    command = ["gcc", *options, *extra, "-shared", f"-I{sources}", *sources_c, "-o", str(binary)]
     subprocess.run([*command, *(f"-l{lib}" for lib in libraries)], check=True)
+    return unpacked, binary
+
+
+#: AddressSanitizer and UndefinedBehaviorSanitizer, every finding fatal.
+SANITIZE = (
+    "-O1",
+    "-g",
+    "-fno-omit-frame-pointer",
+    "-fsanitize=address,undefined",
+    "-fno-sanitize-recover=all",
+)
+
+
+def sanitizer_environment() -> dict[str, str]:
+    """This process's environment with gcc's ASan and UBSan runtimes preloaded (a Python that
+    was not built with them loads an instrumented FMU only so), any finding ending the
+    process."""
+    runtimes = [
+        subprocess.run(
+            ["gcc", f"-print-file-name={name}"], capture_output=True, text=True, check=True
+        ).stdout.strip()
+        for name in ("libasan.so", "libubsan.so")
+    ]
+    return {
+        **os.environ,
+        "LD_PRELOAD": ":".join(runtimes),
+        "ASAN_OPTIONS": "detect_leaks=0:abort_on_error=1",
+        "UBSAN_OPTIONS": "halt_on_error=1:print_stacktrace=1",
+    }
+
+
+def test_state_flips_and_steps_under_address_and_undefined_behaviour_sanitizers(
+    native_fmu: Path, validation, tmp_path: Path
+) -> None:
+    """The native FMU built with -fsanitize=address,undefined: it steps, saves, and refuses
+    every one of 200 * 8 + 300 single-bit flips of its state (each through
+    fmi2DeSerializeFMUstate, fmi2SetFMUstate and, where accepted, fmi2DoStep), in a process
+    that any out-of-bounds access, use after free or undefined behaviour would end."""
+    unpacked, binary = rebuilt(native_fmu, tmp_path / "fmu", SANITIZE)
+    symbols = subprocess.run(["nm", "-D", str(binary)], capture_output=True, text=True).stdout
+    assert "__asan_report_load8" in symbols and "__ubsan_handle" in symbols  # instrumented
+    fmu = Path(shutil.make_archive(str(tmp_path / "sanitized"), "zip", unpacked))
+    fmu = fmu.rename(fmu.with_suffix(".fmu"))
+    rows = input_rows(validation)[:40]
+    counts = state_flips.sweep(
+        fmu, list(INPUTS), rows, tmp_path, header=200, sample=300, env=sanitizer_environment()
+    )
+    assert counts["tried"] == 200 * 8 + 300
+    assert counts["refused"] == counts["tried"], counts
+
+
+def test_rebuild_from_the_shipped_sources_runs_identically(
+    native_fmu: Path, validation, tmp_path: Path
+) -> None:
+    """A bench rebuilds the binary as buildDescription.xml says, with nothing but gcc."""
+    unpacked, _ = rebuilt(native_fmu, tmp_path / "fmu")
     short = validation.slice_time(0.0, 0.3)
-    rebuilt = simulate(unpacked, short)
+    again = simulate(unpacked, short)
     shipped = simulate(native_fmu, short)
     for name in NAMES:
-        np.testing.assert_array_equal(rebuilt[name], shipped[name], err_msg=name)
+        np.testing.assert_array_equal(again[name], shipped[name], err_msg=name)
 
 
 @pytest.mark.parametrize(

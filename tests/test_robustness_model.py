@@ -394,9 +394,37 @@ def test_training_row_digests_replaced_by_any_array(
     """training_rows.npz holding any array under any name, hashes recomputed: a vector of
     uint64 under 'digests' loads; anything else is refused naming the file."""
     folder = copy_of(saved, tmp_path_factory.mktemp("digests"))
-    np.savez(folder / "training_rows.npz", **{key: digests})
+    with np.load(saved / "training_rows.npz") as arrays:
+        scale = arrays["scale"]
+    np.savez(folder / "training_rows.npz", scale=scale, **{key: digests})
     write_rehashed(folder, read(folder))
     if key == "digests" and digests.dtype == np.uint64 and digests.ndim == 1:
-        np.testing.assert_array_equal(load_model(folder).trained_rows, digests)
+        loaded = load_model(folder).trained_rows
+        np.testing.assert_array_equal(loaded.digests, digests)
+        np.testing.assert_array_equal(loaded.scale, scale)
     else:
         refused(folder, r"training_rows\.npz: ")
+
+
+@FUZZ
+@given(
+    scale=st.one_of(
+        st.lists(st.floats(allow_nan=True), max_size=5).map(lambda v: np.array(v, np.float64)),
+        st.lists(st.integers(-5, 5), min_size=1, max_size=4).map(lambda v: np.array(v)),
+    ),
+)
+def test_training_row_scale_replaced_by_any_array(
+    saved: Path, tmp_path_factory: pytest.TempPathFactory, scale: np.ndarray
+) -> None:
+    """The columns' full scale of format 5, replaced and rehashed: only a vector of positive
+    finite floats loads; anything else (NaN, zero, negative, integers, empty) is refused."""
+    folder = copy_of(saved, tmp_path_factory.mktemp("scale"))
+    with np.load(saved / "training_rows.npz") as arrays:
+        digests = arrays["digests"]
+    np.savez(folder / "training_rows.npz", digests=digests, scale=scale)
+    write_rehashed(folder, read(folder))
+    good = scale.dtype == np.float64 and scale.size > 0 and bool(np.all(np.isfinite(scale)))
+    if good and bool(np.all(scale > 0)):
+        np.testing.assert_array_equal(load_model(folder).trained_rows.scale, scale)
+    else:
+        refused(folder, r"training_rows\.npz: its 'scale' .* is not a vector of positive finite")

@@ -268,11 +268,12 @@ def test_validate_on_several_recordings_writes_nothing_unless_all_can_be_scored(
     workspace: Path, tmp_path: Path
 ) -> None:
     """A second recording holding only training rows stops the run with its own name before
-    any output is written (the first one alone would have validated)."""
+    any output is written (the first one, the held-out tail, alone would have validated)."""
     recording = load_recording(workspace / "rec.csv")
     head = save_recording(recording.slice_time(0.0, 0.3), tmp_path / "head.csv")
+    tail = save_recording(recording.slice_time(0.4, 0.5), tmp_path / "tail.csv")
     args = ["validate", str(workspace / "project.toml"), "--model", str(workspace / "model")]
-    args += ["--recording", str(workspace / "rec.csv"), "--recording", str(head)]
+    args += ["--recording", str(tail), "--recording", str(head)]
     result = CliRunner().invoke(main, [*args, "--out", str(tmp_path / "val")])
     assert result.exit_code == 1
     assert "head.csv" in result.output and "were not used in training" in result.output

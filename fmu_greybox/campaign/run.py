@@ -29,10 +29,19 @@ from fmu_greybox.campaign.cluster import FmuBlob, FmuOnWorkers
 from fmu_greybox.campaign.page import write_page
 from fmu_greybox.campaign.task import RecordingTask
 from fmu_greybox.campaign.trends import DRIFT_ALPHA, campaign_trends, magnitude_problem
+from fmu_greybox.data.recording import Recording
 from fmu_greybox.diagnosis.report import write_json, write_report_files
 from fmu_greybox.errors import DiagnosisFormatError, FmuGreyboxError
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import load_project_recording, whitebox_path
+from fmu_greybox.project.fingerprint import (
+    COPY_SHARE,
+    RowFingerprint,
+    copy_message,
+    fingerprint,
+    recorded_rows,
+    shared_rows,
+)
 
 SCHEMA_VERSION = 1
 TOOL = f"fmu-greybox {__version__}"
@@ -293,6 +302,7 @@ class _Submissions:
         self.client, self.task, self.out, self.key = client, task, out, key
         self.progress = progress
         self.earlier = earlier_diagnoses(out)
+        self.seen: list[tuple[str, list[str], RowFingerprint]] = []
         self.waiting: dict[str, RecordingOutcome] = {}
         self.done = 0
         self.total = 0
@@ -324,6 +334,10 @@ class _Submissions:
             return None
         outcome.sha256 = recording.sha256()
         outcome.start_time = recording.metadata.get("time_origin")
+        copied = self.copied(outcome.source, recording)
+        if copied is not None:
+            outcome.error = copied
+            return None
         found = reusable(self.earlier, outcome.sha256, self.key)
         if found is not None:
             folder, payload = found
@@ -339,6 +353,22 @@ class _Submissions:
         shipped = self.client.scatter(recording, hash=False)
         key = f"fmu-greybox-diagnose-{name}-{uuid.uuid4().hex[:8]}"
         return self.client.submit(self.task, shipped, key=key, pure=False)
+
+    def copied(self, source: str, recording: Recording) -> str | None:
+        """Why a recording is left out as a copy of one read before it (``None`` when it is
+        not): a flight counts once in the trends, however many files hold it
+        (:func:`~fmu_greybox.project.fingerprint.find_copy`)."""
+        ((_, values),) = recorded_rows([recording])
+        names = sorted(recording.signals)
+        for original, columns, rows in self.seen:
+            share = shared_rows(values, rows) if columns == names else 0.0
+            if share > COPY_SHARE:
+                return (
+                    f"{copy_message(source, original, share)}; left out, so that the trends "
+                    "count each recording once"
+                )
+        self.seen.append((source, names, fingerprint(values)))
+        return None
 
     def collect(self, future) -> None:
         """Write a finished recording's results (or note its error) and report it."""

@@ -30,6 +30,7 @@ Variables (value references in this order, see :func:`greybox_interface`):
 
 from __future__ import annotations
 
+import base64
 import functools
 import json
 import math
@@ -489,6 +490,11 @@ class GreyBoxSlave(Fmi2Slave):
         if not self._settable_reals.issuperset(vrs):
             vr = next(vr for vr in vrs if vr not in self._settable_reals)
             raise ValueError(f"value reference {vr} is not a Real input or tunable parameter")
+        for vr, value in zip(vrs, values, strict=True):
+            if vr == self._threshold_vr and not 0.0 <= value <= 1.0:  # NaN included
+                raise ValueError(
+                    f"{THRESHOLD} = {value} must lie between 0 and 1 (a {SCORE}); nothing was set"
+                )
         reals = self._reals
         for vr, value in zip(vrs, values, strict=True):
             reals[vr] = value
@@ -582,11 +588,7 @@ class GreyBoxSlave(Fmi2Slave):
 
     @guarded("fmi2SetFMUstate")
     def _set_fmu_state(self, saved: dict[str, Any]) -> None:
-        if saved.get("version") != STATE_VERSION:
-            raise ValueError(
-                f"FMU state of version {saved.get('version')!r}; this FMU reads version "
-                f"{STATE_VERSION}. Save the state again with this FMU"
-            )
+        self._check_state(saved)
         self._time = float(saved["time"])
         self._reals[:] = saved["reals"]
         self._bools[:] = saved["bools"]
@@ -603,6 +605,64 @@ class GreyBoxSlave(Fmi2Slave):
         run.state.load_array(np.asarray(kept["chain"], dtype=np.float64))
         self._reals[:] = saved["reals"]
         self._bools[:] = saved["bools"]
+
+    def _check_state(self, saved: Any) -> None:
+        """Every field of a restored state, before any is used: one this FMU could have saved.
+
+        Raises
+        ------
+        ValueError
+            Naming the field and what it holds (pythonfmu reports it at fmi2SetFMUstate, and
+            the next fmi2DoStep is refused).
+        """
+
+        def refuse(field: str, why: str) -> ValueError:
+            return ValueError(f"damaged FMU state: {field} {why}; save the state again")
+
+        def numbers(value: Any, field: str, size: int | None, finite: int | None = None) -> None:
+            """A list of ``size`` numbers, the first ``finite`` of them (all if None) finite."""
+            if not isinstance(value, list) or (size is not None and len(value) != size):
+                raise refuse(field, f"is not a list of {size or 'some'} numbers")
+            if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value):
+                raise refuse(field, "holds a value that is not a number")
+            if not all(math.isfinite(v) for v in value[:finite]):
+                raise refuse(field, "holds a value that is not finite")
+
+        if not isinstance(saved, dict) or saved.get("version") != STATE_VERSION:
+            version = saved.get("version") if isinstance(saved, dict) else None
+            raise ValueError(
+                f"FMU state of version {version!r}; this FMU reads version "
+                f"{STATE_VERSION}. Save the state again with this FMU"
+            )
+        if set(saved) != {"version", "time", "reals", "bools", "run"}:
+            raise refuse("its keys", f"are {sorted(saved)}")
+        numbers([saved["time"]], "time", 1)
+        numbers(saved["reals"], "reals", len(self._reals), finite=self._n_in)
+        if not 0.0 <= saved["reals"][self._threshold_vr] <= 1.0:  # NaN included
+            raise refuse(THRESHOLD, "lies outside 0 to 1")
+        bools = saved["bools"]
+        if not (
+            isinstance(bools, list)
+            and len(bools) == len(self._bools)
+            and all(isinstance(b, bool | np.bool_) for b in bools)
+        ):
+            raise refuse("bools", f"is not a list of {len(self._bools)} Booleans")
+        kept = saved["run"]
+        if kept is None:
+            return
+        if not isinstance(kept, dict) or set(kept) != {"whitebox", "chain", "started_with"}:
+            raise refuse("run", "is not a table of whitebox, chain and started_with")
+        numbers(kept["started_with"], "run.started_with", self._n_in)
+        size = self._run.state.values.size if self._run is not None else None
+        numbers(kept["chain"], "run.chain", size)
+        parts = kept["whitebox"]
+        if not isinstance(parts, list) or not all(isinstance(p, dict) for p in parts):
+            raise refuse("run.whitebox", "is not a list of the white-box instances' states")
+        for i, part in enumerate(parts):
+            try:
+                base64.b64decode(part["fmu"], validate=True)
+            except (KeyError, TypeError, ValueError) as exc:
+                raise refuse(f"run.whitebox[{i}].fmu", f"is not base64 ({exc})") from exc
 
 
 def _release(attributes: dict[str, Any]) -> None:

@@ -47,10 +47,12 @@ from fmu_greybox.model.stage import TARGET_MODES
 from fmu_greybox.model.terms import Term, term_from_dict
 from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS, NamedModel
 from fmu_greybox.project.config import ProjectConfig, parse_config
+from fmu_greybox.project.fingerprint import RowFingerprint
 
 #: Version written; versions read (1: no named terms; 1 and 2: no training-row digests; 1 to 3:
-#: no variance calibration, read as uncalibrated; 1 to 4: no white-box variance, read as the
-#: residual variance, and named terms on every stage from their entry on).
+#: no variance calibration, read as uncalibrated; 3 and 4: digests of exact values; 1 to 4: no
+#: white-box variance, read as the residual variance, and named terms on every stage from their
+#: entry on).
 FORMAT_VERSION = 5
 READABLE_VERSIONS = (1, 2, 3, 4, 5)
 MANIFEST = "model.json"
@@ -59,6 +61,8 @@ WHITEBOX = "whitebox.fmu"
 CALIBRATED_VERSION = 4
 #: Digests of the training rows, by which ``validate`` recognises training data.
 TRAINING_ROWS = "training_rows.npz"
+#: First version whose row digests are of values cut at the rows' full scale (``scale``).
+SCALED_DIGESTS_VERSION = 5
 #: Key of ``model.json`` holding the SHA-256 of the rest of its content.
 MANIFEST_HASH = "manifest_sha256"
 #: First version that always records :data:`MANIFEST_HASH` (it came late in version 1, so a
@@ -88,11 +92,11 @@ class GreyBoxModel:
         diagnosis); empty for a plain white-box.
     substeps : int
         FMU steps per communication step while a feedback term is active.
-    trained_rows : ndarray of uint64, shape (m,), or None
-        Sorted digests of the rows the correctors were trained on, and of the calibration
-        recordings' rows σ was calibrated on
-        (:func:`~fmu_greybox.project.fingerprint.row_digests`); ``None`` for a folder written
-        before they were kept (format versions 1 and 2).
+    trained_rows : RowFingerprint or None
+        The rows the correctors were trained on, and the calibration recordings' rows σ was
+        calibrated on (:class:`~fmu_greybox.project.fingerprint.RowFingerprint`; of exact values
+        in format versions 3 and 4); ``None`` for a folder written before they were kept
+        (format versions 1 and 2).
     """
 
     config: ProjectConfig
@@ -102,7 +106,7 @@ class GreyBoxModel:
     training: dict[str, Any] = field(default_factory=dict)
     terms: list[Term] = field(default_factory=list)
     substeps: int = DEFAULT_SUBSTEPS
-    trained_rows: np.ndarray | None = None
+    trained_rows: RowFingerprint | None = None
 
     @property
     def target_std(self) -> dict[str, float]:
@@ -222,7 +226,7 @@ def save_model(model: GreyBoxModel, out_dir: str | Path) -> Path:
         shutil.copyfile(model.whitebox_fmu, tmp / WHITEBOX)
         if model.trained_rows is not None:
             with atomic_write(tmp / TRAINING_ROWS, "wb") as f:
-                np.savez(f, digests=np.unique(model.trained_rows))
+                np.savez(f, **_fingerprint_arrays(model.trained_rows))
         stages = []
         for stage, corrector in zip(model.chain.stages, model.chain.correctors_, strict=True):
             stem = f"stage_{stage.name}"
@@ -415,16 +419,30 @@ def load_model(model_dir: str | Path) -> GreyBoxModel:
         training=manifest["training"],
         terms=terms,
         substeps=substeps,
-        trained_rows=_trained_rows(model_dir) if TRAINING_ROWS in manifest["files"] else None,
+        trained_rows=(
+            _trained_rows(model_dir, manifest["format_version"] >= SCALED_DIGESTS_VERSION)
+            if TRAINING_ROWS in manifest["files"]
+            else None
+        ),
     )
 
 
-def _trained_rows(model_dir: Path) -> np.ndarray:
-    """The training-row digests, checked to be a vector of uint64."""
+def _fingerprint_arrays(rows: RowFingerprint) -> dict[str, np.ndarray]:
+    """The arrays of ``training_rows.npz``: ``digests`` and, for cut values, ``scale``."""
+    arrays = {"digests": np.unique(rows.digests)}
+    if rows.scale is not None:
+        arrays["scale"] = rows.scale
+    return arrays
+
+
+def _trained_rows(model_dir: Path, scaled: bool) -> RowFingerprint:
+    """The training-row digests, checked to be a vector of uint64, with the columns' full
+    scale (a vector of positive finite floats) where the folder's version cuts values."""
     path = model_dir / TRAINING_ROWS
     try:
         with np.load(path, allow_pickle=False) as arrays:
             digests = arrays["digests"]
+            scale = arrays["scale"] if scaled else None
     except (OSError, ValueError, KeyError) as exc:
         raise ModelFormatError(
             f"{path}: not a readable .npz of row digests ({exc}); {_RETRAIN}"
@@ -434,7 +452,18 @@ def _trained_rows(model_dir: Path) -> np.ndarray:
             f"{path}: holds {digests.dtype} of shape {digests.shape}, not a vector of uint64 row "
             f"digests; {_RETRAIN}"
         )
-    return digests
+    if scale is not None and not (
+        scale.ndim == 1
+        and scale.dtype == np.float64
+        and scale.size > 0
+        and np.all(np.isfinite(scale))
+        and np.all(scale > 0)
+    ):
+        raise ModelFormatError(
+            f"{path}: its 'scale' ({scale.dtype} of shape {scale.shape}) is not a vector of "
+            f"positive finite floats, one per column of a row; {_RETRAIN}"
+        )
+    return RowFingerprint(digests, scale)
 
 
 def _named_terms(path: Path, manifest: Mapping[str, Any], n_stages: int) -> tuple[list[Term], int]:

@@ -79,6 +79,11 @@ int data_read(GreyboxData *data, const char *path, const char *sha256,
     }
     if (read_u32(data->bytes + 8) != DATA_VERSION) return corrupt(message, size, path, "version");
     data->n_sections = read_u32(data->bytes + 12);
+    /* no more sections than the file holds headers (a count of 4e9 would allocate 200 GB) */
+    if ((size_t)data->n_sections > (data->size - 16) / SECTION_HEADER) {
+        data->n_sections = 0;
+        return corrupt(message, size, path, "section count");
+    }
     data->sections = allocate((size_t)data->n_sections + 1, sizeof(DataSection));
     if (data->sections == NULL) {
         snprintf(message, size, "out of memory reading %s", path);

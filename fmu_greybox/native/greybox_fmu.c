@@ -557,6 +557,11 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
             return refuse(inst, "fmi2SetReal", "value reference %u is not a Real input or "
                           "tunable parameter", (unsigned)vr[i]);
         }
+        /* NaN compares false: it would switch the domain flag off without a word */
+        if (vr[i] == threshold && !(value[i] >= 0.0 && value[i] <= 1.0)) {
+            return refuse(inst, "fmi2SetReal", "ood_threshold = %g must lie between 0 and 1 "
+                          "(a domain_score); nothing was set", value[i]);
+        }
     }
     for (size_t i = 0; i < nvr; i++) inst->reals[vr[i]] = value[i];
     return fmi2OK;

@@ -496,9 +496,37 @@ def parse_config(raw: Mapping[str, Any], path: Path | None = None) -> ProjectCon
         train_fraction=train_fraction,
         acceptance=_acceptance(reader, reader.table(raw, "acceptance"), signals, stages),
     )
+    sample_time = resample if resample is not None else step
+    if sample_time is not None:
+        check_bands(config.acceptance, sample_time, path)
     if rec_path is not None:
         object.__setattr__(config, "recording", config.resolve_path(rec_path))
     return config
+
+
+def check_bands(acceptance: AcceptanceConfig, dt: float, path: Path | str | None) -> None:
+    """Every acceptance band must start below the Nyquist frequency of the sample time ``dt``
+    [s]: above it a recording holds no frequency to check.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``acceptance.band`` (or ``acceptance.NAME.band``), the Nyquist frequency and
+        the sample time.
+    """
+    nyquist = 0.5 / dt
+    tables = {"acceptance": acceptance.default}
+    tables |= {f"acceptance.{name}": c for name, c in acceptance.stages.items()}
+    for where, criteria in tables.items():
+        low, high = criteria.band
+        if low >= nyquist:
+            raise ConfigError(
+                f"[{low:g}, {high:g}] Hz lies above {nyquist:g} Hz, the Nyquist frequency of "
+                f"the sample time {dt:g} s: a recording holds no frequency there to check. "
+                f"Give a band below {nyquist:g} Hz",
+                field=f"{where}.band",
+                path=str(path) if path else None,
+            )
 
 
 def _signals(reader: _Reader, table: Mapping[str, Any]) -> dict[str, Signal]:

@@ -80,8 +80,11 @@ class Acceptance:
 
     @property
     def verdict(self) -> str:
-        """``FAIL`` if any check fails, else ``UNDECIDED`` if any is undecided, else ``PASS``."""
+        """``FAIL`` if any check fails, else ``UNDECIDED`` if any is undecided or there is no
+        check at all (every criterion switched off: nothing was shown), else ``PASS``."""
         verdicts = {c.verdict for c in self.checks}
+        if not verdicts:
+            return UNDECIDED
         return FAIL if FAIL in verdicts else UNDECIDED if UNDECIDED in verdicts else PASS
 
     def to_dict(self) -> dict[str, Any]:
@@ -96,6 +99,11 @@ class Acceptance:
     def summary(self) -> str:
         """One line: the verdict, the checks that did not pass and the passes on thin
         evidence."""
+        if not self.checks:
+            return (
+                f"Acceptance: {self.verdict} (no criterion to check: every one is switched off "
+                "in the project's [acceptance]; set max_nrmse, a coverage or a band to decide)."
+            )
         others = [c for c in self.checks if c.verdict != PASS]
         named = "; ".join(
             f"{c.stage} {c.criterion}: {c.verdict} ({_number(c.value)}, limit {c.limit})"

@@ -21,7 +21,13 @@ from fmu_greybox.model.whitebox import check_terms
 from fmu_greybox.progress import Progress, announce
 from fmu_greybox.project.config import BEST, ProjectConfig
 from fmu_greybox.project.data import check_sample_time, prepare, split_row, whitebox_path
-from fmu_greybox.project.fingerprint import data_rows, row_digests
+from fmu_greybox.project.fingerprint import (
+    copy_message,
+    data_rows,
+    find_copy,
+    fingerprint,
+    recorded_rows,
+)
 from fmu_greybox.side_by_side import run_side_by_side
 from fmu_greybox.workflow.parts import (
     FittedModel,
@@ -92,13 +98,16 @@ def train_model(
     ConfigError
         Fewer than :data:`MIN_TRAIN_ROWS` training rows, or more inducing points than
         training rows per stage (the message names the field to change), or an unknown
-        ``ship``, or a calibration recording of fewer than :data:`MIN_TRAIN_ROWS` rows.
+        ``ship``, a calibration recording of fewer than :data:`MIN_TRAIN_ROWS` rows, or one
+        that is the training recording, or another calibration recording, again
+        (:func:`check_independent_calibration`).
     RecordingError
         A calibration recording sampled at another step than the training recording.
     """
     check_ship(ship)
     for other in calibration_recordings:
         check_calibration_recording(recording, other)
+    check_independent_calibration(recording, calibration_recordings)
     if not terms:
         return fit_model(
             config,
@@ -325,8 +334,8 @@ def fit_model(
         dt=recording.dt,
         training=training,
         terms=list(terms),
-        trained_rows=np.concatenate(
-            [row_digests(data_rows(d)) for d in calibration] + [row_digests(data_rows(data)[rows])]
+        trained_rows=fingerprint(
+            np.concatenate([data_rows(d) for d in calibration] + [data_rows(data)[rows]])
         ),
     )
     return FittedModel(model, data, split)
@@ -391,6 +400,28 @@ def check_calibration_recording(training: Recording, other: Recording) -> None:
         raise ConfigError(
             f"calibration recording {other.source} has {other.n_samples} rows; a calibration "
             f"free run needs at least {MIN_TRAIN_ROWS}. Give a longer recording",
+            field="--calibrate-on",
+        )
+
+
+def check_independent_calibration(training: Recording, others: Sequence[Recording]) -> None:
+    """Calibration recordings must be other recordings than the training one and each other:
+    a copy (also rounded, or with other time stamps) is recognised by its rows
+    (:func:`~fmu_greybox.project.fingerprint.find_copy`).
+
+    Raises
+    ------
+    ConfigError
+        Naming the copy and the recording it copies.
+    """
+    if not others:
+        return
+    found = find_copy(recorded_rows([training, *others]))
+    if found is not None:
+        raise ConfigError(
+            f"calibration recording {copy_message(*found)}: σ calibrated on the rows it was "
+            "trained on claims a coverage it does not have. Calibrate on recordings made "
+            "apart from the training one (another flight or test run), each given once",
             field="--calibrate-on",
         )
 

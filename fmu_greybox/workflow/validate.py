@@ -12,13 +12,19 @@ import numpy as np
 
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.data.recording import Recording
-from fmu_greybox.errors import ConfigError, RecordingError
+from fmu_greybox.errors import ConfigError, ModelFormatError, RecordingError
 from fmu_greybox.export.domain import beyond_training
 from fmu_greybox.fmi.archive import open_fmu
-from fmu_greybox.model.store import GreyBoxModel
-from fmu_greybox.project.config import AcceptanceConfig, ProjectConfig
+from fmu_greybox.model.store import TRAINING_ROWS, GreyBoxModel
+from fmu_greybox.project.config import AcceptanceConfig, ProjectConfig, check_bands
 from fmu_greybox.project.data import ProjectData, check_sample_time, prepare, split_row
-from fmu_greybox.project.fingerprint import data_rows, trained_mask
+from fmu_greybox.project.fingerprint import (
+    copy_message,
+    data_rows,
+    find_copy,
+    recorded_rows,
+    trained_mask,
+)
 from fmu_greybox.report.plots import calibration_figure, frequency_figure, save_png, trace_figure
 from fmu_greybox.report.spectra import FrequencyResponse, frequency_response
 from fmu_greybox.workflow.acceptance import Acceptance, across_recordings, evaluate
@@ -146,9 +152,11 @@ def validate_model(
     Validation
     """
     check_sample_time(recording, model.dt, "the model (the step it was trained at)")
+    criteria = acceptance if acceptance is not None else model.config.acceptance
+    check_bands(criteria, model.dt, model.config.path)
     with open_fmu(model.whitebox_fmu) as archive:
         data = prepare(model.config, model.chain, archive, recording, progress)
-    trained = _trained(model, data)
+    trained, older = _trained(model, data)
     leading = int(np.argmin(trained)) if not trained.all() else trained.size
     start = max(0, leading - 1)
     unseen = int((~trained[start + 1 :]).sum())
@@ -190,6 +198,7 @@ def validate_model(
         held_out += f"; inputs beyond the training recording's: {beyond}"
     if skipped:
         held_out += f"; {skipped} training rows in the run not scored"
+    held_out += older
     names, recorded = model.chain.stage_names, data.outputs[run.rows][keep]
     uncertainty = uncertainty_table(
         names, recorded, run.mean[keep], run.std[keep], run.latent_std[keep]
@@ -208,7 +217,6 @@ def validate_model(
         if shares:
             table[name]["calibration_share_low"] = min(shares)
             table[name]["calibration_share_high"] = max(shares)
-    criteria = acceptance if acceptance is not None else model.config.acceptance
     responses = validation_responses(model, data, run, scored, criteria)
     return Validation(
         run=run,
@@ -260,10 +268,22 @@ def validate_recordings(
     acceptance : AcceptanceConfig, optional
         By default those stored with the model's project.
 
+    Raises
+    ------
+    RecordingError
+        A recording given twice, or a copy of another (also rounded, or with other time
+        stamps: :func:`~fmu_greybox.project.fingerprint.find_copy`), naming both.
+
     Returns
     -------
     PooledValidation
     """
+    found = find_copy(recorded_rows(list(recordings.values())))
+    if found is not None:
+        raise RecordingError(
+            f"{copy_message(*found)}: validating on it again would narrow the coverage "
+            "interval with no new evidence. Give each recording once"
+        )
     criteria = acceptance if acceptance is not None else model.config.acceptance
     validations = {
         name: validate_model(model, recording, progress, criteria)
@@ -417,15 +437,58 @@ def write_plots(validation: Validation, model: GreyBoxModel, out_dir: Path) -> l
     return list(figures)
 
 
-def _trained(model: GreyBoxModel, data: ProjectData) -> np.ndarray:
-    """Which rows the model was trained on, shape (n,); a model folder without row digests
-    recognises only its training recording, as a whole (its units included)."""
-    if model.trained_rows is not None:
-        return trained_mask(data_rows(data), model.trained_rows)
+#: Relative difference under which a recording's leading rows have the training rows' spread.
+_SAME_SPREAD = 1e-6
+
+
+def _trained(model: GreyBoxModel, data: ProjectData) -> tuple[np.ndarray, str]:
+    """Which rows the model was trained on, shape (n,), and a note for the held-out line.
+
+    A model folder of format version 5 or later recognises training rows at the recording's
+    resolution anywhere. An older one recognises them bit for bit (versions 3 and 4) or not
+    at all (1 and 2), and besides takes the leading training rows of a recording for its
+    training rows when they have the training's spread in every stage
+    (:func:`_has_training_spread`: the training recording, or a rounded copy of it); the note
+    says so.
+    """
+    values = data_rows(data)
+    fingerprint = model.trained_rows
     trained = np.zeros(data.n_samples, dtype=bool)
-    if data.recording.sha256() == model.training.get("recording_sha256"):
-        trained[: split_row(model.config, data.n_samples) + 1] = True
-    return trained
+    if fingerprint is not None:
+        if fingerprint.scale is not None and fingerprint.scale.size != values.shape[1]:
+            raise ModelFormatError(
+                f"{model.whitebox_fmu.parent / TRAINING_ROWS}: its scale has "
+                f"{fingerprint.scale.size} columns, the project's rows {values.shape[1]}; "
+                "retrain the model"
+            )
+        trained = trained_mask(values, fingerprint)
+    if fingerprint is not None and fingerprint.scale is not None:
+        return trained, ""
+    train_rows = int(model.training.get("train_rows", split_row(model.config, data.n_samples) + 1))
+    if data.recording.sha256() == model.training.get("recording_sha256") or _has_training_spread(
+        model, data, train_rows
+    ):
+        trained[:train_rows] = True
+    how = "bit for bit" if fingerprint is not None else "in its training recording only"
+    return trained, (
+        f"; this model folder is of an older format: it recognises training rows {how}, and "
+        "a recording whose first rows have its training rows' spread as its training "
+        "recording (a copy elsewhere in a file, or rounded and reordered, is scored); retrain "
+        "it to recognise training rows at the recording's resolution"
+    )
+
+
+def _has_training_spread(model: GreyBoxModel, data: ProjectData, train_rows: int) -> bool:
+    """Whether the first ``train_rows`` rows have the training targets' standard deviation in
+    every stage (within :data:`_SAME_SPREAD`), as the training recording and its copies do."""
+    spread = model.training.get("target_std", {})
+    if data.n_samples < train_rows or not spread:
+        return False
+    return all(
+        abs(float(np.std(data.outputs[:train_rows, q])) - spread[name])
+        <= _SAME_SPREAD * max(abs(spread[name]), np.finfo(float).tiny)
+        for q, name in enumerate(model.chain.stage_names)
+    )
 
 
 def _ranges(rows: np.ndarray) -> list[list[int]]:
