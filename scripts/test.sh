@@ -7,22 +7,24 @@ python3 -m venv .venv
 .venv/bin/python -m pip install -q -e ".[dev]"
 .venv/bin/ruff check .
 .venv/bin/ruff format --check .
-# the report test renders the HTML report in headless Chromium, from the distribution's packages
-if ! command -v chromium >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; then
-  sudo_=""
+# system packages some tests need, from the distribution, when their command is missing:
+# install_missing COMMAND WHAT-FAILS-WITHOUT PACKAGE...
+install_missing() {
+  local command_=$1 needed_by=$2
+  shift 2
+  if command -v "$command_" >/dev/null 2>&1 || ! command -v apt-get >/dev/null 2>&1; then
+    return 0
+  fi
+  local sudo_=""
   [ "$(id -u)" -eq 0 ] || sudo_="sudo -n"
   { $sudo_ apt-get update -qq && DEBIAN_FRONTEND=noninteractive \
-      $sudo_ apt-get install -y -qq --no-install-recommends chromium >/dev/null; } \
-    || echo "could not install chromium; the report rendering test will fail in CI" >&2
-fi
+      $sudo_ apt-get install -y -qq --no-install-recommends "$@" >/dev/null; } \
+    || echo "could not install $*; $needed_by will fail in CI" >&2
+}
+# the report test renders the HTML report in headless Chromium
+install_missing chromium "the report rendering test" chromium
 # the fuzz targets' short runs (tests/test_fuzz.py) need clang with libFuzzer and the sanitizers
-if ! command -v clang >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; then
-  sudo_=""
-  [ "$(id -u)" -eq 0 ] || sudo_="sudo -n"
-  { $sudo_ apt-get update -qq && DEBIAN_FRONTEND=noninteractive \
-      $sudo_ apt-get install -y -qq --no-install-recommends clang libclang-rt-dev >/dev/null; } \
-    || echo "could not install clang; the fuzz tests will fail in CI" >&2
-fi
+install_missing clang "the fuzz tests" clang libclang-rt-dev
 # the package as a user installs it: wheel, fresh venv, a short run away from the checkout
 bash scripts/wheel_check.sh
 status=0
