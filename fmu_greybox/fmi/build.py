@@ -512,13 +512,7 @@ def model_description(table: VariableTable, identifier: str, guid: str) -> bytes
     index_of: dict[str, int] = {}
     for position, v in enumerate(variables, start=1):
         index_of[v.name] = position
-        attributes = {
-            "name": v.name,
-            "valueReference": str(v.value_reference),
-            "description": v.description,
-            "causality": v.causality,
-            "variability": v.variability,
-        }
+        attributes = _variable_attributes(v)
         scalar = ET.SubElement(scalars, "ScalarVariable", attributes)
         ET.SubElement(scalar, v.type, _typed_attributes(v))
     structure = ET.SubElement(root, "ModelStructure")
@@ -564,6 +558,17 @@ def _units_logging_experiment(root: ET.Element, table: VariableTable, variables:
         "DefaultExperiment",
         {experiment[k]: _number(v) for k, v in table.default_experiment.items()},
     )
+
+
+def _variable_attributes(v: Variable) -> dict[str, str]:
+    """The attributes a variable's element has in both FMI versions' model descriptions."""
+    return {
+        "name": v.name,
+        "valueReference": str(v.value_reference),
+        "description": v.description,
+        "causality": v.causality,
+        "variability": v.variability,
+    }
 
 
 def _typed_attributes(v: Variable) -> dict[str, str]:
@@ -648,13 +653,7 @@ def model_description_fmi3(table: VariableTable, identifier: str, token: str) ->
     element = {"Real": "Float64", "Integer": "Int32", "Boolean": "Boolean", "String": "String"}
     scalars = ET.SubElement(root, "ModelVariables")
     for v in variables:
-        attributes = {
-            "name": v.name,
-            "valueReference": str(v.value_reference),
-            "description": v.description,
-            "causality": v.causality,
-            "variability": v.variability,
-        }
+        attributes = _variable_attributes(v)
         typed = _typed_attributes(v)
         if v.type == "String":  # an FMI 3.0 String's start value is a child element
             start = typed.pop("start", None)
