@@ -107,7 +107,7 @@ def test_demo_model_carries_the_named_terms_and_improves_the_ram(demo: tuple[Pat
     parts = manifest["training"]["parts"]
     assert summary["parts"] == parts
     report = (out / "report.html").read_text()
-    assert f"{shipped_model(parts, load_model(out / 'model'))} (the exported FMU)" in report
+    assert f"The exported FMU ({shipped_model(parts, load_model(out / 'model'))})" in report
     assert all(f"{stage} {PART_WORDS[part]}" in report for stage, part in parts["shipped"].items())
     # the summary says what ships on each stage; the stages whose corrector is off say so
     summary = report[report.index("<div class='summary'") : report.index("</div>")]

@@ -109,30 +109,30 @@ def summary(result: DemoResult) -> dict[str, Any]:
 
 
 #: What the exported model is, by the part shipped on every stage
-#: (:data:`fmu_greybox.workflow.parts.STAGE_PARTS`).
+#: (:data:`fmu_greybox.project.config.STAGE_PARTS`).
 SHIPPED_MODEL = {
-    "terms+correctors": "White-box + named terms + correctors",
-    "terms": "White-box + named terms, every corrector passed through",
-    "correctors": "White-box + correctors (the named terms left out)",
-    "white-box": "White-box alone (the named terms and the correctors left out)",
+    "terms+correctors": "white-box + named terms + correctors",
+    "terms": "white-box + named terms, every corrector passed through",
+    "correctors": "white-box + correctors (the named terms left out)",
+    "white-box": "white-box alone (the named terms and the correctors left out)",
 }
 
 
 def shipped_model(parts: Mapping[str, Any], model: GreyBoxModel | None = None) -> str:
-    """The exported model in words: what ``model`` computes on each stage
+    """The exported model in words (lower case): what ``model`` computes on each stage
     (:meth:`~fmu_greybox.model.store.GreyBoxModel.contents`) when given, else the part shipped
     from the comparison of its parts at training (:func:`~fmu_greybox.workflow.parts.
-    summary`'s input), or the grey-box without terms."""
+    shipped_parts`), or the grey-box without terms."""
     if model is not None:
         contents = model.contents()
         if len(set(contents.values())) == 1:
-            return next(iter(contents.values())).capitalize()
+            return f"{next(iter(contents.values()))} on every stage"
         return "; ".join(f"{stage}: {what}" for stage, what in contents.items())
     shipped = shipped_parts(parts)
     chosen = set(shipped.values())
     if len(chosen) > 1:
         return "; ".join(f"{stage}: {PART_WORDS.get(p, p)}" for stage, p in shipped.items())
-    return SHIPPED_MODEL.get(chosen.pop(), "Grey-box") if chosen else "Grey-box"
+    return SHIPPED_MODEL.get(chosen.pop(), "grey-box") if chosen else "grey-box"
 
 
 def verdict_lines(result: DemoResult) -> list[str]:
@@ -152,7 +152,7 @@ def verdict_lines(result: DemoResult) -> list[str]:
         lines.append(f"{TRAINING_PARTS}: {parts_text(result.parts)}.")
     lines += validation_lines(
         result.validation.table,
-        f"{shipped_model(result.parts, result.model)} (the exported FMU)",
+        f"The exported FMU ({shipped_model(result.parts, result.model)})",
         f"an independent {result.settings.validation_duration:g} s recording",
     )
     engines = ", ".join(f"{a.engine} {a.worst:.1e}" for a in result.bench)
@@ -241,7 +241,7 @@ def validation_lines(
     table_ : mapping
         The validation's table, stage -> row.
     model : str
-        The model validated, as the sentence's subject (``"The grey-box"``).
+        The model validated, as the sentence's subject (``"The exported FMU (...)"``).
     recording : str
         The recording, in words (``"an independent 8 s recording"``, a file name).
     scored : str
@@ -262,15 +262,10 @@ def validation_lines(
             )
             + "."
         )
-    worse, than = worse_stages(table_)
-    if worse:
-        lines.append(
-            f"The correctors do worse than {than} on {', '.join(worse)} in free run on that "
-            f"recording: do not rely on them there (the exported FMU with correction_enabled = "
-            f"false gives {than})."
-        )
+    if worse_stages(table_)[0]:
+        lines.append(worse_text(table_).strip())
     lines.append(
-        f"Share of {scored} inside the grey-box's ±1.96σ: "
+        f"Share of {scored} inside the model's ±1.96σ: "
         + ", ".join(f"{stage} {coverage_text(row, 'coverage95')}" for stage, row in table_.items())
         + f" ({INTERVAL_NOTE})."
     )

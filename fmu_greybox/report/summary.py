@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 from fmu_greybox.report.glossary import term
 from fmu_greybox.report.html import Html, escape, percent, table
 from fmu_greybox.workflow.acceptance import FAIL, PASS, UNDECIDED, Acceptance
+from fmu_greybox.workflow.parts import shipped_parts
 
 if TYPE_CHECKING:
     from fmu_greybox.model.terms import Term
@@ -52,7 +53,7 @@ def parts_text(parts: Mapping[str, Any]) -> str:
         text += f"; shipped: {PART_WORDS.get(shipped, shipped)}"
     elif shipped:
         text += "; shipped: " + ", ".join(
-            f"{stage} {PART_WORDS.get(part, part)}" for stage, part in shipped.items()
+            f"{stage} {PART_WORDS.get(part, part)}" for stage, part in shipped_parts(parts).items()
         )
     return text
 

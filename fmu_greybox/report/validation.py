@@ -104,7 +104,7 @@ def validation_report_html(
         )
     shipped = shipped_model(model.training.get("parts", {}), model)
     lines = [validation.acceptance.summary()] if validation.acceptance is not None else []
-    lines += validation_lines(validation.table, f"{shipped} (the model)", recording, recording)
+    lines += validation_lines(validation.table, f"The model ({shipped})", recording, recording)
     passed = model.chain.passed_through
     if passed:
         lines.append(

@@ -122,6 +122,7 @@ class PartsComparison:
             "equal_margin": EQUAL_MARGIN,
             "blocks": BLOCKS,
             "shipped": self.shipped,
+            "stage_order": list(self.stages),
         }
 
 
@@ -130,9 +131,11 @@ def shipped_parts(parts: Mapping) -> dict[str, str]:
     (:meth:`PartsComparison.to_dict`; ``model.json`` of earlier versions holds one part for
     every stage; empty for a model trained without terms)."""
     shipped = parts.get("shipped")
+    order = parts.get("stage_order") or list(parts.get("stages", {}))  # JSON sorts the keys
     if isinstance(shipped, str):
-        return dict.fromkeys(parts.get("stages", {}), shipped)
-    return dict(shipped or {})
+        return dict.fromkeys(order, shipped)
+    shipped = shipped or {}
+    return {stage: shipped[stage] for stage in [*order, *shipped] if stage in shipped}
 
 
 def summary(parts: Mapping) -> str:
