@@ -36,12 +36,12 @@ from fmu_greybox.model.terms import CoulombForce, InputDelay, InputGain, SensorD
 from fmu_greybox.model.whitebox import NamedModel, check_terms, read_terms
 from fmu_greybox.project.config import load_config
 from fmu_greybox.project.data import split_row
+from fmu_greybox.report.summary import PART_WORDS, TRAINING_PARTS, parts_text
 from fmu_greybox.workflow.parts import (
     EQUAL_MARGIN,
     PARTS,
     compare_parts,
     passed_through_reason,
-    summary,
 )
 from fmu_greybox.workflow.train import train_model, with_inducing
 
@@ -189,9 +189,10 @@ def test_parts_within_the_margin_are_equally_good(factor: float, equal: bool) ->
     payload = parts.to_dict()
     assert payload["equally_good"] == (["terms+correctors"] if equal else [])
     assert payload["equal_margin"] == EQUAL_MARGIN
-    line = summary(payload)
-    assert (f"equally good within {100 * EQUAL_MARGIN:.0f} %: terms+correctors" in line) is equal
-    assert line.endswith("; shipped terms")
+    line = parts_text(payload)  # train's console line and the reports' sentence
+    assert line.startswith("error score (nRMSE, lower is better): correctors alone ")
+    assert (f"as good within {100 * EQUAL_MARGIN:.0f} %: named terms + correctors" in line) is equal
+    assert line.endswith("; shipped: named terms alone")
     # the terminal and the report say why the correctors are off: here the terms won
     assert passed_through_reason(payload) == "the named terms alone ship"
     lost = passed_through_reason({**payload, "shipped": "terms+correctors"})
@@ -346,9 +347,11 @@ def test_train_command_folds_a_diagnosis_terms(termed, tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     model = load_model(tmp_path / "model")
     parts = model.training["parts"]
-    assert f"best {parts['best']}" in result.output
-    assert f"; shipped {parts['best']}" in result.output
-    assert ("equally good within" in result.output) == bool(parts["equally_good"])
+    line = f"{TRAINING_PARTS}: {parts_text(parts)}."  # the demo's wording, one function
+    assert line in result.output.splitlines()
+    assert f"best: {PART_WORDS[parts['best']]}" in line
+    assert f"; shipped: {PART_WORDS[parts['best']]}" in line
+    assert ("as good within" in line) == bool(parts["equally_good"])
     assert model.terms == ([] if parts["best"] == "correctors" else [terms()[1]])
     assert ("named terms: coulomb_friction" in result.output) == bool(model.terms)
 

@@ -115,8 +115,8 @@ SHIPPED_MODEL = {
 
 def shipped_model(parts: Mapping[str, Any]) -> str:
     """The exported model in words, from the comparison of its parts at training
-    (:func:`~fmu_greybox.workflow.parts.summary`'s input): the part shipped, or the grey-box
-    without terms."""
+    (:meth:`~fmu_greybox.workflow.parts.PartsComparison.to_dict`): the part shipped, or the
+    grey-box without terms."""
     return SHIPPED_MODEL.get(parts.get("shipped", ""), "Grey-box")
 
 

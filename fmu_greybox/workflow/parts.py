@@ -96,22 +96,6 @@ class PartsComparison:
         }
 
 
-def summary(parts: Mapping) -> str:
-    """One line of a comparison (:meth:`PartsComparison.to_dict`): each part's score, the best
-    and what was shipped (when it says)."""
-    scores = ", ".join(f"{part} {parts['score'][part]:.3g}" for part in PARTS)
-    if parts["best"] is None:
-        best = f"too few held-out rows to compare (fewer than {MIN_COMPARED_ROWS})"
-    else:
-        best = f"best {parts['best']}"
-    equal = parts.get("equally_good")
-    if equal:
-        margin = 100 * parts["equal_margin"]
-        best += f", equally good within {margin:.0f} %: {' and '.join(equal)}"
-    shipped = f"; shipped {parts['shipped']}" if "shipped" in parts else ""
-    return f"held-out nRMSE {scores}: {best}{shipped}"
-
-
 def passed_through_reason(parts: Mapping) -> str:
     """Why a model's correctors are switched off, in words, from the comparison of its parts
     (:meth:`PartsComparison.to_dict`; empty for a model trained without terms)."""
