@@ -472,7 +472,7 @@ def train(
     from fmu_greybox.model.whitebox import read_terms
     from fmu_greybox.project.config import load_config
     from fmu_greybox.project.data import load_project_recording
-    from fmu_greybox.workflow.parts import summary as parts_summary
+    from fmu_greybox.report.summary import TRAINING_PARTS, parts_text
     from fmu_greybox.workflow.train import train_model, with_inducing
 
     config = with_inducing(load_config(config_path), inducing, max_iter)
@@ -491,7 +491,7 @@ def train(
         save_model(model, out_dir)
     named = f", named terms: {', '.join(t.effect for t in model.terms)}" if model.terms else ""
     if "parts" in model.training:
-        _info(ctx, parts_summary(model.training["parts"]))
+        _info(ctx, f"{TRAINING_PARTS}: {parts_text(model.training['parts'])}.")
     _info(
         ctx,
         f"wrote {out_dir} ({len(model.chain.stages)} stages, "

@@ -37,6 +37,7 @@ from fmu_greybox.model.terms import CoulombForce, InputDelay, InputGain, SensorD
 from fmu_greybox.model.whitebox import NamedModel, check_terms, read_terms
 from fmu_greybox.project.config import load_config, parse_config
 from fmu_greybox.project.data import split_row
+from fmu_greybox.report.summary import PART_WORDS, TRAINING_PARTS, parts_text
 from fmu_greybox.workflow.parts import (
     BLOCKS,
     EQUAL_MARGIN,
@@ -47,7 +48,6 @@ from fmu_greybox.workflow.parts import (
     has_corrector,
     passed_through_reason,
     passed_through_text,
-    summary,
 )
 from fmu_greybox.workflow.train import (
     stage_correctors,
@@ -200,9 +200,10 @@ def test_parts_within_the_margin_are_equally_good(factor: float, equal: bool) ->
     payload = parts.to_dict()
     assert payload["equally_good"] == (["terms+correctors"] if equal else [])
     assert payload["equal_margin"] == EQUAL_MARGIN
-    line = summary(payload)
-    assert (f"equally good within {100 * EQUAL_MARGIN:.0f} %: terms+correctors" in line) is equal
-    assert line.endswith("; shipped A terms, B terms")
+    line = parts_text(payload)  # train's console line and the reports' sentence
+    assert line.startswith("error score (nRMSE, lower is better): ")
+    assert (f"as good within {100 * EQUAL_MARGIN:.0f} %: named terms + correctors" in line) is equal
+    assert line.endswith("; shipped: A named terms alone, B named terms alone")
     # the terminal and the report say why the correctors are off: here the terms won
     assert "chose no corrector" in passed_through_reason(payload)
     lost = passed_through_reason({**payload, "shipped": "terms+correctors"})
@@ -403,10 +404,11 @@ def test_train_command_folds_a_diagnosis_terms(termed, tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     model = load_model(tmp_path / "model")
     parts = model.training["parts"]
-    assert f"best {parts['best']}" in result.output
-    line = next(text for text in result.output.splitlines() if text.startswith("held-out"))
-    assert all(f"{stage} {part}" in line for stage, part in parts["shipped"].items())
-    assert ("equally good within" in result.output) == bool(parts["equally_good"])
+    line = f"{TRAINING_PARTS}: {parts_text(parts)}."  # the demo's wording, one function
+    assert line in result.output.splitlines()
+    assert f"best: {PART_WORDS[parts['best']]}" in line
+    assert all(f"{stage} {PART_WORDS[part]}" in line for stage, part in parts["shipped"].items())
+    assert ("as good within" in line) == bool(parts["equally_good"])
     chosen = [parts["shipped"][stage] for stage in model.chain.stage_names]
     assert model.terms == terms_per_stage([terms()[1]], chosen)
     assert model.chain.active_.tolist() == [

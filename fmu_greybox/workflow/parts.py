@@ -138,23 +138,6 @@ def shipped_parts(parts: Mapping) -> dict[str, str]:
     return {stage: shipped[stage] for stage in [*order, *shipped] if stage in shipped}
 
 
-def summary(parts: Mapping) -> str:
-    """One line of a comparison (:meth:`PartsComparison.to_dict`): each part's score, the best
-    and what was shipped on each stage (when it says)."""
-    scores = ", ".join(f"{part} {score:.3g}" for part, score in parts["score"].items())
-    if parts["best"] is None:
-        best = f"too few held-out rows to compare (fewer than {MIN_COMPARED_ROWS})"
-    else:
-        best = f"best {parts['best']}"
-    equal = parts.get("equally_good")
-    if equal:
-        margin = 100 * parts["equal_margin"]
-        best += f", equally good within {margin:.0f} %: {' and '.join(equal)}"
-    shipped = shipped_parts(parts)
-    shipped_text = ", ".join(f"{stage} {part}" for stage, part in shipped.items())
-    return f"held-out nRMSE {scores}: {best}" + (f"; shipped {shipped_text}" if shipped else "")
-
-
 def passed_through_reason(parts: Mapping, stage: str | None = None) -> str:
     """Why a model's correctors (or ``stage``'s) are switched off, in words, from the comparison
     of its parts (:meth:`PartsComparison.to_dict`; empty for a model trained without terms)."""
