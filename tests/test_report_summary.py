@@ -36,8 +36,8 @@ def test_each_comparison_of_the_parts_says_whose_it_is_in_plain_words() -> None:
     assert "training decides" in DIAGNOSIS_PARTS and "decides what ships" in TRAINING_PARTS
     text = parts_text(PARTS)
     assert text == (
-        "error score (nRMSE, lower is better): correctors alone 0.0686, named terms alone "
-        "0.016, named terms + correctors 0.0162; best: named terms alone, as good within 5 %: "
+        "error score (nRMSE, lower is better): named terms alone 0.016, named terms + "
+        "correctors 0.0162, correctors alone 0.0686; best: named terms alone, as good within 5 %: "
         "named terms + correctors; shipped: named terms alone"
     )
     per_stage = parts_text({**PARTS, "shipped": {"EHV": "white-box", "RAM": "terms"}})

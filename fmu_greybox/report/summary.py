@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
+from fmu_greybox.project.config import STAGE_PARTS
 from fmu_greybox.report.glossary import term
 from fmu_greybox.report.html import Html, escape, percent, table
 from fmu_greybox.workflow.acceptance import FAIL, PASS, UNDECIDED, Acceptance
@@ -37,9 +38,9 @@ MAX_NAMED = 3
 def parts_text(parts: Mapping[str, Any]) -> str:
     """A comparison of the parts (:meth:`~fmu_greybox.workflow.parts.PartsComparison.to_dict`)
     in plain words: each part's error score, the best, the equally good and what shipped."""
-    scores = ", ".join(
-        f"{PART_WORDS.get(part, part)} {score:.3g}" for part, score in parts["score"].items()
-    )
+    score = parts["score"]  # in the order of STAGE_PARTS (a model.json sorts its keys)
+    order = dict.fromkeys(p for p in (*STAGE_PARTS, *score) if p in score)
+    scores = ", ".join(f"{PART_WORDS.get(part, part)} {score[part]:.3g}" for part in order)
     best = parts.get("best")
     text = f"error score (nRMSE, lower is better): {scores}; "
     text += "too few rows to tell" if best is None else f"best: {PART_WORDS.get(best, best)}"
