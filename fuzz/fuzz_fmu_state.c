@@ -2,32 +2,19 @@
  * fuzz_fmu_state.c -- libFuzzer target for a restored state of the native grey-box FMU:
  * fmi2DeSerializeFMUstate, then fmi2SetFMUstate and fmi2DoStep where it is accepted.
  *
- * Linked with the sources/ of an exported native FMU (they carry its GUID and data hash).
  * Each input is a state's body: the harness appends the SHA-256 trailer a state ends with, as
  * a forger would, so the fuzzer reaches the check of every field behind the hash. Environment:
- * FUZZ_FMU_DIR (the unpacked FMU), FUZZ_DT (its step [s]), and FUZZ_WRITE_SEED (optional: a
- * file that receives the body of the state after 5 steps, a seed for the corpus). Built and
- * run by tests/test_fuzz.py.
+ * that of fmu_harness.h (FUZZ_FMU_DIR, FUZZ_DT), and FUZZ_WRITE_SEED (optional: a file that
+ * receives the body of the state after 5 steps, a seed for the corpus). Built and run by
+ * tests/test_fuzz.py.
  */
-#include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "fmi2Functions.h"
-#include "greybox_config.h"
+#include "fmu_harness.h"
 #include "sha256.h"
-
-static fmi2Component instance;
-static double dt, now;
-
-static void quiet(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status,
-                  fmi2String category, fmi2String message, ...) {
-    (void)env, (void)name, (void)status, (void)category, (void)message;
-}
-
-static const fmi2CallbackFunctions callbacks = {quiet, calloc, free, NULL, NULL};
 
 static void write_seed(const char *path) {
     fmi2FMUstate state = NULL;
@@ -47,21 +34,7 @@ static void write_seed(const char *path) {
 
 int LLVMFuzzerInitialize(int *argc, char ***argv) {
     (void)argc, (void)argv;
-    const char *folder = getenv("FUZZ_FMU_DIR"), *step = getenv("FUZZ_DT");
-    char location[4096];
-    if (folder == NULL || step == NULL) {
-        fprintf(stderr, "set FUZZ_FMU_DIR (an unpacked native FMU) and FUZZ_DT\n");
-        exit(2);
-    }
-    dt = atof(step);
-    snprintf(location, sizeof location, "file://%s/resources", folder);
-    instance = fmi2Instantiate("fuzz", fmi2CoSimulation, GREYBOX_GUID, location, &callbacks,
-                               fmi2False, fmi2False);
-    if (instance == NULL || fmi2SetupExperiment(instance, fmi2False, 0.0, 0.0, fmi2False, 0.0) ||
-        fmi2EnterInitializationMode(instance) || fmi2ExitInitializationMode(instance)) {
-        fprintf(stderr, "the FMU in %s does not start\n", folder);
-        exit(2);
-    }
+    harness_start();
     for (int k = 0; k < 5; k++, now += dt) fmi2DoStep(instance, now, dt, fmi2True);
     if (getenv("FUZZ_WRITE_SEED") != NULL) write_seed(getenv("FUZZ_WRITE_SEED"));
     return 0;
