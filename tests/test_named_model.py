@@ -253,7 +253,27 @@ def test_a_stage_ships_the_simplest_part_the_best_does_not_beat_clearly(scales, 
     assert choose_stage_part(total, blocks) == chosen
 
 
-def test_train_with_terms_compares_its_parts_forward_in_time(termed) -> None:
+def _round_trips_without_correctors(model, validation, folder: Path) -> None:
+    """A model whose every stage is passed through, without correctors: saved, loaded and
+    exported, the FMU gives the master's outputs (the white-box with its terms)."""
+    save_model(model, folder / "model")
+    assert not list((folder / "model").glob("stage_*"))
+    assert load_model(folder / "model").chain.correctors_ == [None, None, None]
+    fmu = export_greybox(folder / "model", folder / "terms.fmu", author="tests").path
+    result = simulate_fmu(
+        str(fmu),
+        stop_time=validation.time[-1],
+        step_size=DT,
+        output_interval=DT,
+        input=input_signal(validation),
+    )
+    run = master_run(folder / "model", validation)
+    for q, name in enumerate(STAGE_OUTPUTS):
+        assert_close(result[name][1:], run.mean[:, q], name)
+        assert_close(result[name + "_wb"][1:], run.whitebox[:, q], name + "_wb")
+
+
+def test_train_with_terms_compares_its_parts_forward_in_time(termed, tmp_path) -> None:
     """Correctors trained on the first half of the training rows, terms alone and both are
     free-run over every later row; the comparison is kept, ``best`` is the lowest score, the
     shipped model is trained on all the training rows, and ``--ship terms`` writes the named
@@ -284,6 +304,9 @@ def test_train_with_terms_compares_its_parts_forward_in_time(termed) -> None:
         assert len(row["blocks"]["terms"]) == BLOCKS
     alone = train_model(termed["config"], recording, terms=terms(), ship="terms")
     assert not alone.chain.active_.any() and alone.terms == terms()
+    # no corrector is fitted for what never runs; the folder and the exported FMU do without
+    assert alone.chain.correctors_ == [None, None, None]
+    _round_trips_without_correctors(alone, termed["validation"], tmp_path)
     assert alone.training["parts"]["score"] == pytest.approx(parts["score"], rel=1e-9)
     # its σ describes what it ships, the terms alone (calibrated with every stage passed
     # through: σ = sqrt(b), 95 % of the training rows' white-box + terms residual inside

@@ -540,7 +540,7 @@ def _annotation(
             name=stage.name,
             output=stage.config.whitebox_output,
             features=" ".join(model.chain.feature_names(stage.stage_index)),
-            inducing=str(corrector.inducing_points_.shape[0]),
+            inducing=str(0 if corrector is None else corrector.inducing_points_.shape[0]),
         )
     for term in model.terms:
         data = term.to_dict()

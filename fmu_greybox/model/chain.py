@@ -77,8 +77,9 @@ class GreyBoxChain:
         was fitted with once :meth:`fit` has chosen it (``"auto"`` resolved).
     exo_names : list of str
         Signals forming the chain's exogenous vector (union of the stages' inputs).
-    correctors_ : list of SparseGPR
-        Fitted correctors, one per stage (after :meth:`fit` or loading).
+    correctors_ : list of SparseGPR or None
+        Fitted correctors, one per stage (after :meth:`fit` or loading); ``None`` for a stage
+        that :meth:`fit` was told to pass through (``correct``) and nothing else needs.
     active_ : ndarray of bool, shape (Q,)
         Stages whose corrector is used; a stage found to free-run worse than its white-box on
         the tail of its training data is passed through (see :meth:`fit`).
@@ -209,10 +210,11 @@ class GreyBoxChain:
         free-run check below, measured in ``docs/speed.md``). The two candidates are trained
         side by side. Given ``targets_from``, per stage a chain already fitted to the same stage (on
         other rows of the same recording), every stage takes its target mode instead. Stages
-        that ``correct`` says not to correct are passed through. Last, unless ``check_tail``
-        is ``None``, the chain is free-run over that share of the rows and every stage that
-        does not beat its white-box there is passed through too (:attr:`active_`), so the
-        grey-box is never knowingly worse than the model it corrects. Then, with
+        that ``correct`` says not to correct are passed through and get no corrector (a later
+        stage fed by their free run sees their white-box, as it will when it runs). Last,
+        unless ``check_tail`` is ``None``, the chain is free-run over that share of the rows
+        and every stage that does not beat its white-box there is passed through too
+        (:attr:`active_`), so the grey-box is never knowingly worse than the model it corrects. Then, with
         ``calibrate``, each stage's reported variance is estimated (:attr:`calibration_`) by
         two-fold cross-validation: each half of the rows is free-run by a chain whose correctors
         were trained (hyperparameters and all, the two halves side by side) on the other half
@@ -276,7 +278,9 @@ class GreyBoxChain:
                         self.selection_[stage.name] = source.selection_[stage.name]
                 elif stage.target_mode == AUTO:
                     stage.target_mode = self._choose_target(q, exo, y_wb, outputs, progress)
-                self._fit_stage(q, exo, y_wb, outputs, progress, f"{stage.name} corrector")
+                # a stage passed through from the start gets no corrector: it would never run
+                label = f"{stage.name} corrector" if allowed[q] else None
+                self._fit_stage(q, exo, y_wb, outputs, progress, label)
             self.active_[:] = allowed
             if self.check_tail is not None:
                 self.free_run_check_ = self._check_free_run(exo, y_wb, outputs, self.check_tail)
@@ -291,15 +295,19 @@ class GreyBoxChain:
         y_wb: np.ndarray,
         outputs: np.ndarray,
         progress: ProgressCallback | None,
-        label: str,
+        label: str | None,
     ) -> None:
-        """Fit stage ``q``'s corrector on the rows given (the stages before it are fitted)."""
+        """Fit stage ``q``'s corrector on the rows given (the stages before it are fitted);
+        with ``label`` ``None`` only its feature range is set and it keeps no corrector."""
         gp = self.config.gp
         stage = self.stages[q]
         fed = self._fed(q, exo, y_wb, outputs) if gp.feeds == "free_run" and q else None
         X, t = stage.teacher_forced(self.layout, exo, y_wb, outputs, fed)
         X, t = _thin(X, t, gp.max_train_samples)
         self.feature_bounds_[q] = _widened_range(X)
+        if label is None:
+            self.correctors_[q] = None
+            return
         corrector = SparseGPR(
             n_inducing=min(gp.inducing, t.size),
             inducing=gp.inducing_method,
@@ -314,10 +322,14 @@ class GreyBoxChain:
 
     @contextlib.contextmanager
     def _correcting_first(self, count: int) -> Iterator[None]:
-        """Run only the first ``count`` stages' correctors (the rest pass the white-box
-        through) inside the block; :attr:`active_` is restored after it."""
+        """Run only the first ``count`` stages' correctors (the rest, and a stage without a
+        corrector, pass the white-box through) inside the block; :attr:`active_` is restored
+        after it. A later stage trained on an earlier one's free run (``[gp] feeds =
+        "free_run"``) so sees it as it will run: a stage passed through from the start feeds
+        its white-box."""
         kept = self.active_.copy()
-        self.active_[:] = np.arange(len(self.stages)) < count
+        fitted = np.array([c is not None for c in self.correctors_], dtype=bool)
+        self.active_[:] = (np.arange(len(self.stages)) < count) & fitted
         try:
             yield
         finally:

@@ -52,9 +52,10 @@ from fmu_greybox.project.fingerprint import RowFingerprint
 #: Version written; versions read (1: no named terms; 1 and 2: no training-row digests; 1 to 3:
 #: no variance calibration, read as uncalibrated; 3 and 4: digests of exact values; 1 to 4: no
 #: white-box variance, read as the residual variance, and named terms on every stage from their
-#: entry on).
-FORMAT_VERSION = 5
-READABLE_VERSIONS = (1, 2, 3, 4, 5)
+#: entry on; 1 to 5: a corrector for every stage, where 6 has none (``stem`` null) for a stage
+#: passed through from the start).
+FORMAT_VERSION = 6
+READABLE_VERSIONS = (1, 2, 3, 4, 5, 6)
 MANIFEST = "model.json"
 WHITEBOX = "whitebox.fmu"
 #: First version whose stages carry their variance calibration.
@@ -229,8 +230,9 @@ def save_model(model: GreyBoxModel, out_dir: str | Path) -> Path:
                 np.savez(f, **_fingerprint_arrays(model.trained_rows))
         stages = []
         for stage, corrector in zip(model.chain.stages, model.chain.correctors_, strict=True):
-            stem = f"stage_{stage.name}"
-            corrector.save(tmp / stem)
+            stem = None if corrector is None else f"stage_{stage.name}"
+            if corrector is not None:
+                corrector.save(tmp / stem)
             stages.append(
                 {
                     "name": stage.name,
@@ -351,18 +353,28 @@ def _check_manifest(path: Path, manifest: dict[str, Any]) -> None:
     needed = [WHITEBOX, *([TRAINING_ROWS] if manifest["format_version"] >= 3 else [])]
     for i, stage in enumerate(stages):
         where = f"stages[{i}]"
-        if not isinstance(stage, dict) or not all(
-            isinstance(stage.get(k), str) for k in ("name", "stem")
-        ):
-            raise bad(where, "is not a stage with a name and a file stem")
-        if not _plain_name(stage["stem"]):
-            raise bad(f"{where}.stem", "is not a file name in this folder")
+        if not isinstance(stage, dict) or not isinstance(stage.get("name"), str):
+            raise bad(where, "is not a stage with a name")
         if not isinstance(stage.get("active"), bool):
             raise bad(f"{where}.active", "is missing or not true/false")
+        if stage.get("stem") is None and _without_corrector(manifest, stage):
+            continue
+        if not _plain_name(stage.get("stem")):
+            raise bad(f"{where}.stem", "is not a file name in this folder")
         needed += [f"{stage['stem']}.npz", f"{stage['stem']}.json"]
     unlisted = [name for name in needed if name not in files]
     if unlisted:
         raise bad("files", f"lists no hash for {', '.join(unlisted)}")
+
+
+#: First version in which a stage passed through from the start may have no corrector.
+OPTIONAL_CORRECTOR_VERSION = 6
+
+
+def _without_corrector(manifest: Mapping[str, Any], stage: Mapping[str, Any]) -> bool:
+    """Whether a stage may come without a corrector: one passed through (not ``active``) in
+    a folder of version :data:`OPTIONAL_CORRECTOR_VERSION` or later."""
+    return manifest["format_version"] >= OPTIONAL_CORRECTOR_VERSION and not stage["active"]
 
 
 def _plain_name(name: Any) -> bool:
@@ -406,7 +418,9 @@ def load_model(model_dir: str | Path) -> GreyBoxModel:
         raise ModelFormatError(
             f"{model_dir / MANIFEST}: the stages do not fit the stored project ({exc}); {_RETRAIN}"
         ) from exc
-    chain.correctors_ = [_load_corrector(model_dir / s["stem"]) for s in stages]
+    chain.correctors_ = [
+        None if s.get("stem") is None else _load_corrector(model_dir / s["stem"]) for s in stages
+    ]
     chain.active_ = np.array([s["active"] for s in stages], dtype=bool)
     chain.feature_bounds_ = bounds
     chain.calibration_ = calibration

@@ -314,7 +314,9 @@ def fit_model(
         },
         "target_unit": {s.name: config.signals[s.config.target].unit for s in chain.stages},
         "bounds": {
-            s.name: float(c.bound_) for s, c in zip(chain.stages, chain.correctors_, strict=True)
+            s.name: float(c.bound_)
+            for s, c in zip(chain.stages, chain.correctors_, strict=True)
+            if c is not None
         },
         "free_run_check": chain.free_run_check_,
         "target_selection": chain.selection_,
