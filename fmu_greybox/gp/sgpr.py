@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -274,7 +275,19 @@ class SparseGPR:
         -------
         npz_path, json_path : Path
         """
-        settings = {
+        fit_info = {
+            "bound": self.bound_,
+            "n_iter": self.n_iter_,
+            "n_eval": self.n_eval_,
+            "jitter": self.jitter_,
+            "optimiser_message": self.optimiser_message_,
+            "training_data_sha256": self.training_data_sha256_,
+        }
+        return storage.save(path_stem, self.posterior_, self.settings(), fit_info)
+
+    def settings(self) -> dict[str, Any]:
+        """The constructor's settings (an inducing selector by its name), as saved."""
+        return {
             "n_inducing": self.n_inducing,
             "inducing": self.inducing if isinstance(self.inducing, str) else self.inducing.name,
             "optimise_inducing": self.optimise_inducing,
@@ -285,15 +298,6 @@ class SparseGPR:
             "min_jitter": self.min_jitter,
             "max_jitter": self.max_jitter,
         }
-        fit_info = {
-            "bound": self.bound_,
-            "n_iter": self.n_iter_,
-            "n_eval": self.n_eval_,
-            "jitter": self.jitter_,
-            "optimiser_message": self.optimiser_message_,
-            "training_data_sha256": self.training_data_sha256_,
-        }
-        return storage.save(path_stem, self.posterior_, settings, fit_info)
 
     @classmethod
     def load(cls, path_stem: str | Path) -> SparseGPR:

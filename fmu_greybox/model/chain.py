@@ -28,6 +28,7 @@ from fmu_greybox.model.calibration import (
     left_out_shares,
 )
 from fmu_greybox.model.chain_step import ChainPlan, ChainState
+from fmu_greybox.model.fit_cache import FitCache
 from fmu_greybox.model.stage import TARGET_MODES, SourceLayout, StageLayout
 from fmu_greybox.project.config import AUTO, ProjectConfig
 from fmu_greybox.side_by_side import one_blas_thread, run_side_by_side
@@ -69,6 +70,9 @@ class GreyBoxChain:
         rows to stand in for one trained on all of them, whose domain is larger: the
         calibration's halves (its free runs must err as the shipped chain would) and the
         comparison of the parts.
+    fits : FitCache, optional
+        Fits shared with the other chains of one training run: a corrector fitted to the same
+        features and targets with the same settings is taken from there, not fitted again.
 
     Attributes
     ----------
@@ -112,6 +116,7 @@ class GreyBoxChain:
         check_tail: float | None = SELECTION_TAIL,
         calibrate: bool = True,
         fade: bool = True,
+        fits: FitCache | None = None,
     ) -> None:
         mode = target_mode or config.gp.target
         if mode not in (*TARGET_MODES, AUTO):
@@ -123,6 +128,7 @@ class GreyBoxChain:
         self.check_tail = check_tail
         self.calibrate = calibrate
         self.fade = fade
+        self.fits = fits
         self.exo_names: list[str] = []
         for stage in config.stages:
             self.exo_names += [s for s in stage.inputs if s not in self.exo_names]
@@ -200,38 +206,37 @@ class GreyBoxChain:
 
         A stage's own memory and target come from the recorded outputs (teacher forcing). The
         earlier stages' outputs in its features come from the recording, or with ``[gp] feeds =
-        "free_run"`` from the earlier (already trained) stages' own free run over the same rows,
-        as the stage will see them when it runs. A stage whose target is ``"auto"`` is trained
-        both as ``residual`` and ``increment`` on the leading rows, each free-run with the
-        stages before it over the last :data:`SELECTION_TAIL` of the rows, and takes
-        ``increment`` only where that free run's RMSE is lower by more than
-        :data:`SELECTION_MARGIN`; then it is trained on all rows (from the usual start: a warm
-        start at the chosen candidate's hyperparameters changes which corrector passes the
-        free-run check below, measured in ``docs/speed.md``). The two candidates are trained
-        side by side. Given ``targets_from``, per stage a chain already fitted to the same stage (on
-        other rows of the same recording), every stage takes its target mode instead. Stages
-        that ``correct`` says not to correct are passed through and get no corrector (a later
-        stage fed by their free run sees their white-box, as it will when it runs). Last,
-        unless ``check_tail`` is ``None``, the chain is free-run over that share of the rows
-        and every stage that does not beat its white-box there is passed through too
-        (:attr:`active_`), so the grey-box is never knowingly worse than the model it corrects. Then, with
-        ``calibrate``, each stage's reported variance is estimated (:attr:`calibration_`) by
-        two-fold cross-validation: each half of the rows is free-run by a chain whose correctors
-        were trained (hyperparameters and all, the two halves side by side) on the other half
-        only, so no corrector has seen the rows it predicts (hyperparameters taken from this
-        chain instead make the held-out residuals too small: measured in ``docs/speed.md``).
-        Each of those residuals is paired with the propagated variance that this chain, trained
-        on all rows, reports at the same row (its own free run over the half): that is the
-        variance ``a`` will scale when the chain ships, and a corrector trained on half the rows
-        usually reports a larger one. The pairs of both halves give ``a`` and ``b``
-        (:func:`~fmu_greybox.model.calibration.fit_calibration`), stage by stage in chain order
-        (a stage's propagated variance holds the calibrated variances of the stages feeding it).
-        Given ``calibration_runs``, recordings no corrector is trained on, the calibration takes
-        their residuals instead: each is free-run from its first rows by this chain, the one
-        that ships, so its residuals and variances are those a bench will see and no
-        half-trained corrector biases them; and every one is a separate free run, so a drift
-        that lasts seconds is repeated once per recording. The settings given to the constructor
-        are not changed: a refit chooses ``"auto"`` targets again.
+        "free_run"`` from the earlier (already trained) stages' own free run over the same rows, as
+        the stage will see them when it runs. A stage whose target is ``"auto"`` is trained both as
+        ``residual`` and ``increment`` on the leading rows, each free-run with the stages before it
+        over the last :data:`SELECTION_TAIL` of the rows, and takes ``increment`` only where that
+        free run's RMSE is lower by more than :data:`SELECTION_MARGIN`; then it is trained on all
+        rows (from the usual start: a warm start at the chosen candidate's hyperparameters changes
+        which corrector passes the free-run check below, measured in ``docs/speed.md``). The two
+        candidates are trained side by side. Given ``targets_from``, per stage a chain already
+        fitted to the same stage (on other rows of the same recording), every stage takes its target
+        mode instead. Stages that ``correct`` says not to correct are passed through and get no
+        corrector (a later stage fed by their free run sees their white-box, as it will when it
+        runs). Last, unless ``check_tail`` is ``None``, the chain is free-run over that share of the
+        rows and every stage that does not beat its white-box there is passed through too
+        (:attr:`active_`), so the grey-box is never knowingly worse than the model it corrects.
+        Then, with ``calibrate``, each stage's reported variance is estimated (:attr:`calibration_`)
+        by two-fold cross-validation: each half of the rows is free-run by a chain whose correctors
+        were trained (hyperparameters and all, the two halves side by side) on the other half only,
+        so no corrector has seen the rows it predicts (hyperparameters taken from this chain instead
+        make the held-out residuals too small: measured in ``docs/speed.md``). Each of those
+        residuals is paired with the propagated variance that this chain, trained on all rows,
+        reports at the same row (its own free run over the half): that is the variance ``a`` will
+        scale when the chain ships, and a corrector trained on half the rows usually reports a
+        larger one. The pairs of both halves give ``a`` and ``b``
+        (:func:`~fmu_greybox.model.calibration.fit_calibration`), stage by stage in chain order (a
+        stage's propagated variance holds the calibrated variances of the stages feeding it). Given
+        ``calibration_runs``, recordings no corrector is trained on, the calibration takes their
+        residuals instead: each is free-run from its first rows by this chain, the one that ships,
+        so its residuals and variances are those a bench will see and no half-trained corrector
+        biases them; and every one is a separate free run, so a drift that lasts seconds is repeated
+        once per recording. The settings given to the constructor are not changed: a refit chooses
+        ``"auto"`` targets again.
 
         Parameters
         ----------
@@ -316,7 +321,13 @@ class GreyBoxChain:
             seed=gp.seed,
         )
         callback = _stage_progress(progress, label) if progress is not None else None
-        self.correctors_[q] = corrector.fit(X, t, progress=callback)
+        if self.fits is None:
+            self.correctors_[q] = corrector.fit(X, t, progress=callback)
+        else:
+            self.correctors_[q], reused = self.fits.fit(
+                corrector, X, t, lambda: corrector.fit(X, t, progress=callback)
+            )
+            label += " (the same fit as another pass's)" if reused else ""
         if progress is not None:
             progress(label, 0, self.correctors_[q].bound_)  # this fit is done
 

@@ -15,6 +15,7 @@ from fmu_greybox.errors import ConfigError
 from fmu_greybox.export.domain import training_ranges
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.chain import GreyBoxChain, RecordedRun
+from fmu_greybox.model.fit_cache import FitCache
 from fmu_greybox.model.store import GreyBoxModel, file_sha256
 from fmu_greybox.model.terms import Term
 from fmu_greybox.model.whitebox import check_terms
@@ -118,8 +119,9 @@ def train_model(
             calibrate_on=calibration_recordings,
             correct=stage_correctors(config),
         ).model
+    fits = FitCache()  # the passes share the fits that nothing tells apart
     comparison, seconds, compared = compare_parts_forward(
-        config, recording, progress, target_mode, terms, ship
+        config, recording, progress, target_mode, terms, ship, fits
     )
     names = list(comparison.shipped)
     parts = [comparison.shipped[name] for name in names]
@@ -142,6 +144,7 @@ def train_model(
             for name, part in zip(names, parts, strict=True)
         },
         correct=[has_corrector(part) for part in parts],
+        fits=fits,
     )
     model = fitted.model
     model.training["parts"] = comparison.to_dict()
@@ -196,11 +199,13 @@ def compare_parts_forward(
     target_mode: str | None,
     terms: Sequence[Term],
     ship: str,
+    fits: FitCache | None = None,
 ) -> tuple[PartsComparison, float, dict[str, FittedModel]]:
     """Correctors alone, ``terms`` alone and both, compared forward in time: correctors
     trained on the first half of the training rows (:func:`comparison_config`), every part
     free-run from the first row and scored on every later row
-    (:func:`~fmu_greybox.workflow.parts.compare_fitted`).
+    (:func:`~fmu_greybox.workflow.parts.compare_fitted`). ``fits``: shared by the two chains
+    (and with the model that ships), so that a stage both see alike is fitted once.
 
     Returns
     -------
@@ -235,6 +240,7 @@ def compare_parts_forward(
                 calibrate=False,
                 fade=False,  # stand-ins for the chain trained on all the rows
                 pass_=pass_,
+                fits=fits,
             )
             for chosen, pass_ in ((terms, "pass 1"), ((), "pass 2"))
         ]
@@ -268,6 +274,7 @@ def fit_model(
     correct: Sequence[bool] | None = None,
     fade: bool = True,
     pass_: str = "",
+    fits: FitCache | None = None,
 ) -> FittedModel:
     """One chain of correctors on the white-box with ``terms`` (see :func:`train_model`);
     without ``calibrate``, its σ is the propagated variance (a chain used for its mean only).
@@ -277,10 +284,11 @@ def fit_model(
     corrector may be used (:meth:`~fmu_greybox.model.chain.GreyBoxChain.fit`); ``fade``:
     whether its correctors fade out of their domain
     (:class:`~fmu_greybox.model.chain.GreyBoxChain`); ``pass_``: which training pass this is,
-    in words, for the progress lines."""
+    in words, for the progress lines; ``fits``: fits shared with the other passes
+    (:class:`~fmu_greybox.model.fit_cache.FitCache`)."""
     started = time.perf_counter()
     fmu_path = whitebox_path(config)
-    chain = GreyBoxChain(config, target_mode, calibrate=calibrate, fade=fade)
+    chain = GreyBoxChain(config, target_mode, calibrate=calibrate, fade=fade, fits=fits)
     check_training_size(config, chain, recording)
     with open_fmu(fmu_path) as archive:
         config.check_against_fmu(archive)
