@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import html
 import json
-import os
 import re
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -22,6 +20,7 @@ from click.testing import CliRunner
 from figures import overlapping_tick_labels
 from fmpy.validation import validate_fmu
 from PIL import Image
+from tools import installed_tool
 
 from fmu_greybox.cli import main
 from fmu_greybox.fmi.builtin import reference_project
@@ -213,16 +212,8 @@ def test_report_gives_each_stage_its_error_ratio(demo: tuple[Path, dict]) -> Non
         ), row
 
 
-def chromium() -> str | None:
-    return shutil.which("chromium") or shutil.which("chromium-browser")
-
-
 def run_chromium(page: Path, tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
-    browser = chromium()
-    if browser is None:
-        if os.environ.get("CI"):
-            pytest.fail("Chromium is missing: the test command installs Debian's 'chromium'")
-        pytest.skip("Chromium not installed (apt-get install chromium)")
+    browser = installed_tool(("chromium", "chromium-browser"), "chromium")
     flags = [
         "--headless",
         "--no-sandbox",

@@ -12,10 +12,10 @@ from pathlib import Path
 import pytest
 from fmpy import extract, read_model_description
 from test_export import trained
+from tools import installed_tool
 
 ROOT = Path(__file__).resolve().parents[1]
 NATIVE = ROOT / "fmu_greybox" / "native"
-CLANG = shutil.which("clang")
 
 
 def build(
@@ -23,7 +23,8 @@ def build(
 ) -> Path:
     """``fuzz/<target>.c`` with ``files`` of the folder ``sources`` as a libFuzzer binary."""
     binary = folder / target
-    command = [CLANG, "-g", "-O1", "-fsanitize=fuzzer,address,undefined", *flags]
+    clang = installed_tool(("clang",), "clang")
+    command = [clang, "-g", "-O1", "-fsanitize=fuzzer,address,undefined", *flags]
     command += ["-fno-sanitize-recover=all", f"-I{sources}", str(ROOT / "fuzz" / f"{target}.c")]
     command += [str(sources / f) for f in files]
     subprocess.run([*command, "-lm", "-ldl", "-o", str(binary)], check=True)
@@ -48,7 +49,6 @@ def fuzz(binary: Path, corpus: str, runs: int, folder: Path, env: dict | None = 
     return done.stderr
 
 
-@pytest.mark.skipif(CLANG is None, reason="clang is not installed (scripts/test.sh installs it)")
 def test_the_data_file_reader_survives_a_short_fuzz_run(tmp_path: Path) -> None:
     """greybox.dat's reader, fed mutations of valid files (and the file of 36 bytes declaring
     50 million sections, which allocated 2.4 GB until the count was checked against the file's
@@ -71,7 +71,6 @@ def native_fuzzer(
     return binary, {**os.environ, "FUZZ_FMU_DIR": str(unpacked), "FUZZ_DT": str(step)}
 
 
-@pytest.mark.skipif(CLANG is None, reason="clang is not installed (scripts/test.sh installs it)")
 def test_restored_states_survive_a_short_fuzz_run(
     tmp_path_factory: pytest.TempPathFactory, tmp_path: Path
 ) -> None:
@@ -85,7 +84,6 @@ def test_restored_states_survive_a_short_fuzz_run(
     assert seed.stat().st_size > 1000  # the FMU's own state after 5 steps was in the corpus
 
 
-@pytest.mark.skipif(CLANG is None, reason="clang is not installed (scripts/test.sh installs it)")
 def test_set_real_and_do_step_sequences_survive_a_short_fuzz_run(
     tmp_path_factory: pytest.TempPathFactory, tmp_path: Path
 ) -> None:
