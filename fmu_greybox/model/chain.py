@@ -435,18 +435,19 @@ class GreyBoxChain:
         else:
             folds = self._halves(training, progress)
         calibration = [UNCALIBRATED] * len(self.stages)
+        # a free run's means do not depend on the calibration (the variances propagate to first
+        # order beside them): each fold's held-out chain runs once
+        held_out = [
+            None if chain is self else chain.free_run_variances(*run.head(stop), first - 1).mean
+            for chain, run, first, stop in folds
+        ]
         for q, name in enumerate(self.stage_names):
             residual, latent_var, whitebox = [], [], []
-            for chain, run, first, stop in folds:
-                for run_by in (chain, self):  # the stages before q already calibrated
-                    run_by.calibration_ = calibration
+            for (_, run, first, stop), means in zip(folds, held_out, strict=True):
+                self.calibration_ = calibration  # the stages before q already calibrated
                 shipped = self.free_run_variances(*run.head(stop), first - 1)
-                held_out = (
-                    shipped
-                    if chain is self
-                    else chain.free_run_variances(*run.head(stop), first - 1)
-                )
-                residual.append(run.outputs[first:stop, q] - held_out.mean[:, q])
+                means = shipped.mean if means is None else means
+                residual.append(run.outputs[first:stop, q] - means[:, q])
                 latent_var.append(shipped.latent_var[:, q])
                 whitebox.append(run.outputs[first:stop, q] - run.y_wb[first:stop, q])
             shares = left_out_shares(residual, latent_var)

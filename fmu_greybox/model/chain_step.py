@@ -195,7 +195,7 @@ class ChainPlan:
     ----------
     chain : FittedChain
         A :class:`~fmu_greybox.model.chain.GreyBoxChain`, fitted (or loaded): every stage has
-        a corrector, a feature range and a variance calibration.
+        a corrector (when active), a feature range and a variance calibration.
 
     Layout: the plan is int64, a header then one record per stage (params offset, M, D, width
     of the feature map, memory length, target mode, active, memory offset in the state,
