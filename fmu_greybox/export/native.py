@@ -16,7 +16,7 @@ the Python package's extension compiles), ``whitebox.c`` (the white-box and its 
 as :class:`~fmu_greybox.model.whitebox.NamedModel`), ``terms.c`` (every term kind),
 ``greybox_fmu.c`` (the FMI functions), ``greybox_data.c`` and ``sha256.c``. Only
 ``greybox_config.h`` is generated: the FMU's identifier and GUID, the data file's hash and the
-term kind codes (:mod:`fmu_greybox.export.native_terms`).
+term kind codes (:mod:`fmu_greybox.model.native_terms`).
 """
 
 from __future__ import annotations
@@ -37,12 +37,12 @@ from lxml import etree
 from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.errors import ExportError, FmuBuildError
-from fmu_greybox.export.native_data import data_file_bytes
-from fmu_greybox.export.native_terms import encode_term, kind_code, kind_defines
 from fmu_greybox.export.slave import MODEL_FOLDER, STEP_RTOL
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.fmi.build import c_compiler, fmi2_headers, fmi2_platform
 from fmu_greybox.fmi.kinds import require_native
+from fmu_greybox.model.native_data import data_file_bytes
+from fmu_greybox.model.native_terms import encode_term, kind_code, kind_defines
 from fmu_greybox.model.store import file_sha256
 from fmu_greybox.model.whitebox import PartLayout, part_layouts
 

@@ -30,13 +30,13 @@ from pathlib import Path
 import numpy as np
 
 from fmu_greybox.errors import FmuBuildError, FmuError
-from fmu_greybox.export.native_data import data_file_bytes
-from fmu_greybox.export.native_terms import NATIVE_KINDS, kind_defines
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.fmi.build import c_compiler, fmi2_headers
 from fmu_greybox.fmi.builtin import cache_dir
 from fmu_greybox.fmi.instance import status_label
 from fmu_greybox.fmi.kinds import require_native
+from fmu_greybox.model.native_data import data_file_bytes
+from fmu_greybox.model.native_terms import NATIVE_KINDS, kind_defines
 from fmu_greybox.model.terms import Term
 from fmu_greybox.model.whitebox import part_layouts
 
