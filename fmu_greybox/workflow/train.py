@@ -15,12 +15,13 @@ from fmu_greybox.errors import ConfigError
 from fmu_greybox.export.domain import training_ranges
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.chain import GreyBoxChain, RecordedRun
+from fmu_greybox.model.stage_data import prepare
 from fmu_greybox.model.store import GreyBoxModel, file_sha256
 from fmu_greybox.model.terms import Term
 from fmu_greybox.model.whitebox import check_terms
 from fmu_greybox.progress import Progress, announce
 from fmu_greybox.project.config import BEST, ProjectConfig
-from fmu_greybox.project.data import check_sample_time, prepare, split_row, whitebox_path
+from fmu_greybox.project.data import check_sample_time, split_row, whitebox_path
 from fmu_greybox.project.fingerprint import (
     copy_message,
     data_rows,

@@ -15,9 +15,10 @@ from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError, ModelFormatError, RecordingError
 from fmu_greybox.export.domain import beyond_training
 from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.model.stage_data import prepare
 from fmu_greybox.model.store import TRAINING_ROWS, GreyBoxModel
 from fmu_greybox.project.config import AcceptanceConfig, ProjectConfig, check_bands
-from fmu_greybox.project.data import ProjectData, check_sample_time, prepare, split_row
+from fmu_greybox.project.data import ProjectData, check_sample_time, split_row
 from fmu_greybox.project.fingerprint import (
     copy_message,
     data_rows,
