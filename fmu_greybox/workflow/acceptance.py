@@ -142,7 +142,7 @@ def evaluate(
         check that does not pass says so in its note.
     beyond : str
         The inputs that went beyond their training range, in words
-        (:func:`~fmu_greybox.export.domain.beyond_training`): the note says a training
+        (:func:`~fmu_greybox.model.domain.beyond_training`): the note says a training
         recording should cover them.
 
     Returns

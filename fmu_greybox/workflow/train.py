@@ -12,9 +12,9 @@ import numpy as np
 
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError
-from fmu_greybox.export.domain import training_ranges
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.chain import GreyBoxChain, RecordedRun
+from fmu_greybox.model.domain import training_ranges
 from fmu_greybox.model.stage_data import prepare
 from fmu_greybox.model.store import GreyBoxModel, file_sha256
 from fmu_greybox.model.terms import Term
@@ -308,7 +308,7 @@ def fit_model(
         "n_samples": data.n_samples,
         "train_rows": split + 1,
         "dt": recording.dt,
-        # the exported FMU's input domain is built from these (fmu_greybox/export/domain.py)
+        # the exported FMU's input domain is built from these (fmu_greybox/model/domain.py)
         "input_ranges": training_ranges(data.binding.inputs, data.binding.matrix(recording)[rows]),
         "target_std": {
             name: float(np.std(data.outputs[rows, q])) for q, name in enumerate(chain.stage_names)

@@ -13,8 +13,8 @@ import numpy as np
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError, ModelFormatError, RecordingError
-from fmu_greybox.export.domain import beyond_training
 from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.model.domain import beyond_training
 from fmu_greybox.model.stage_data import prepare
 from fmu_greybox.model.store import TRAINING_ROWS, GreyBoxModel
 from fmu_greybox.project.config import AcceptanceConfig, ProjectConfig, check_bands
