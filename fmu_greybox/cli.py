@@ -607,7 +607,7 @@ def _validate_several(
     """Validate on each recording (its outputs in ``<output folder>/<name>``), pool the
     coverage and write the output folder's ``metrics.json`` and ``report.html``; the verdict
     over all."""
-    from fmu_greybox.report.html import write_page
+    from fmu_greybox.evidence.html import write_page
     from fmu_greybox.report.provenance import command_line
     from fmu_greybox.report.validation import REPORT, pooled_report_html
     from fmu_greybox.workflow.metrics import coverage_text, error_ratio
@@ -654,7 +654,7 @@ def _write_validation(
 ) -> tuple[dict, list[str]]:
     """Write one recording's validation into ``folder``: ``metrics.json``, the plots and
     ``report.html``, each atomically, the page last. Returns the metrics and the files' names."""
-    from fmu_greybox.report.html import write_page
+    from fmu_greybox.evidence.html import write_page
     from fmu_greybox.report.validation import REPORT, validation_report_html
     from fmu_greybox.workflow.validate import write_metrics, write_plots
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import dataclasses
 import re
 
+from fmu_greybox.evidence.glossary import GLOSSARY, glossary_section, term
 from fmu_greybox.model.terms import FlowDroop
-from fmu_greybox.report.glossary import GLOSSARY, glossary_section, term
 from fmu_greybox.report.main import worse_text
 from fmu_greybox.report.summary import (
     DIAGNOSIS_PARTS,

@@ -18,10 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from fmu_greybox.diagnosis.report import diagnosis_sections, write_json
-from fmu_greybox.model.store import GreyBoxModel
-from fmu_greybox.project.config import ProjectConfig
-from fmu_greybox.report.glossary import glossary_section, term
-from fmu_greybox.report.html import (
+from fmu_greybox.evidence.glossary import glossary_section, term
+from fmu_greybox.evidence.html import (
     Html,
     escape,
     figure,
@@ -34,7 +32,9 @@ from fmu_greybox.report.html import (
     verdict,
     write_page,
 )
-from fmu_greybox.report.plots import calibration_figure, frequency_figure, trace_figure
+from fmu_greybox.evidence.plots import calibration_figure, frequency_figure, trace_figure
+from fmu_greybox.model.store import GreyBoxModel
+from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.report.summary import (
     PART_WORDS,
     TRAINING_PARTS,

@@ -3,7 +3,7 @@ its unit), what ships on each stage, and what to do next; and the plain words of
 comparisons, which the console prints too.
 
 Every sentence is built from the validation, the acceptance and the model; terms of art link
-to the glossary (:mod:`fmu_greybox.report.glossary`).
+to the glossary (:mod:`fmu_greybox.evidence.glossary`).
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
+from fmu_greybox.evidence.glossary import term
+from fmu_greybox.evidence.html import Html, escape, percent, table
 from fmu_greybox.project.config import STAGE_PARTS
-from fmu_greybox.report.glossary import term
-from fmu_greybox.report.html import Html, escape, percent, table
 from fmu_greybox.workflow.acceptance import FAIL, PASS, UNDECIDED, Acceptance
 from fmu_greybox.workflow.parts import shipped_parts
 

@@ -14,12 +14,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from fmu_greybox.data.recording import Recording
+from fmu_greybox.evidence.glossary import glossary_section, term
+from fmu_greybox.evidence.html import Html, escape, page, table, verdict
 from fmu_greybox.model.store import GreyBoxModel, file_sha256
 from fmu_greybox.model.terms import Term
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import whitebox_path
-from fmu_greybox.report.glossary import glossary_section, term
-from fmu_greybox.report.html import Html, escape, page, table, verdict
 from fmu_greybox.report.main import (
     acceptance_section,
     criteria_source,

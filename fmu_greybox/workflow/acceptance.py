@@ -16,9 +16,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
+from fmu_greybox.evidence.spectra import FrequencyResponse
 from fmu_greybox.model.calibration import Z95, calibration_spread, rows_to_vouch
 from fmu_greybox.project.config import AcceptanceConfig, Criteria
-from fmu_greybox.report.spectra import FrequencyResponse
 from fmu_greybox.workflow.metrics import (
     calibration_free_runs,
     calibration_worth_text,

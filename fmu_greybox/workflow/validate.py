@@ -13,6 +13,8 @@ import numpy as np
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError, ModelFormatError, RecordingError
+from fmu_greybox.evidence.plots import calibration_figure, frequency_figure, save_png, trace_figure
+from fmu_greybox.evidence.spectra import FrequencyResponse, frequency_response
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.domain import beyond_training
 from fmu_greybox.model.stage_data import prepare
@@ -26,8 +28,6 @@ from fmu_greybox.project.fingerprint import (
     recorded_rows,
     trained_mask,
 )
-from fmu_greybox.report.plots import calibration_figure, frequency_figure, save_png, trace_figure
-from fmu_greybox.report.spectra import FrequencyResponse, frequency_response
 from fmu_greybox.workflow.acceptance import Acceptance, across_recordings, evaluate
 from fmu_greybox.workflow.master import MasterRun, run_master
 from fmu_greybox.workflow.metrics import pooled_row, stage_table, uncertainty_table
