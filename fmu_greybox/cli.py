@@ -472,7 +472,7 @@ def train(
     from fmu_greybox.model.whitebox import read_terms
     from fmu_greybox.project.config import load_config
     from fmu_greybox.project.data import load_project_recording
-    from fmu_greybox.report.summary import TRAINING_PARTS, parts_text
+    from fmu_greybox.workflow.parts import TRAINING_PARTS, parts_text
     from fmu_greybox.workflow.train import train_model, with_inducing
 
     config = with_inducing(load_config(config_path), inducing, max_iter)

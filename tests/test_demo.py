@@ -31,9 +31,9 @@ from fmu_greybox.model.store import load_model
 from fmu_greybox.project.config import load_config
 from fmu_greybox.project.data import load_project_recording
 from fmu_greybox.report.main import shipped_model
-from fmu_greybox.report.summary import PART_WORDS
 from fmu_greybox.synth.actuator import TYPICAL_MAGNITUDES
 from fmu_greybox.workflow.demo import choose_effect
+from fmu_greybox.workflow.parts import PART_WORDS
 from fmu_greybox.workflow.validate import validate_model
 
 #: A clear fault, so the test can require the diagnosis to name it.

@@ -37,15 +37,17 @@ from fmu_greybox.model.terms import CoulombForce, InputDelay, InputGain, SensorD
 from fmu_greybox.model.whitebox import NamedModel, check_terms, read_terms
 from fmu_greybox.project.config import load_config, parse_config
 from fmu_greybox.project.data import split_row
-from fmu_greybox.report.summary import PART_WORDS, TRAINING_PARTS, parts_text
 from fmu_greybox.workflow.parts import (
     BLOCKS,
     EQUAL_MARGIN,
+    PART_WORDS,
     STAGE_PARTS,
+    TRAINING_PARTS,
     block_rmse,
     choose_stage_part,
     compare_parts,
     has_corrector,
+    parts_text,
     passed_through_reason,
     passed_through_text,
 )

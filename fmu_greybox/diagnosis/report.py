@@ -28,7 +28,7 @@ from fmu_greybox.evidence.html import (
     verdict,
     write_page,
 )
-from fmu_greybox.report.summary import DIAGNOSIS_PARTS, parts_text
+from fmu_greybox.workflow.parts import DIAGNOSIS_PARTS, parts_text
 
 SCHEMA_VERSION = 1
 

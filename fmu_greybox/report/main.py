@@ -36,11 +36,8 @@ from fmu_greybox.evidence.plots import calibration_figure, frequency_figure, tra
 from fmu_greybox.model.store import GreyBoxModel
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.report.summary import (
-    PART_WORDS,
-    TRAINING_PARTS,
     finding_sentence,
     next_step,
-    parts_text,
     result_line,
     shipped_by_stage,
     summary_section,
@@ -55,7 +52,7 @@ from fmu_greybox.workflow.metrics import (
     improvement,
     spread_text,
 )
-from fmu_greybox.workflow.parts import shipped_parts
+from fmu_greybox.workflow.parts import PART_WORDS, TRAINING_PARTS, parts_text, shipped_parts
 from fmu_greybox.workflow.validate import Validation, frequency_table
 
 #: Wall time per step of the exported FMU a 1 kHz bench can afford: a tenth of the 1 ms step,
