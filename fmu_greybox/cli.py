@@ -732,9 +732,9 @@ def demo(
       fmu-greybox demo
       fmu-greybox demo --effect internal_leakage=1e-12 --seed 4 --out leak/
     """
+    from fmu_greybox.report.demo import DemoSettings, run_demo
     from fmu_greybox.report.main import verdict_lines, write_report
     from fmu_greybox.synth import actuator as synth_mod
-    from fmu_greybox.workflow.demo import DemoSettings, run_demo
 
     quiet = ctx.obj["quiet"] or as_json
     settings = DemoSettings(

@@ -30,9 +30,9 @@ from fmu_greybox.model.calibration import calibration_spread
 from fmu_greybox.model.store import load_model
 from fmu_greybox.project.config import load_config
 from fmu_greybox.project.data import load_project_recording
+from fmu_greybox.report.demo import choose_effect
 from fmu_greybox.report.main import shipped_model
 from fmu_greybox.synth.actuator import TYPICAL_MAGNITUDES
-from fmu_greybox.workflow.demo import choose_effect
 from fmu_greybox.workflow.parts import PART_WORDS
 from fmu_greybox.workflow.validate import validate_model
 
@@ -349,7 +349,7 @@ def box(dom: str, name: str) -> tuple[int, int, int, int]:
 
 
 def test_a_failed_demo_writes_no_report(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import fmu_greybox.workflow.demo as demo_module
+    import fmu_greybox.report.demo as demo_module
     from fmu_greybox.errors import BenchError
 
     def broken_bench(*_args, **_kwargs):

@@ -35,6 +35,7 @@ from fmu_greybox.evidence.html import (
 from fmu_greybox.evidence.plots import calibration_figure, frequency_figure, trace_figure
 from fmu_greybox.model.store import GreyBoxModel
 from fmu_greybox.project.config import ProjectConfig
+from fmu_greybox.report.demo import DemoResult
 from fmu_greybox.report.summary import (
     finding_sentence,
     next_step,
@@ -43,7 +44,6 @@ from fmu_greybox.report.summary import (
     summary_section,
 )
 from fmu_greybox.workflow.acceptance import PASS, Acceptance
-from fmu_greybox.workflow.demo import DemoResult
 from fmu_greybox.workflow.metrics import (
     INTERVAL_NOTE,
     calibration_free_runs,
