@@ -440,7 +440,7 @@ def uncertainty_coverage(
     keys = ("coverage68", "coverage95", "coverage95_low", "coverage95_high", "gb_rmse")
     keys += ("median_std", "independent_rows", "calibration_rmse", "calibration_independent_rows")
     keys += ("calibration_recordings", "calibration_share_low", "calibration_share_high")
-    shipped = model.training.get("parts", {}).get("shipped", "correctors")
+    shipped = (model.training.parts or {}).get("shipped", "correctors")
     return {stage: {k: row[k] for k in keys if k in row} for stage, row in table.items()}, shipped
 
 

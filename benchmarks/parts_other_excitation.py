@@ -109,7 +109,7 @@ def main() -> None:
         for ship in ("correctors", "terms+correctors"):
             model = train_model(greybox, training, terms=terms, ship=ship)
             tables[ship] = validate_model(model, other).table
-        print("comparison on the training recording:", json.dumps(model.training["parts"]))
+        print("comparison on the training recording:", json.dumps(model.training.parts))
         for stage, row in tables["terms+correctors"].items():
             print(
                 f"other excitation {stage}: white-box {row['wb_rmse']:.4g}, correctors "

@@ -490,12 +490,12 @@ def train(
         )
         save_model(model, out_dir)
     named = f", named terms: {', '.join(t.effect for t in model.terms)}" if model.terms else ""
-    if "parts" in model.training:
-        _info(ctx, f"{TRAINING_PARTS}: {parts_text(model.training['parts'])}.")
+    if model.training.parts is not None:
+        _info(ctx, f"{TRAINING_PARTS}: {parts_text(model.training.parts)}.")
     _info(
         ctx,
         f"wrote {out_dir} ({len(model.chain.stages)} stages, "
-        f"{model.training['train_rows']} training rows, {model.training['seconds']} s{named})",
+        f"{model.training.train_rows} training rows, {model.training.seconds} s{named})",
     )
 
 
@@ -671,12 +671,10 @@ def _print_validation(ctx: click.Context, model: GreyBoxModel, result: Validatio
     from fmu_greybox.workflow.parts import passed_through_text
 
     _info(ctx, f"held out: {result.held_out}")
-    click.echo(format_table(result.table, model.training["target_unit"]))
+    click.echo(format_table(result.table, model.training.target_unit))
     passed = model.chain.passed_through
     if passed:
-        _info(
-            ctx, f"passed through: {passed_through_text(model.training.get('parts', {}), passed)}"
-        )
+        _info(ctx, f"passed through: {passed_through_text(model.training.parts or {}, passed)}")
     if result.acceptance is not None:
         click.echo(result.acceptance.summary())
 

@@ -29,7 +29,7 @@ START = 20  # steps run before the saved state
 def domain(tmp_path_factory: pytest.TempPathFactory) -> InputDomain:
     model = load_model(trained(tmp_path_factory)["model_dir"])
     with open_fmu(model.whitebox_fmu) as archive:
-        return InputDomain.of(archive, list(INPUTS), model.training["input_ranges"])
+        return InputDomain.of(archive, list(INPUTS), model.training.input_ranges)
 
 
 @pytest.fixture(scope="module", params=RUNTIMES)

@@ -250,9 +250,7 @@ def _plan(
         manifest=manifest,
         model_sha256=model_sha,
         interface=interface,
-        domain=InputDomain.of(
-            archive, interface.input_names, model.training.get("input_ranges", {})
-        ),
+        domain=InputDomain.of(archive, interface.input_names, model.training.input_ranges),
         guid=str(uuid.uuid5(uuid.NAMESPACE_URL, identity)),
         settings=settings,
         annotation=_annotation(model, manifest, model_sha, ood_threshold),
@@ -525,8 +523,8 @@ def _annotation(
         "GreyBox",
         model_sha256=model_sha,
         whitebox_sha256=manifest["whitebox_sha256"],
-        recording_sha256=str(training.get("recording_sha256", "")),
-        recording=str(training.get("recording_source", "")),
+        recording_sha256=str(training.recording_sha256),
+        recording=str(training.recording_source),
         trained=str(manifest.get("created", "")),
         tool=str(manifest.get("tool", "")),
         target_mode=model.chain.target_mode,

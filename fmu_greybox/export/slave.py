@@ -349,7 +349,7 @@ class GreyBoxSlave(Fmi2Slave):
         self.archive = open_fmu(self.model.whitebox_fmu)
         self.interface = greybox_interface(self.model, self.archive, settings["ood_threshold"])
         self.domain = InputDomain.of(
-            self.archive, self.interface.input_names, self.model.training.get("input_ranges", {})
+            self.archive, self.interface.input_names, self.model.training.input_ranges
         )
         self.modelName = settings["model_identifier"]
         self.description = settings["description"]

@@ -102,14 +102,14 @@ def validation_report_html(
         sections.append(
             acceptance_section(validation.acceptance, criteria_source(config, recording))
         )
-    shipped = shipped_model(model.training.get("parts", {}), model)
+    shipped = shipped_model(model.training.parts or {}, model)
     lines = [validation.acceptance.summary()] if validation.acceptance is not None else []
     lines += validation_lines(validation.table, f"The model ({shipped})", recording, recording)
     passed = model.chain.passed_through
     if passed:
         lines.append(
             "Correctors switched off (σ is the stage's residual alone): "
-            f"{passed_through_text(model.training.get('parts', {}), passed)}."
+            f"{passed_through_text(model.training.parts or {}, passed)}."
         )
     sections += [
         verdict(lines),
