@@ -59,9 +59,9 @@ from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.build import c_compiler
 from fmu_greybox.gp.linalg import aligned_zeros
 from fmu_greybox.gp.predictive import packed_factor, point_factor
+from fmu_greybox.model.stage_data import prepare
 from fmu_greybox.model.store import load_model, save_model
 from fmu_greybox.project.config import load_config
-from fmu_greybox.project.data import prepare
 from fmu_greybox.workflow.train import train_model, with_inducing
 
 #: Accuracy every standard deviation must keep (relative to the exact one).

@@ -265,8 +265,8 @@ def equivalence(
 
     from fmu_greybox.data.recording import Recording
     from fmu_greybox.export.ssp import make_bench, run_bench
+    from fmu_greybox.model.stage_data import prepare
     from fmu_greybox.model.store import load_model
-    from fmu_greybox.project.data import prepare
     from fmu_greybox.workflow.master import run_master
 
     rec = recording(duration=2.048, seed=8)  # 2048 steps: its mean step is exactly 1 ms
@@ -341,8 +341,8 @@ def c_master_run(program: Path, fmu: Path, u: np.ndarray, repeat: int) -> dict[s
 def chain_step(model_dir: Path, rec, steps: int, repeat: int) -> dict[str, Any]:
     """CPU time per call [us] of the compiled chain step over the recording's white-box
     outputs, called from a Python loop; the median of ``repeat`` runs, with their range."""
+    from fmu_greybox.model.stage_data import prepare
     from fmu_greybox.model.store import load_model
-    from fmu_greybox.project.data import prepare
 
     model = load_model(model_dir)
     chain = model.chain

@@ -82,7 +82,7 @@ def case_rows(effects: tuple[str, ...], args: argparse.Namespace) -> list[dict]:
         print(f"  {'+'.join(effects)}: the diagnosis named nothing; skipped", file=sys.stderr)
         return []
     models = {ship: train_model(config, training, terms=terms, ship=ship) for ship in SHIPS}
-    shipped = models["best"].training["parts"]["shipped"]
+    shipped = models["best"].training.parts["shipped"]
     rows = []
     for k in range(args.recordings):
         other = record(effects, FIRST_OTHER_SEED + k, args.duration)

@@ -101,6 +101,7 @@ from fmu_greybox.model.calibration import Z95, calibration_spread, chance_within
 from fmu_greybox.model.simulate import simulate_with_terms  # noqa: E402
 from fmu_greybox.model.whitebox import terms_from_findings  # noqa: E402
 from fmu_greybox.project.config import load_config  # noqa: E402
+from fmu_greybox.report.demo import VALIDATION_SEED_OFFSET  # noqa: E402
 from fmu_greybox.synth.actuator import (  # noqa: E402
     INPUTS,
     SENSOR_NOISE,
@@ -111,7 +112,6 @@ from fmu_greybox.synth.actuator import (  # noqa: E402
 )
 from fmu_greybox.synth.loop import is_loop_effect, loop_terms, parse_loop_effects  # noqa: E402
 from fmu_greybox.workflow.acceptance import share_at_error_ratio  # noqa: E402
-from fmu_greybox.workflow.demo import VALIDATION_SEED_OFFSET  # noqa: E402
 from fmu_greybox.workflow.metrics import coverage_text, error_ratio, pooled_row  # noqa: E402
 from fmu_greybox.workflow.train import train_model, with_inducing  # noqa: E402
 from fmu_greybox.workflow.validate import validate_model  # noqa: E402
@@ -440,7 +440,7 @@ def uncertainty_coverage(
     keys = ("coverage68", "coverage95", "coverage95_low", "coverage95_high", "gb_rmse")
     keys += ("median_std", "independent_rows", "calibration_rmse", "calibration_independent_rows")
     keys += ("calibration_recordings", "calibration_share_low", "calibration_share_high")
-    shipped = model.training.get("parts", {}).get("shipped", "correctors")
+    shipped = (model.training.parts or {}).get("shipped", "correctors")
     return {stage: {k: row[k] for k in keys if k in row} for stage, row in table.items()}, shipped
 
 

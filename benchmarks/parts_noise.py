@@ -29,8 +29,8 @@ from fmu_greybox.fmi.builtin import reference_fmus, reference_project
 from fmu_greybox.model.store import load_model, save_model
 from fmu_greybox.model.whitebox import read_terms
 from fmu_greybox.project.config import load_config
+from fmu_greybox.report.demo import VALIDATION_SEED_OFFSET, DemoSettings
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
-from fmu_greybox.workflow.demo import VALIDATION_SEED_OFFSET, DemoSettings
 from fmu_greybox.workflow.train import fit_model, with_inducing
 from fmu_greybox.workflow.validate import validate_model
 

@@ -43,7 +43,7 @@ from fmu_greybox.diagnosis import Diagnosis  # noqa: E402
 from fmu_greybox.fmi.archive import open_fmu  # noqa: E402
 from fmu_greybox.model import chain  # noqa: E402
 from fmu_greybox.model.terms import term_from_dict  # noqa: E402
-from fmu_greybox.workflow.demo import VALIDATION_SEED_OFFSET  # noqa: E402
+from fmu_greybox.report.demo import VALIDATION_SEED_OFFSET  # noqa: E402
 from fmu_greybox.workflow.train import train_model, with_inducing  # noqa: E402
 from fmu_greybox.workflow.validate import validate_model  # noqa: E402
 
@@ -109,7 +109,7 @@ def main() -> None:
         for ship in ("correctors", "terms+correctors"):
             model = train_model(greybox, training, terms=terms, ship=ship)
             tables[ship] = validate_model(model, other).table
-        print("comparison on the training recording:", json.dumps(model.training["parts"]))
+        print("comparison on the training recording:", json.dumps(model.training.parts))
         for stage, row in tables["terms+correctors"].items():
             print(
                 f"other excitation {stage}: white-box {row['wb_rmse']:.4g}, correctors "

@@ -182,11 +182,11 @@ def run_experiment(
     if not quiet:
         print(
             f"\n{name}: effects {spec['effects']}, noise {spec['noise']}, "
-            f"{model.training['train_rows']} training rows, {result.run.rows.size} validation "
+            f"{model.training.train_rows} training rows, {result.run.rows.size} validation "
             f"rows, {config.gp.inducing} inducing points, {seconds:.1f} s\n{named}",
             end="",
         )
-        print(format_table(result.table, model.training["target_unit"]))
+        print(format_table(result.table, model.training.target_unit))
         paper = ", ".join(f"{k} {100 * v:.1f}%" for k, v in PAPER[name].items())
         print(f"paper: {paper}", flush=True)
     if by_time and not quiet:
@@ -201,7 +201,7 @@ def run_experiment(
         checked = validate_model(model, other)
         if not quiet:
             print(f"{name}, independent recording (seed {seed}): {checked.held_out}")
-            print(format_table(checked.table, model.training["target_unit"]), flush=True)
+            print(format_table(checked.table, model.training.target_unit), flush=True)
             if by_time:
                 print(shares_by_time(f"{name}, seed {seed}", checked))
         tables[f"{name}/seed {seed}"] = stage_rows(checked.table)

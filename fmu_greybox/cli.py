@@ -472,7 +472,7 @@ def train(
     from fmu_greybox.model.whitebox import read_terms
     from fmu_greybox.project.config import load_config
     from fmu_greybox.project.data import load_project_recording
-    from fmu_greybox.report.summary import TRAINING_PARTS, parts_text
+    from fmu_greybox.workflow.parts import TRAINING_PARTS, parts_text
     from fmu_greybox.workflow.train import train_model, with_inducing
 
     config = with_inducing(load_config(config_path), inducing, max_iter)
@@ -490,12 +490,12 @@ def train(
         )
         save_model(model, out_dir)
     named = f", named terms: {', '.join(t.effect for t in model.terms)}" if model.terms else ""
-    if "parts" in model.training:
-        _info(ctx, f"{TRAINING_PARTS}: {parts_text(model.training['parts'])}.")
+    if model.training.parts is not None:
+        _info(ctx, f"{TRAINING_PARTS}: {parts_text(model.training.parts)}.")
     _info(
         ctx,
         f"wrote {out_dir} ({len(model.chain.stages)} stages, "
-        f"{model.training['train_rows']} training rows, {model.training['seconds']} s{named})",
+        f"{model.training.train_rows} training rows, {model.training.seconds} s{named})",
     )
 
 
@@ -607,7 +607,7 @@ def _validate_several(
     """Validate on each recording (its outputs in ``<output folder>/<name>``), pool the
     coverage and write the output folder's ``metrics.json`` and ``report.html``; the verdict
     over all."""
-    from fmu_greybox.report.html import write_page
+    from fmu_greybox.evidence.html import write_page
     from fmu_greybox.report.provenance import command_line
     from fmu_greybox.report.validation import REPORT, pooled_report_html
     from fmu_greybox.workflow.metrics import coverage_text, error_ratio
@@ -654,7 +654,7 @@ def _write_validation(
 ) -> tuple[dict, list[str]]:
     """Write one recording's validation into ``folder``: ``metrics.json``, the plots and
     ``report.html``, each atomically, the page last. Returns the metrics and the files' names."""
-    from fmu_greybox.report.html import write_page
+    from fmu_greybox.evidence.html import write_page
     from fmu_greybox.report.validation import REPORT, validation_report_html
     from fmu_greybox.workflow.validate import write_metrics, write_plots
 
@@ -671,12 +671,10 @@ def _print_validation(ctx: click.Context, model: GreyBoxModel, result: Validatio
     from fmu_greybox.workflow.parts import passed_through_text
 
     _info(ctx, f"held out: {result.held_out}")
-    click.echo(format_table(result.table, model.training["target_unit"]))
+    click.echo(format_table(result.table, model.training.target_unit))
     passed = model.chain.passed_through
     if passed:
-        _info(
-            ctx, f"passed through: {passed_through_text(model.training.get('parts', {}), passed)}"
-        )
+        _info(ctx, f"passed through: {passed_through_text(model.training.parts or {}, passed)}")
     if result.acceptance is not None:
         click.echo(result.acceptance.summary())
 
@@ -732,9 +730,9 @@ def demo(
       fmu-greybox demo
       fmu-greybox demo --effect internal_leakage=1e-12 --seed 4 --out leak/
     """
+    from fmu_greybox.report.demo import DemoSettings, run_demo
     from fmu_greybox.report.main import verdict_lines, write_report
     from fmu_greybox.synth import actuator as synth_mod
-    from fmu_greybox.workflow.demo import DemoSettings, run_demo
 
     quiet = ctx.obj["quiet"] or as_json
     settings = DemoSettings(

@@ -12,9 +12,9 @@ import pytest
 from scipy import signal
 
 from fmu_greybox.errors import ConfigError
+from fmu_greybox.evidence.spectra import frequency_response
 from fmu_greybox.model.calibration import Z95, calibration_spread, rows_to_vouch
 from fmu_greybox.project.config import AcceptanceConfig, Criteria, parse_config
-from fmu_greybox.report.spectra import frequency_response
 from fmu_greybox.workflow.acceptance import (
     FAIL,
     PASS,

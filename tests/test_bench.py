@@ -241,7 +241,7 @@ def test_an_input_refused_at_the_start_stops_libcosim_with_the_fmus_message(
     made the native grey-box refuse it during libcosim's initialisation, and libcosim aborted
     the whole process (std::terminate on a cosim::error, exit 134). Now ``cosim`` exits 1
     with the grey-box's refusal, which names the input, its value, the time and the domain."""
-    low, high = load_model(model_dir).training["input_ranges"]["valve_current"]
+    low, high = load_model(model_dir).training.input_ranges["valve_current"]
     outside = high + 3.0 * max(high - low, abs(low), abs(high))  # the domain is 1 scale wider
     part = first_rows(validation, 0.05)
     current = part["valve_current"].copy()

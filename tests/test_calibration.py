@@ -19,6 +19,12 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
+from fmu_greybox.evidence.plots import (
+    OUTSIDE_STYLE,
+    calibration_figure,
+    trace_figure,
+    zoom_range,
+)
 from fmu_greybox.model.calibration import (
     UNCALIBRATED,
     Z95,
@@ -35,12 +41,6 @@ from fmu_greybox.model.calibration import (
 )
 from fmu_greybox.model.chain import GreyBoxChain, RecordedRun
 from fmu_greybox.project.config import parse_config
-from fmu_greybox.report.plots import (
-    OUTSIDE_STYLE,
-    calibration_figure,
-    trace_figure,
-    zoom_range,
-)
 
 REFERENCE = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"
 

@@ -23,16 +23,16 @@ from PIL import Image
 from tools import installed_tool
 
 from fmu_greybox.cli import main
+from fmu_greybox.evidence.plots import frequency_figure
 from fmu_greybox.fmi.builtin import reference_project
 from fmu_greybox.model.calibration import calibration_spread
 from fmu_greybox.model.store import load_model
 from fmu_greybox.project.config import load_config
 from fmu_greybox.project.data import load_project_recording
+from fmu_greybox.report.demo import choose_effect
 from fmu_greybox.report.main import shipped_model
-from fmu_greybox.report.plots import frequency_figure
-from fmu_greybox.report.summary import PART_WORDS
 from fmu_greybox.synth.actuator import TYPICAL_MAGNITUDES
-from fmu_greybox.workflow.demo import choose_effect
+from fmu_greybox.workflow.parts import PART_WORDS
 from fmu_greybox.workflow.validate import validate_model
 
 #: A clear fault, so the test can require the diagnosis to name it.
@@ -302,7 +302,7 @@ CELL_WORDS = 25
 #: they also gave the shares single free runs held: 3239 px; 3400 until the summary box and the
 #: acceptance table's notes came first).
 SHOT_HEIGHT = 4200
-#: Badge colours of PASS, FAIL and UNDECIDED (report/html.py).
+#: Badge colours of PASS, FAIL and UNDECIDED (evidence/html.py).
 VERDICT_COLOURS = ((0x1A, 0x7F, 0x37), (0xC6, 0x28, 0x28), (0xF2, 0xC9, 0x4C))
 #: The band's fill: tab:green at alpha 0.25 over white.
 BAND_RGB = (201, 231, 201)
@@ -340,7 +340,7 @@ def box(dom: str, name: str) -> tuple[int, int, int, int]:
 
 
 def test_a_failed_demo_writes_no_report(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import fmu_greybox.workflow.demo as demo_module
+    import fmu_greybox.report.demo as demo_module
     from fmu_greybox.errors import BenchError
 
     def broken_bench(*_args, **_kwargs):

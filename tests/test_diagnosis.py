@@ -19,9 +19,8 @@ from fmu_greybox.diagnosis.alternatives import nearly_as_good
 from fmu_greybox.diagnosis.findings import named_physics
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.project.config import load_config, parse_config
-from fmu_greybox.report.summary import DIAGNOSIS_PARTS, PART_WORDS
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
-from fmu_greybox.workflow.parts import PARTS
+from fmu_greybox.workflow.parts import DIAGNOSIS_PARTS, PART_WORDS, PARTS
 
 CONFIGS = Path(__file__).resolve().parents[1] / "bench_configs"
 ACTUATOR = CONFIGS / "hydraulic_actuator.toml"

@@ -11,12 +11,12 @@ from scipy.signal import lfilter
 from fmu_greybox.diagnosis.hypotheses import physics_label
 from fmu_greybox.diagnosis.locate import Locator, _inherited, regime_signals
 from fmu_greybox.diagnosis.noise import noise_level
-from fmu_greybox.diagnosis.roles import role_from_unit
 from fmu_greybox.diagnosis.runner import Experiment
 from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.calibration import autocorrelation_time
 from fmu_greybox.project.config import load_config
+from fmu_greybox.project.roles import role_from_unit
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 
 CONFIG = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"

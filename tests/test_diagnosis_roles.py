@@ -8,9 +8,9 @@ import pytest
 from third_party import project
 
 from fmu_greybox.data.recording import Recording
-from fmu_greybox.diagnosis.roles import infer_role, role_from_text
 from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.fmi.archive import FmuVariable, open_fmu
+from fmu_greybox.project.roles import infer_role, role_from_text
 
 
 @pytest.mark.parametrize(

@@ -39,9 +39,9 @@ from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.instance import FmuInstance
 from fmu_greybox.model.calibration import VarianceCalibration
 from fmu_greybox.model.simulate import simulate_recording
+from fmu_greybox.model.stage_data import prepare
 from fmu_greybox.model.store import MANIFEST, GreyBoxModel, file_sha256, load_model, save_model
 from fmu_greybox.project.config import load_config
-from fmu_greybox.project.data import prepare
 from fmu_greybox.workflow.master import MasterRun, run_master
 from fmu_greybox.workflow.train import train_model, with_inducing
 

@@ -1,7 +1,7 @@
 """Property-based tests of the exported FMU's inputs, in both runtimes.
 
 Whatever a bench sets its inputs to, ``fmi2DoStep`` accepts the step exactly when every input is
-finite and within the input domain (:class:`fmu_greybox.export.domain.InputDomain`, the
+finite and within the input domain (:class:`fmu_greybox.model.domain.InputDomain`, the
 oracle), and then gives finite outputs; a refused step changes nothing (the next outputs are
 those of the state before it). Each example starts from the same saved FMU state, 20 steps into
 the validation recording. Uses the session's model and FMUs of ``test_export``.
@@ -17,9 +17,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_export import INPUTS, STAGE_OUTPUTS, Slave, input_rows, trained
 
-from fmu_greybox.export.domain import InputDomain, beyond_training
 from fmu_greybox.export.fmu import RUNTIMES
 from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.model.domain import InputDomain, beyond_training
 from fmu_greybox.model.store import load_model
 
 START = 20  # steps run before the saved state
@@ -29,7 +29,7 @@ START = 20  # steps run before the saved state
 def domain(tmp_path_factory: pytest.TempPathFactory) -> InputDomain:
     model = load_model(trained(tmp_path_factory)["model_dir"])
     with open_fmu(model.whitebox_fmu) as archive:
-        return InputDomain.of(archive, list(INPUTS), model.training["input_ranges"])
+        return InputDomain.of(archive, list(INPUTS), model.training.input_ranges)
 
 
 @pytest.fixture(scope="module", params=RUNTIMES)

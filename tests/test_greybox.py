@@ -17,9 +17,10 @@ from fmu_greybox.data.recording import Recording, save_recording
 from fmu_greybox.errors import ModelFormatError
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.chain import GreyBoxChain
+from fmu_greybox.model.stage_data import prepare
 from fmu_greybox.model.store import FORMAT_VERSION, MANIFEST, file_sha256, load_model, save_model
 from fmu_greybox.project.config import Criteria, parse_config
-from fmu_greybox.project.data import prepare, split_row
+from fmu_greybox.project.data import split_row
 from fmu_greybox.report.validation import REPORT
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 from fmu_greybox.workflow.master import run_master

@@ -37,15 +37,17 @@ from fmu_greybox.model.terms import CoulombForce, InputDelay, InputGain, SensorD
 from fmu_greybox.model.whitebox import NamedModel, check_terms, read_terms
 from fmu_greybox.project.config import load_config, parse_config
 from fmu_greybox.project.data import split_row
-from fmu_greybox.report.summary import PART_WORDS, TRAINING_PARTS, parts_text
 from fmu_greybox.workflow.parts import (
     BLOCKS,
     EQUAL_MARGIN,
+    PART_WORDS,
     STAGE_PARTS,
+    TRAINING_PARTS,
     block_rmse,
     choose_stage_part,
     compare_parts,
     has_corrector,
+    parts_text,
     passed_through_reason,
     passed_through_text,
 )
@@ -279,7 +281,7 @@ def test_train_with_terms_compares_its_parts_forward_in_time(termed, tmp_path) -
     shipped model is trained on all the training rows, and ``--ship terms`` writes the named
     white-box with every corrector passed through."""
     model, recording = termed["model"], termed["recording"]
-    parts = model.training["parts"]
+    parts = model.training.parts
     assert set(parts["shipped"].values()) == {"terms+correctors"}  # --ship on every stage
     assert parts["best"] == min(parts["score"], key=parts["score"].__getitem__)
     assert set(parts["score"]) == set(STAGE_PARTS)
@@ -287,7 +289,7 @@ def test_train_with_terms_compares_its_parts_forward_in_time(termed, tmp_path) -
     split = split_row(model.config, n)
     config = model.config
     half = split_row(dataclasses.replace(config, train_fraction=config.train_fraction / 2), n)
-    assert model.training["train_rows"] == split + 1
+    assert model.training.train_rows == split + 1
     assert parts["trained_rows"] == [0, half]
     first = parts["held_out_rows"][0]
     assert parts["held_out_rows"] == [half + 1, n - 1] and first == half + 1
@@ -307,7 +309,7 @@ def test_train_with_terms_compares_its_parts_forward_in_time(termed, tmp_path) -
     # no corrector is fitted for what never runs; the folder and the exported FMU do without
     assert alone.chain.correctors_ == [None, None, None]
     _round_trips_without_correctors(alone, termed["validation"], tmp_path)
-    assert alone.training["parts"]["score"] == pytest.approx(parts["score"], rel=1e-9)
+    assert alone.training.parts["score"] == pytest.approx(parts["score"], rel=1e-9)
     # its σ describes what it ships, the terms alone (calibrated with every stage passed
     # through: σ = sqrt(b), 95 % of the training rows' white-box + terms residual inside
     # ±1.96σ), not the correctors it no longer uses
@@ -318,7 +320,7 @@ def test_train_with_terms_compares_its_parts_forward_in_time(termed, tmp_path) -
         sigma = np.sqrt(alone.chain.calibration_[q].residual_variance)
         inside = np.mean(np.abs(residual) <= 1.959963984540054 * sigma)
         assert inside == pytest.approx(0.95, abs=2e-3), stage
-        assert alone.training["calibration_check"][stage]["rmse"] == pytest.approx(
+        assert alone.training.calibration_check[stage]["rmse"] == pytest.approx(
             np.sqrt(np.mean(residual**2)), rel=1e-9
         )
     # calibrated on a recording instead: the same, over that recording's named run
@@ -336,10 +338,10 @@ def test_train_with_terms_compares_its_parts_forward_in_time(termed, tmp_path) -
         sigma = np.sqrt(on_other.chain.calibration_[q].residual_variance)
         inside = np.mean(np.abs(residual) <= 1.959963984540054 * sigma)
         assert inside == pytest.approx(0.95, abs=2e-3), stage
-        assert on_other.training["calibration_check"][stage]["source"] == "recordings"
+        assert on_other.training.calibration_check[stage]["source"] == "recordings"
     plain = train_model(termed["config"], recording, terms=terms(), ship="correctors")
     assert plain.terms == []
-    assert set(plain.training["parts"]["shipped"].values()) == {"correctors"}
+    assert set(plain.training.parts["shipped"].values()) == {"correctors"}
     with pytest.raises(ConfigError, match="'all' is not a part to ship"):
         train_model(termed["config"], recording, terms=terms(), ship="all")
 
@@ -426,7 +428,7 @@ def test_train_command_folds_a_diagnosis_terms(termed, tmp_path: Path) -> None:
     )
     assert result.exit_code == 0, result.output
     model = load_model(tmp_path / "model")
-    parts = model.training["parts"]
+    parts = model.training.parts
     line = f"{TRAINING_PARTS}: {parts_text(parts)}."  # the demo's wording, one function
     assert line in result.output.splitlines()
     assert f"best: {PART_WORDS[parts['best']]}" in line
@@ -435,7 +437,7 @@ def test_train_command_folds_a_diagnosis_terms(termed, tmp_path: Path) -> None:
     chosen = [parts["shipped"][stage] for stage in model.chain.stage_names]
     assert model.terms == terms_per_stage([terms()[1]], chosen)
     assert model.chain.active_.tolist() == [
-        has_corrector(part) and model.training["free_run_check"][stage]["active"]
+        has_corrector(part) and model.training.free_run_check[stage]["active"]
         for stage, part in zip(model.chain.stage_names, chosen, strict=True)
     ]
     assert ("named terms: coulomb_friction" in result.output) == bool(model.terms)
@@ -461,7 +463,7 @@ def test_train_with_terms_optimises_each_choice_once(termed, monkeypatch) -> Non
     active = int(model.chain.active_.sum())
     assert all(max_iter > 0 for max_iter in calls)
     assert len(calls) == 2 * stages * 3 + stages + active
-    selection = model.training["target_selection"]
+    selection = model.training.target_selection
     assert set(selection) == {s.name for s in model.chain.stages}  # the comparison's choice
 
 

@@ -43,10 +43,10 @@ from test_export import (
 from fmu_greybox.errors import ExportError, FmuError
 from fmu_greybox.export.fmu import RUNTIMES, export_greybox
 from fmu_greybox.export.native import BUILD_DESCRIPTION, NATIVE_DIR
-from fmu_greybox.export.native_terms import NATIVE_KINDS
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.instance import FmuInstance
 from fmu_greybox.model import terms as term_kinds
+from fmu_greybox.model.native_terms import NATIVE_KINDS
 from fmu_greybox.model.store import load_model, save_model
 
 ROOT = Path(__file__).resolve().parents[1]

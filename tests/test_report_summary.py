@@ -5,20 +5,18 @@ from __future__ import annotations
 import dataclasses
 import re
 
+from fmu_greybox.evidence.glossary import GLOSSARY, glossary_section, term
 from fmu_greybox.model.terms import FlowDroop
-from fmu_greybox.report.glossary import GLOSSARY, glossary_section, term
 from fmu_greybox.report.main import worse_text
 from fmu_greybox.report.summary import (
-    DIAGNOSIS_PARTS,
-    TRAINING_PARTS,
     finding_sentence,
     next_step,
-    parts_text,
     result_line,
     shipped_by_stage,
     summary_section,
 )
 from fmu_greybox.workflow.acceptance import FAIL, PASS, UNDECIDED, Acceptance, Check
+from fmu_greybox.workflow.parts import DIAGNOSIS_PARTS, TRAINING_PARTS, parts_text
 
 PARTS = {
     "score": {"correctors": 0.0686, "terms": 0.016, "terms+correctors": 0.0162},

@@ -10,6 +10,7 @@ broken after their hashes were made to match.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import pickle
 import shutil
@@ -35,6 +36,7 @@ from fmu_greybox.model.store import (
     manifest_digest,
     save_model,
 )
+from fmu_greybox.model.training import TRAINING_FORMAT
 from fmu_greybox.project.config import parse_config
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 from fmu_greybox.workflow.train import train_model
@@ -330,6 +332,28 @@ def test_a_folder_written_before_calibration_loads_uncalibrated(
     state = chain.start(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((2, len(chain.exo_names))))
     chain.plan().step(state, np.zeros(len(chain.exo_names)), np.zeros(3))
     np.testing.assert_array_equal(state.out_var, state.latent_var)
+
+
+def test_the_training_record_is_written_versioned_and_an_older_dict_still_loads(
+    saved: Path, tmp_path: Path
+) -> None:
+    """model.json keeps training's keys plus the record's format version; a folder whose
+    ``"training"`` is the plain dict of an earlier version (no format version) loads with the
+    same facts."""
+    written = read(saved)["training"]
+    assert written["format_version"] == TRAINING_FORMAT
+    current = load_model(saved).training
+    assert current.to_dict() == written and current.train_rows == written["train_rows"]
+    folder = copy_of(saved, tmp_path)
+    manifest = read(folder)
+    del manifest["training"]["format_version"]
+    write_rehashed(folder, manifest)
+    older = load_model(folder).training
+    assert older.format_version == 0
+    assert dataclasses.replace(older, format_version=TRAINING_FORMAT) == current
+    manifest["training"]["format_version"] = TRAINING_FORMAT + 1
+    write_rehashed(folder, manifest)
+    refused(folder, r"model\.json: the training record is of format")
 
 
 def _paths(value: Any, prefix: tuple = ()) -> list[tuple]:

@@ -22,8 +22,9 @@ from fmu_greybox.data.recording import Recording, load_recording, normalise_unit
 from fmu_greybox.errors import RecordingError, UnitMismatchError
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu
 from fmu_greybox.model.chain import GreyBoxChain
+from fmu_greybox.model.stage_data import prepare
 from fmu_greybox.project.config import ROLE_UNITS, ProjectConfig, parse_config
-from fmu_greybox.project.data import load_project_recording, prepare
+from fmu_greybox.project.data import load_project_recording
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 from fmu_greybox.units import UnitSyntaxError, conversion
 

@@ -12,8 +12,8 @@ import pytest
 from figures import overlapping_tick_labels
 from scipy import signal
 
-from fmu_greybox.report.plots import frequency_figure
-from fmu_greybox.report.spectra import MIN_COHERENCE, frequency_response
+from fmu_greybox.evidence.plots import frequency_figure
+from fmu_greybox.evidence.spectra import MIN_COHERENCE, frequency_response
 
 DT = 1e-3
 

@@ -19,9 +19,9 @@ BOXES = {
     "model": (4.4, 1.0, "model/", "named terms, white-box\nstepping, chain, store"),
     "gp": (4.4, -0.6, "gp/", "sparse GP (VFE),\nchain step in C"),
     "diagnosis": (4.4, 2.6, "diagnosis/", "locate, name, model,\nshow: findings"),
-    "workflow": (6.6, 1.0, "workflow/", "train, master, validate,\nmetrics, demo"),
+    "workflow": (6.6, 1.0, "workflow/", "train, master, validate,\nmetrics, parts"),
     "export": (8.8, 0.2, "export/", "grey-box FMU, SSP\nbench, FMU runtime"),
-    "report": (8.8, 1.8, "report/", "HTML report, plots,\nfrequency responses"),
+    "report": (8.8, 1.8, "report/", "the demo, HTML reports\n(plots: evidence/)"),
     "synth": (0.0, 3.6, "synth/", "truth model in closed\nloop: recordings"),
     "campaign": (8.8, 3.4, "campaign/", "many recordings on\nDask: trends, drift"),
 }

@@ -17,7 +17,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from fmu_greybox.atomic import atomic_write
-from fmu_greybox.report.html import escape, figure, page, table, verdict
+from fmu_greybox.evidence.html import escape, figure, page, table, verdict
 
 
 def summary_lines(payload: dict) -> list[str]:

@@ -15,7 +15,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from fmu_greybox.report.plots import GB_STYLE, REC_STYLE, WB_STYLE
+from fmu_greybox.evidence.plots import GB_STYLE, REC_STYLE, WB_STYLE
 
 NAMED_STYLE = {"color": "tab:purple", "lw": 1.0, "label": "white-box + named terms"}
 

@@ -16,8 +16,8 @@ import numpy as np
 from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.diagnosis.figures import regime_figure, residual_figure, trace_figure
-from fmu_greybox.report.glossary import glossary_section, term
-from fmu_greybox.report.html import (
+from fmu_greybox.evidence.glossary import glossary_section, term
+from fmu_greybox.evidence.html import (
     Html,
     escape,
     figure,
@@ -28,7 +28,7 @@ from fmu_greybox.report.html import (
     verdict,
     write_page,
 )
-from fmu_greybox.report.summary import DIAGNOSIS_PARTS, parts_text
+from fmu_greybox.workflow.parts import DIAGNOSIS_PARTS, parts_text
 
 SCHEMA_VERSION = 1
 

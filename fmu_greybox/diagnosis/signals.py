@@ -12,9 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from fmu_greybox.data.recording import Recording
-from fmu_greybox.diagnosis.roles import VariableRole, infer_role
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.project.config import ProjectConfig, Signal
+from fmu_greybox.project.roles import VariableRole, infer_role
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,6 @@ from lxml import etree
 from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.errors import ExportError
-from fmu_greybox.export.domain import InputDomain
 from fmu_greybox.export.slave import (
     MODEL_FOLDER,
     RUNTIME_FILE,
@@ -47,6 +46,7 @@ from fmu_greybox.export.slave import (
 )
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu
 from fmu_greybox.model.chain_step import DEFAULT_OOD_THRESHOLD
+from fmu_greybox.model.domain import InputDomain
 from fmu_greybox.model.store import (
     MANIFEST,
     GreyBoxModel,
@@ -101,7 +101,7 @@ class ExportPlan:
     interface : GreyBoxInterface
         The FMU's variables.
     domain : InputDomain
-        The inputs it accepts (:mod:`fmu_greybox.export.domain`).
+        The inputs it accepts (:mod:`fmu_greybox.model.domain`).
     guid : str
     settings : dict
         Identity and text of the FMU (``model_identifier``, ``description``, ``author``,
@@ -250,9 +250,7 @@ def _plan(
         manifest=manifest,
         model_sha256=model_sha,
         interface=interface,
-        domain=InputDomain.of(
-            archive, interface.input_names, model.training.get("input_ranges", {})
-        ),
+        domain=InputDomain.of(archive, interface.input_names, model.training.input_ranges),
         guid=str(uuid.uuid5(uuid.NAMESPACE_URL, identity)),
         settings=settings,
         annotation=_annotation(model, manifest, model_sha, ood_threshold),
@@ -525,8 +523,8 @@ def _annotation(
         "GreyBox",
         model_sha256=model_sha,
         whitebox_sha256=manifest["whitebox_sha256"],
-        recording_sha256=str(training.get("recording_sha256", "")),
-        recording=str(training.get("recording_source", "")),
+        recording_sha256=str(training.recording_sha256),
+        recording=str(training.recording_source),
         trained=str(manifest.get("created", "")),
         tool=str(manifest.get("tool", "")),
         target_mode=model.chain.target_mode,

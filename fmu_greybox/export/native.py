@@ -16,7 +16,7 @@ the Python package's extension compiles), ``whitebox.c`` (the white-box and its 
 as :class:`~fmu_greybox.model.whitebox.NamedModel`), ``terms.c`` (every term kind),
 ``greybox_fmu.c`` (the FMI functions), ``greybox_data.c`` and ``sha256.c``. Only
 ``greybox_config.h`` is generated: the FMU's identifier and GUID, the data file's hash and the
-term kind codes (:mod:`fmu_greybox.export.native_terms`).
+term kind codes (:mod:`fmu_greybox.model.native_terms`).
 """
 
 from __future__ import annotations
@@ -27,7 +27,6 @@ import tempfile
 import time
 import warnings
 import zipfile
-from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -37,14 +36,15 @@ from lxml import etree
 from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.errors import ExportError, FmuBuildError
-from fmu_greybox.export.native_data import data_file_bytes
-from fmu_greybox.export.native_terms import encode_term, kind_code, kind_defines
 from fmu_greybox.export.slave import MODEL_FOLDER, STEP_RTOL
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.fmi.build import c_compiler, fmi2_headers, fmi2_platform
 from fmu_greybox.fmi.kinds import require_native
+from fmu_greybox.model.native_data import data_file_bytes
+from fmu_greybox.model.native_terms import kind_code, kind_defines
+from fmu_greybox.model.native_whitebox import whitebox_sections
 from fmu_greybox.model.store import file_sha256
-from fmu_greybox.model.whitebox import PartLayout, part_layouts
+from fmu_greybox.model.whitebox import part_layouts
 
 if TYPE_CHECKING:
     from fmu_greybox.export.fmu import ExportPlan
@@ -150,78 +150,6 @@ def data_sections(plan: ExportPlan, archive: FmuArchive) -> dict[str, Any]:
         "input_high": plan.domain.high,
         "settings": np.array([model.dt, plan.settings["ood_threshold"], STEP_RTOL]),
     }
-
-
-def whitebox_sections(
-    archive: FmuArchive,
-    inputs: Sequence[str],
-    layouts: Sequence[PartLayout],
-    dt: float,
-    n_outputs: int,
-    stages: Sequence[int] = (0, 0),
-) -> dict[str, Any]:
-    """The sections ``native/whitebox.c`` reads: ``sizes`` (inputs, outputs, ``stages``: the
-    chain's stages and exogenous inputs, parts, terms), the white-box's identity, its binaries'
-    hashes and input references, and its parts with their terms (shared by the native FMU and
-    the native simulation runner, :mod:`fmu_greybox.model.native_run`)."""
-    n_terms = sum(len(layout.terms) for layout in layouts)
-    return {
-        "sizes": np.array([len(inputs), n_outputs, *stages, len(layouts), n_terms], dtype=np.int64),
-        "wb_input_vr": _references(archive, list(inputs)),
-        "wb_guid": archive.guid,
-        "wb_identifier": archive.model_identifier,
-        "wb_binaries": _binary_hashes(archive),
-        **_part_sections(list(layouts), archive, list(inputs), dt),
-    }
-
-
-def _references(archive: FmuArchive, names: list[str]) -> np.ndarray:
-    return np.array([archive.variable(n).value_reference for n in names], dtype=np.int64)
-
-
-def _part_sections(layouts: list, archive: FmuArchive, inputs: list[str], dt: float) -> dict:
-    """The white-box instances and their terms, concatenated part after part."""
-    records, columns, bound, param_vr, param_value = [], [], [], [], []
-    term_int, term_real, channels = [], [], []
-    for layout in layouts:
-        records.append(
-            [
-                len(layout.columns),
-                len(layout.bound),
-                len(layout.parameters),
-                len(layout.terms),
-                layout.substeps,
-                layout.level,
-            ]
-        )
-        columns += layout.columns
-        bound += list(_references(archive, layout.bound))
-        param_vr += list(_references(archive, list(layout.parameters)))
-        param_value += [float(v) for v in layout.parameters.values()]
-        for term in layout.terms:
-            ints, reals, delayed = encode_term(term, inputs, layout.bound, layout.every(term, dt))
-            term_int += ints
-            term_real += reals
-            channels += delayed
-    return {
-        "part": np.array(records, dtype=np.int64),
-        "part_columns": np.array(columns, dtype=np.int64),
-        "part_bound_vr": np.array(bound, dtype=np.int64),
-        "part_param_vr": np.array(param_vr, dtype=np.int64),
-        "part_param_value": np.array(param_value, dtype=float),
-        "term_int": np.array(term_int, dtype=np.int64),
-        "term_real": np.array(term_real, dtype=float),
-        "term_channels": np.array(channels, dtype=np.int64),
-    }
-
-
-def _binary_hashes(archive: FmuArchive) -> str:
-    """``platform sha256`` lines of the white-box's binaries (checked before dlopen)."""
-    lines = []
-    for folder in sorted((archive.unzip_dir / "binaries").iterdir()):
-        for library in sorted(folder.glob(f"{archive.model_identifier}.*")):
-            lines.append(f"{folder.name} {file_sha256(library)}")
-    return "\n".join(lines)
 
 
 # ---------------------------------------------------------------------------- sources, binary

@@ -55,10 +55,10 @@ from pythonfmu.enums import Fmi2Status
 
 from fmu_greybox import __version__
 from fmu_greybox.errors import ExportError, ModelFormatError
-from fmu_greybox.export.domain import InputDomain
 from fmu_greybox.export.runtime import RUNTIME_FILE, attach_logger, guarded, refuse_step, report
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu
 from fmu_greybox.model.chain_step import DEFAULT_OOD_THRESHOLD, ChainState, out_of_domain
+from fmu_greybox.model.domain import InputDomain
 from fmu_greybox.model.store import MANIFEST, GreyBoxModel, file_sha256, load_model
 from fmu_greybox.model.whitebox import NamedModel
 
@@ -349,7 +349,7 @@ class GreyBoxSlave(Fmi2Slave):
         self.archive = open_fmu(self.model.whitebox_fmu)
         self.interface = greybox_interface(self.model, self.archive, settings["ood_threshold"])
         self.domain = InputDomain.of(
-            self.archive, self.interface.input_names, self.model.training.get("input_ranges", {})
+            self.archive, self.interface.input_names, self.model.training.input_ranges
         )
         self.modelName = settings["model_identifier"]
         self.description = settings["description"]
@@ -456,7 +456,7 @@ class GreyBoxSlave(Fmi2Slave):
     def _refusal(self, current_time: float, step_size: float) -> str | None:
         """Why a step is refused (the same checks, in the same order, as the native runtime's
         fmi2DoStep): a jump in time, another step than the trained one, inputs outside the
-        input domain (:mod:`fmu_greybox.export.domain`)."""
+        input domain (:mod:`fmu_greybox.model.domain`)."""
         dt, time = self.model.dt, self._time
         if not abs(current_time - time) <= STEP_RTOL * dt:
             return (

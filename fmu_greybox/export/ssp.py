@@ -589,7 +589,7 @@ def compare_with_master(
     BenchAgreement
     """
     from fmu_greybox.fmi.archive import open_fmu
-    from fmu_greybox.project.data import prepare
+    from fmu_greybox.model.stage_data import prepare
     from fmu_greybox.workflow.master import run_master
 
     steps = result.n_samples

@@ -30,13 +30,14 @@ from pathlib import Path
 import numpy as np
 
 from fmu_greybox.errors import FmuBuildError, FmuError
-from fmu_greybox.export.native_data import data_file_bytes
-from fmu_greybox.export.native_terms import NATIVE_KINDS, kind_defines
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.fmi.build import c_compiler, fmi2_headers
 from fmu_greybox.fmi.builtin import cache_dir
 from fmu_greybox.fmi.instance import status_label
 from fmu_greybox.fmi.kinds import require_native
+from fmu_greybox.model.native_data import data_file_bytes
+from fmu_greybox.model.native_terms import NATIVE_KINDS, kind_defines
+from fmu_greybox.model.native_whitebox import whitebox_sections
 from fmu_greybox.model.terms import Term
 from fmu_greybox.model.whitebox import part_layouts
 
@@ -159,8 +160,6 @@ def run_native(
         The white-box is of a kind the runner does not load (:func:`runs_natively` says so
         beforehand).
     """
-    from fmu_greybox.export.native import whitebox_sections  # the export imports this package
-
     require_native(
         archive.kind,
         archive.path,

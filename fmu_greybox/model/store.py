@@ -45,6 +45,7 @@ from fmu_greybox.model.calibration import UNCALIBRATED, VarianceCalibration
 from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.model.stage import TARGET_MODES
 from fmu_greybox.model.terms import Term, term_from_dict
+from fmu_greybox.model.training import TrainingRecord
 from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS, NamedModel
 from fmu_greybox.project.config import ProjectConfig, parse_config
 from fmu_greybox.project.fingerprint import RowFingerprint
@@ -86,7 +87,7 @@ class GreyBoxModel:
         The white-box FMU file.
     dt : float
         Communication step [s].
-    training : dict
+    training : TrainingRecord
         Facts about the training: recording hash, rows used, target spreads per stage, ...
     terms : list of Term
         Named correction terms folded into the white-box before the correctors (from a
@@ -104,15 +105,15 @@ class GreyBoxModel:
     chain: GreyBoxChain
     whitebox_fmu: Path
     dt: float
-    training: dict[str, Any] = field(default_factory=dict)
+    training: TrainingRecord = field(default_factory=TrainingRecord)
     terms: list[Term] = field(default_factory=list)
     substeps: int = DEFAULT_SUBSTEPS
     trained_rows: RowFingerprint | None = None
 
     @property
-    def target_std(self) -> dict[str, float]:
+    def target_std(self) -> Mapping[str, float]:
         """Standard deviation of each stage's training target (for normalised RMSE)."""
-        return self.training["target_std"]
+        return self.training.target_std
 
     def stage_terms(self, q: int) -> list[Term]:
         """The named terms acting on stage ``q``'s outputs."""
@@ -254,7 +255,7 @@ def save_model(model: GreyBoxModel, out_dir: str | Path) -> Path:
             "target_mode": model.chain.target_mode,
             "dt": model.dt,
             "stages": stages,
-            "training": model.training,
+            "training": model.training.to_dict(),
             "named_terms": {
                 "terms": [t.to_dict() for t in model.terms],
                 "substeps": model.substeps,
@@ -325,6 +326,14 @@ def read_manifest(model_dir: str | Path) -> dict[str, Any]:
                 "restore the model folder"
             )
     return manifest
+
+
+def _training(path: Path, training: Mapping[str, Any]) -> TrainingRecord:
+    """The training record of a manifest, of this format or an older one (a plain dict)."""
+    try:
+        return TrainingRecord.from_dict(training)
+    except ModelFormatError as exc:
+        raise ModelFormatError(f"{path}: {exc}") from exc
 
 
 def _check_manifest(path: Path, manifest: dict[str, Any]) -> None:
@@ -430,7 +439,7 @@ def load_model(model_dir: str | Path) -> GreyBoxModel:
         chain=chain,
         whitebox_fmu=model_dir / WHITEBOX,
         dt=float(manifest["dt"]),
-        training=manifest["training"],
+        training=_training(model_dir / MANIFEST, manifest["training"]),
         terms=terms,
         substeps=substeps,
         trained_rows=(

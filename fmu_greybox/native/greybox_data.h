@@ -1,7 +1,7 @@
 /*
  * greybox_data.h -- the trained numbers of a native grey-box FMU, read from its data file.
  *
- * The file (resources/greybox.dat, written by fmu_greybox/export/native_data.py) is
+ * The file (resources/greybox.dat, written by fmu_greybox/model/native_data.py) is
  * little-endian:
  *
  *   "FGBXDATA"            8 bytes, magic

@@ -4,7 +4,7 @@
  *
  * A term acts on the white-box's inputs before a (sub-)step (term_input) or on the outputs its
  * sensors report after a step (term_output). The kind codes TERM_<Kind> come from the FMU's
- * generated greybox_config.h (fmu_greybox/export/native_terms.py, NATIVE_KINDS); what a term
+ * generated greybox_config.h (fmu_greybox/model/native_terms.py, NATIVE_KINDS); what a term
  * needs that depends on names or on the step (positions, delay lengths, lag coefficients) was
  * computed at export by the Python term's own bind().
  */

@@ -188,7 +188,7 @@ class Criteria:
     band : tuple of float
         ``(low, high)`` [Hz]: the frequencies the frequency-domain criteria look at (only
         those where the recording's estimate can be trusted, see
-        :mod:`fmu_greybox.report.spectra`).
+        :mod:`fmu_greybox.evidence.spectra`).
     max_gain_error_db : float or None
         Largest RMS gain error against the recording in the band [dB].
     max_phase_error_deg : float or None

@@ -5,7 +5,7 @@ The project file it writes declares:
 - ``[whitebox] fmu``: the FMU, by a path relative to the project file (or its ``builtin:`` name);
 - a ``[signals.NAME]`` per FMU input and per Real output, named as the variable, its role read
   the way the diagnosis reads the roles of undeclared variables
-  (:func:`~fmu_greybox.diagnosis.roles.infer_role`: from the unit, else the description, else
+  (:func:`~fmu_greybox.project.roles.infer_role`: from the unit, else the description, else
   the name) and its unit the FMU's (left out where the FMU declares none); a role whose accepted
   units do not hold the FMU's unit becomes ``other``;
 - a ``[[stages]]`` per output that holds a level, of a role in :data:`STAGE_ROLES` (a velocity or
@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import Any
 
 from fmu_greybox.atomic import atomic_write, prepare_output
-from fmu_greybox.diagnosis.roles import VariableRole, infer_role
 from fmu_greybox.errors import ConfigError, OutputError
 from fmu_greybox.fmi.archive import FmuArchive, FmuVariable, open_fmu, real_outputs
 from fmu_greybox.fmi.builtin import PREFIX, resolve_fmu
@@ -43,6 +42,7 @@ from fmu_greybox.project.config import (
     parse_config,
     unit_suits_role,
 )
+from fmu_greybox.project.roles import VariableRole, infer_role
 
 #: The project file's name in the folder ``init`` writes.
 PROJECT_FILE = "project.toml"

@@ -18,10 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from fmu_greybox.diagnosis.report import diagnosis_sections, write_json
-from fmu_greybox.model.store import GreyBoxModel
-from fmu_greybox.project.config import ProjectConfig
-from fmu_greybox.report.glossary import glossary_section, term
-from fmu_greybox.report.html import (
+from fmu_greybox.evidence.glossary import glossary_section, term
+from fmu_greybox.evidence.html import (
     Html,
     escape,
     figure,
@@ -34,19 +32,18 @@ from fmu_greybox.report.html import (
     verdict,
     write_page,
 )
-from fmu_greybox.report.plots import calibration_figure, frequency_figure, trace_figure
+from fmu_greybox.evidence.plots import calibration_figure, frequency_figure, trace_figure
+from fmu_greybox.model.store import GreyBoxModel
+from fmu_greybox.project.config import ProjectConfig
+from fmu_greybox.report.demo import DemoResult
 from fmu_greybox.report.summary import (
-    PART_WORDS,
-    TRAINING_PARTS,
     finding_sentence,
     next_step,
-    parts_text,
     result_line,
     shipped_by_stage,
     summary_section,
 )
 from fmu_greybox.workflow.acceptance import PASS, Acceptance
-from fmu_greybox.workflow.demo import DemoResult
 from fmu_greybox.workflow.metrics import (
     INTERVAL_NOTE,
     calibration_free_runs,
@@ -55,7 +52,7 @@ from fmu_greybox.workflow.metrics import (
     improvement,
     spread_text,
 )
-from fmu_greybox.workflow.parts import shipped_parts
+from fmu_greybox.workflow.parts import PART_WORDS, TRAINING_PARTS, parts_text, shipped_parts
 from fmu_greybox.workflow.validate import Validation, frequency_table
 
 #: Wall time per step of the exported FMU a 1 kHz bench can afford: a tenth of the 1 ms step,

@@ -1,9 +1,9 @@
 """The report's first box, read at a glance: whether the model passes, what was found (with
-its unit), what ships on each stage, and what to do next; and the plain words of the parts
-comparisons, which the console prints too.
+its unit), what ships on each stage, and what to do next (the plain words of the parts
+comparisons, which the console prints too, are :func:`fmu_greybox.workflow.parts.parts_text`).
 
 Every sentence is built from the validation, the acceptance and the model; terms of art link
-to the glossary (:mod:`fmu_greybox.report.glossary`).
+to the glossary (:mod:`fmu_greybox.evidence.glossary`).
 """
 
 from __future__ import annotations
@@ -11,52 +11,15 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
-from fmu_greybox.project.config import STAGE_PARTS
-from fmu_greybox.report.glossary import term
-from fmu_greybox.report.html import Html, escape, percent, table
+from fmu_greybox.evidence.glossary import term
+from fmu_greybox.evidence.html import Html, escape, percent, table
 from fmu_greybox.workflow.acceptance import FAIL, PASS, UNDECIDED, Acceptance
-from fmu_greybox.workflow.parts import shipped_parts
 
 if TYPE_CHECKING:
     from fmu_greybox.model.terms import Term
 
-#: The parts of a comparison (:data:`fmu_greybox.workflow.parts.PARTS`) in plain words.
-PART_WORDS = {
-    "white-box": "white-box alone",
-    "correctors": "correctors alone",
-    "terms": "named terms alone",
-    "terms+correctors": "named terms + correctors",
-}
-#: How each comparison of the parts is labelled wherever it is printed: the diagnosis' short
-#: check, and the training's, which decides what ships.
-DIAGNOSIS_PARTS = "Diagnosis' quick check of the parts (its held-out rows; training decides)"
-TRAINING_PARTS = "Training's comparison of the parts (decides what ships)"
 #: Most checks the result sentence names one by one; beyond, it counts them by verdict.
 MAX_NAMED = 3
-
-
-def parts_text(parts: Mapping[str, Any]) -> str:
-    """A comparison of the parts (:meth:`~fmu_greybox.workflow.parts.PartsComparison.to_dict`)
-    in plain words: each part's error score, the best, the equally good and what shipped."""
-    score = parts["score"]  # in the order of STAGE_PARTS (a model.json sorts its keys)
-    order = dict.fromkeys(p for p in (*STAGE_PARTS, *score) if p in score)
-    scores = ", ".join(f"{PART_WORDS.get(part, part)} {score[part]:.3g}" for part in order)
-    best = parts.get("best")
-    text = f"error score (nRMSE, lower is better): {scores}; "
-    text += "too few rows to tell" if best is None else f"best: {PART_WORDS.get(best, best)}"
-    equal = parts.get("equally_good") or []
-    if equal:
-        text += f", as good within {100 * parts['equal_margin']:.0f} %: " + " and ".join(
-            PART_WORDS.get(p, p) for p in equal
-        )
-    shipped = parts.get("shipped")
-    if isinstance(shipped, str):  # a model.json of an earlier version: one part everywhere
-        text += f"; shipped: {PART_WORDS.get(shipped, shipped)}"
-    elif shipped:
-        text += "; shipped: " + ", ".join(
-            f"{stage} {PART_WORDS.get(part, part)}" for stage, part in shipped_parts(parts).items()
-        )
-    return text
 
 
 def shipped_by_stage(

@@ -14,12 +14,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from fmu_greybox.data.recording import Recording
+from fmu_greybox.evidence.glossary import glossary_section, term
+from fmu_greybox.evidence.html import Html, escape, page, table, verdict
 from fmu_greybox.model.store import GreyBoxModel, file_sha256
 from fmu_greybox.model.terms import Term
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.project.data import whitebox_path
-from fmu_greybox.report.glossary import glossary_section, term
-from fmu_greybox.report.html import Html, escape, page, table, verdict
 from fmu_greybox.report.main import (
     acceptance_section,
     criteria_source,
@@ -102,14 +102,14 @@ def validation_report_html(
         sections.append(
             acceptance_section(validation.acceptance, criteria_source(config, recording))
         )
-    shipped = shipped_model(model.training.get("parts", {}), model)
+    shipped = shipped_model(model.training.parts or {}, model)
     lines = [validation.acceptance.summary()] if validation.acceptance is not None else []
     lines += validation_lines(validation.table, f"The model ({shipped})", recording, recording)
     passed = model.chain.passed_through
     if passed:
         lines.append(
             "Correctors switched off (σ is the stage's residual alone): "
-            f"{passed_through_text(model.training.get('parts', {}), passed)}."
+            f"{passed_through_text(model.training.parts or {}, passed)}."
         )
     sections += [
         verdict(lines),

@@ -16,9 +16,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
+from fmu_greybox.evidence.spectra import FrequencyResponse
 from fmu_greybox.model.calibration import Z95, calibration_spread, rows_to_vouch
 from fmu_greybox.project.config import AcceptanceConfig, Criteria
-from fmu_greybox.report.spectra import FrequencyResponse
 from fmu_greybox.workflow.metrics import (
     calibration_free_runs,
     calibration_worth_text,
@@ -142,7 +142,7 @@ def evaluate(
         check that does not pass says so in its note.
     beyond : str
         The inputs that went beyond their training range, in words
-        (:func:`~fmu_greybox.export.domain.beyond_training`): the note says a training
+        (:func:`~fmu_greybox.model.domain.beyond_training`): the note says a training
         recording should cover them.
 
     Returns

@@ -32,7 +32,7 @@ import dataclasses
 import itertools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -57,6 +57,17 @@ EQUAL_MARGIN = 0.05
 #: Consecutive blocks the held-out rows are cut into; a part beats another clearly only when it
 #: also wins in more than half of them.
 BLOCKS = 4
+#: The parts of a comparison (:data:`PARTS`) in plain words.
+PART_WORDS = {
+    "white-box": "white-box alone",
+    "correctors": "correctors alone",
+    "terms": "named terms alone",
+    "terms+correctors": "named terms + correctors",
+}
+#: How each comparison of the parts is labelled wherever it is printed: the diagnosis' short
+#: check, and the training's, which decides what ships.
+DIAGNOSIS_PARTS = "Diagnosis' quick check of the parts (its held-out rows; training decides)"
+TRAINING_PARTS = "Training's comparison of the parts (decides what ships)"
 
 
 def has_terms(part: str) -> bool:
@@ -156,6 +167,30 @@ def passed_through_text(parts: Mapping, passed: Sequence[str]) -> str:
     for stage in passed:
         by_reason.setdefault(passed_through_reason(parts, stage), []).append(stage)
     return "; ".join(f"{', '.join(stages)} ({reason})" for reason, stages in by_reason.items())
+
+
+def parts_text(parts: Mapping[str, Any]) -> str:
+    """A comparison of the parts (:meth:`~fmu_greybox.workflow.parts.PartsComparison.to_dict`)
+    in plain words: each part's error score, the best, the equally good and what shipped."""
+    score = parts["score"]  # in the order of STAGE_PARTS (a model.json sorts its keys)
+    order = dict.fromkeys(p for p in (*STAGE_PARTS, *score) if p in score)
+    scores = ", ".join(f"{PART_WORDS.get(part, part)} {score[part]:.3g}" for part in order)
+    best = parts.get("best")
+    text = f"error score (nRMSE, lower is better): {scores}; "
+    text += "too few rows to tell" if best is None else f"best: {PART_WORDS.get(best, best)}"
+    equal = parts.get("equally_good") or []
+    if equal:
+        text += f", as good within {100 * parts['equal_margin']:.0f} %: " + " and ".join(
+            PART_WORDS.get(p, p) for p in equal
+        )
+    shipped = parts.get("shipped")
+    if isinstance(shipped, str):  # a model.json of an earlier version: one part everywhere
+        text += f"; shipped: {PART_WORDS.get(shipped, shipped)}"
+    elif shipped:
+        text += "; shipped: " + ", ".join(
+            f"{stage} {PART_WORDS.get(part, part)}" for stage, part in shipped_parts(parts).items()
+        )
+    return text
 
 
 def block_rmse(predicted: np.ndarray, recorded: np.ndarray, blocks: int = BLOCKS) -> list[float]:

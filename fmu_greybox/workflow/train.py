@@ -12,16 +12,18 @@ import numpy as np
 
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError
-from fmu_greybox.export.domain import training_ranges
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.chain import GreyBoxChain, RecordedRun
+from fmu_greybox.model.domain import training_ranges
 from fmu_greybox.model.fit_cache import FitCache
+from fmu_greybox.model.stage_data import prepare
 from fmu_greybox.model.store import GreyBoxModel, file_sha256
 from fmu_greybox.model.terms import Term
+from fmu_greybox.model.training import TrainingRecord
 from fmu_greybox.model.whitebox import check_terms
 from fmu_greybox.progress import Progress, announce
 from fmu_greybox.project.config import BEST, ProjectConfig
-from fmu_greybox.project.data import check_sample_time, prepare, split_row, whitebox_path
+from fmu_greybox.project.data import check_sample_time, split_row, whitebox_path
 from fmu_greybox.project.fingerprint import (
     copy_message,
     data_rows,
@@ -71,7 +73,7 @@ def train_model(
     white-box, the terms, the correctors and both are first compared stage by stage, forward
     in time (:func:`compare_parts_forward`); the model ships on each stage the part ``ship``
     names, by default the stage's best (:func:`~fmu_greybox.workflow.parts.choose_stage_part`),
-    trained on all the training rows, and ``training["parts"]`` keeps the comparison.
+    trained on all the training rows, and ``training.parts`` keeps the comparison.
 
     Parameters
     ----------
@@ -147,8 +149,11 @@ def train_model(
         fits=fits,
     )
     model = fitted.model
-    model.training["parts"] = comparison.to_dict()
-    model.training["seconds"] = round(model.training["seconds"] + seconds, 2)
+    model.training = dataclasses.replace(
+        model.training,
+        parts=comparison.to_dict(),
+        seconds=round(model.training.seconds + seconds, 2),
+    )
     return model
 
 
@@ -245,7 +250,7 @@ def compare_parts_forward(
             for chosen, pass_ in ((terms, "pass 1"), ((), "pass 2"))
         ]
     )
-    seconds = max(named.model.training["seconds"], plain.model.training["seconds"])
+    seconds = max(named.model.training.seconds, plain.model.training.seconds)
     return compare_fitted(named, plain, ship), seconds, {"terms": named, "correctors": plain}
 
 
@@ -309,34 +314,34 @@ def fit_model(
         correct=correct,
     )
     report.close()
-    training = {
-        "recording_sha256": recording.sha256(),
-        "recording_source": str(recording.source),
-        "n_samples": data.n_samples,
-        "train_rows": split + 1,
-        "dt": recording.dt,
-        # the exported FMU's input domain is built from these (fmu_greybox/export/domain.py)
-        "input_ranges": training_ranges(data.binding.inputs, data.binding.matrix(recording)[rows]),
-        "target_std": {
+    training = TrainingRecord(
+        recording_sha256=recording.sha256(),
+        recording_source=str(recording.source),
+        n_samples=data.n_samples,
+        train_rows=split + 1,
+        dt=recording.dt,
+        # the exported FMU's input domain is built from these (fmu_greybox/model/domain.py)
+        input_ranges=training_ranges(data.binding.inputs, data.binding.matrix(recording)[rows]),
+        target_std={
             name: float(np.std(data.outputs[rows, q])) for q, name in enumerate(chain.stage_names)
         },
-        "target_unit": {s.name: config.signals[s.config.target].unit for s in chain.stages},
-        "bounds": {
+        target_unit={s.name: config.signals[s.config.target].unit for s in chain.stages},
+        bounds={
             s.name: float(c.bound_)
             for s, c in zip(chain.stages, chain.correctors_, strict=True)
             if c is not None
         },
-        "free_run_check": chain.free_run_check_,
-        "target_selection": chain.selection_,
-        "calibration_check": chain.calibration_check_,
-        "calibration_recordings": [
+        free_run_check=chain.free_run_check_,
+        target_selection=chain.selection_,
+        calibration_check=chain.calibration_check_,
+        calibration_recordings=[
             {"sha256": r.sha256(), "source": str(r.source), "n_samples": r.n_samples}
             for r in calibrate_on
         ],
-        "whitebox_source": str(fmu_path),
-        "whitebox_sha256": file_sha256(fmu_path),
-        "seconds": round(time.perf_counter() - started, 2),
-    }
+        whitebox_source=str(fmu_path),
+        whitebox_sha256=file_sha256(fmu_path),
+        seconds=round(time.perf_counter() - started, 2),
+    )
     model = GreyBoxModel(
         config=config,
         chain=chain,

@@ -13,11 +13,14 @@ import numpy as np
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError, ModelFormatError, RecordingError
-from fmu_greybox.export.domain import beyond_training
+from fmu_greybox.evidence.plots import calibration_figure, frequency_figure, save_png, trace_figure
+from fmu_greybox.evidence.spectra import FrequencyResponse, frequency_response
 from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.model.domain import beyond_training
+from fmu_greybox.model.stage_data import prepare
 from fmu_greybox.model.store import TRAINING_ROWS, GreyBoxModel
 from fmu_greybox.project.config import AcceptanceConfig, ProjectConfig, check_bands
-from fmu_greybox.project.data import ProjectData, check_sample_time, prepare, split_row
+from fmu_greybox.project.data import ProjectData, check_sample_time, split_row
 from fmu_greybox.project.fingerprint import (
     copy_message,
     data_rows,
@@ -25,8 +28,6 @@ from fmu_greybox.project.fingerprint import (
     recorded_rows,
     trained_mask,
 )
-from fmu_greybox.report.plots import calibration_figure, frequency_figure, save_png, trace_figure
-from fmu_greybox.report.spectra import FrequencyResponse, frequency_response
 from fmu_greybox.workflow.acceptance import Acceptance, across_recordings, evaluate
 from fmu_greybox.workflow.master import MasterRun, run_master
 from fmu_greybox.workflow.metrics import pooled_row, stage_table, uncertainty_table
@@ -184,7 +185,7 @@ def validate_model(
     held_out = f"{scored.size} rows not used in training ({_ranges_text(scored)})"
     outside = rows_outside(run, scored)
     beyond = beyond_training(
-        model.training.get("input_ranges", {}),
+        model.training.input_ranges,
         data.binding.inputs,
         data.binding.matrix(data.recording)[scored],
     )
@@ -206,7 +207,7 @@ def validate_model(
     for name, row in uncertainty.items():
         table[name].update(row)
     # the error the band was calibrated on (models trained before it was stored say nothing)
-    for name, check in model.training.get("calibration_check", {}).items():
+    for name, check in model.training.calibration_check.items():
         table[name]["calibration_rmse"] = check["rmse"]
         if "independent_rows" in check:  # kept since 2026-11-27
             table[name]["calibration_independent_rows"] = check["independent_rows"]
@@ -337,7 +338,7 @@ def validation_responses(
     stage's acceptance ``input`` (by default the first input of the first stage; no response
     for a stage without one)."""
     config, chain = model.config, model.chain
-    units = model.training.get("target_unit", {})
+    units = model.training.target_unit
     default = next(iter(config.stages[0].inputs), None)
     first, last = max(_ranges(scored), key=lambda r: r[1] - r[0])
     rows = np.arange(first, last + 1)
@@ -395,13 +396,13 @@ def write_metrics(validation: Validation, model: GreyBoxModel, path: Path) -> di
         "n_rows": int(validation.scored.size),
         "rows_out_of_domain": validation.rows_out_of_domain,
         "scored_rows": _ranges(validation.scored),
-        "units": model.training.get("target_unit", {}),
+        "units": model.training.target_unit,
         "stages": validation.table,
         "frequency": frequency_table(validation),
         "acceptance": validation.acceptance.to_dict() if validation.acceptance else None,
     }
-    if "parts" in model.training:  # train --terms: its comparison on the training's held-out rows
-        payload["parts"] = model.training["parts"]
+    if model.training.parts is not None:  # train --terms: its comparison on the held-out rows
+        payload["parts"] = model.training.parts
     with atomic_write(path, "w") as f:
         json.dump(payload, f, indent=2)
     return payload
@@ -411,7 +412,7 @@ def write_plots(validation: Validation, model: GreyBoxModel, out_dir: Path) -> l
     """Write the residual, calibration and frequency-response plots (PNG, atomically) into
     ``out_dir``; returns their file names."""
     run, names = validation.run, model.chain.stage_names
-    units = [model.training.get("target_unit", {}).get(n, "") for n in names]
+    units = [model.training.target_unit.get(n, "") for n in names]
     recorded = validation.data.outputs[run.rows]
     keep = validation.scored - run.rows[0]
     figures = {
@@ -464,8 +465,11 @@ def _trained(model: GreyBoxModel, data: ProjectData) -> tuple[np.ndarray, str]:
         trained = trained_mask(values, fingerprint)
     if fingerprint is not None and fingerprint.scale is not None:
         return trained, ""
-    train_rows = int(model.training.get("train_rows", split_row(model.config, data.n_samples) + 1))
-    if data.recording.sha256() == model.training.get("recording_sha256") or _has_training_spread(
+    train_rows = model.training.train_rows
+    if train_rows is None:
+        train_rows = split_row(model.config, data.n_samples) + 1
+    train_rows = int(train_rows)
+    if data.recording.sha256() == model.training.recording_sha256 or _has_training_spread(
         model, data, train_rows
     ):
         trained[:train_rows] = True
@@ -481,7 +485,7 @@ def _trained(model: GreyBoxModel, data: ProjectData) -> tuple[np.ndarray, str]:
 def _has_training_spread(model: GreyBoxModel, data: ProjectData, train_rows: int) -> bool:
     """Whether the first ``train_rows`` rows have the training targets' standard deviation in
     every stage (within :data:`_SAME_SPREAD`), as the training recording and its copies do."""
-    spread = model.training.get("target_std", {})
+    spread = model.training.target_std
     if data.n_samples < train_rows or not spread:
         return False
     return all(

@@ -337,7 +337,7 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
         files=files,
         timings=timings,
         command=command_line(),
-        parts=model.training.get("parts", {}),
+        parts=model.training.parts or {},
         effect_units=effect_units,
         model=model,
     )

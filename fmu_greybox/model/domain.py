@@ -120,7 +120,7 @@ class InputDomain:
         names : sequence of str
             The inputs.
         ranges : mapping of str to (low, high)
-            Training ranges (``model.training["input_ranges"]``; empty for old model folders).
+            Training ranges (``model.training.input_ranges``; empty for old model folders).
 
         Returns
         -------

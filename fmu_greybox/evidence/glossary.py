@@ -3,7 +3,7 @@ where a table or a sentence uses it (:func:`term`)."""
 
 from __future__ import annotations
 
-from fmu_greybox.report.html import Html, escape
+from fmu_greybox.evidence.html import Html, escape
 
 #: Key -> (the term as shown, its definition in plain words), in the order the glossary lists
 #: them.

@@ -14,7 +14,7 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 
 from fmu_greybox.atomic import atomic_write
-from fmu_greybox.report.plots import png_bytes
+from fmu_greybox.evidence.plots import png_bytes
 
 STYLE = (
     "body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222;}"

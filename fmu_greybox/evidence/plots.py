@@ -22,8 +22,8 @@ from matplotlib import ticker
 from scipy.stats import norm
 
 from fmu_greybox.atomic import atomic_write
+from fmu_greybox.evidence.spectra import MIN_COHERENCE, FrequencyResponse
 from fmu_greybox.model.calibration import Z95, coverage
-from fmu_greybox.report.spectra import MIN_COHERENCE, FrequencyResponse
 
 WB_STYLE = {"color": "tab:red", "lw": 1.0, "label": "white-box"}
 REC_STYLE = {"color": "tab:blue", "lw": 1.2, "ls": ":", "label": "recording"}
@@ -264,7 +264,7 @@ def frequency_figure(
 
     The recording's 95 % bounds are shaded blue, each stage's acceptance band grey. The
     coherence panel shows the recording's input-output coherence (dotted; below the dash-dot
-    line at :data:`~fmu_greybox.report.spectra.MIN_COHERENCE` a frequency is not trusted), each
+    line at :data:`~fmu_greybox.evidence.spectra.MIN_COHERENCE` a frequency is not trusted), each
     model's coherence with the recording, and as a dashed segment across the band its median
     there: the statistic the tables give (``gid`` ``band median SOURCE``).
 
