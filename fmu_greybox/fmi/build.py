@@ -40,7 +40,7 @@ from xml.etree import ElementTree as ET
 from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.errors import FmuBuildError
-from fmu_greybox.fmi.kinds import ACCEPTED, FMI2_CS, FMI3_CS, MODEL_EXCHANGE, FmuKind
+from fmu_greybox.fmi.kinds import ACCEPTED, FMI2_CS, MODEL_EXCHANGE, FmuKind
 from fmu_greybox.resources import data_path
 from fmu_greybox.units import BASE_UNITS, PREFIXES, SYMBOLS, UnitSyntaxError, si_unit
 

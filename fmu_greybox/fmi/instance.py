@@ -4,10 +4,11 @@
 ``FMU3Slave`` (FMI 3.0); :class:`FmuMeInstance` and :class:`Fmu3MeInstance` wrap a
 model-exchange FMU (``FMU2Model``, ``FMU3Model``) with an integrator
 (:mod:`fmu_greybox.fmi.integrator`) behind the same interface; :func:`fmu_instance` picks the
-one for an FMU's kind (:mod:`fmu_greybox.fmi.kinds`). The per-step path (set inputs, ``DoStep``, get outputs) calls
-the FMU's C functions directly with preallocated ``ctypes`` buffers, so a step costs a few
-microseconds of Python. Every failing FMI call raises :class:`~fmu_greybox.errors.FmuError`
-carrying the call, its status, the simulation time and the last messages the FMU logged.
+one for an FMU's kind (:mod:`fmu_greybox.fmi.kinds`). The per-step path (set inputs,
+``DoStep``, get outputs) calls the FMU's C functions directly with preallocated ``ctypes``
+buffers, so a step costs a few microseconds of Python. Every failing FMI call raises
+:class:`~fmu_greybox.errors.FmuError` carrying the call, its status, the simulation time and
+the last messages the FMU logged.
 """
 
 from __future__ import annotations
@@ -27,13 +28,14 @@ from fmpy import free as fmpy_free
 from fmpy.fmi2 import (
     FMU2Model,
     FMU2Slave,
+    fmi2Boolean,
     fmi2CallbackAllocateMemoryTYPE,
     fmi2CallbackFreeMemoryTYPE,
     fmi2CallbackFunctions,
     fmi2CallbackLoggerTYPE,
+    fmi2EventInfo,
     printLogMessage,
 )
-from fmpy.fmi2 import fmi2Boolean, fmi2EventInfo
 from fmpy.fmi3 import FMU3Model, FMU3Slave, fmi3Boolean, fmi3Float64
 
 from fmu_greybox.errors import FmuArchiveError, FmuError

@@ -58,7 +58,8 @@ class Integrator:
     atol : float
         Absolute tolerance, as a fraction of each state's nominal value.
     max_steps : int
-        Most internal steps in one communication step before the step fails.
+        Most internal steps in one communication step before the step fails (CVode's own
+        limit, ``CVodeSetMaxNumSteps``, counts per call, and each call here is one step).
     """
 
     method: str = CVODE
@@ -91,6 +92,33 @@ class Integrator:
 
 #: The integrator model-exchange white-boxes are stepped by unless one is given.
 DEFAULT_INTEGRATOR = Integrator()
+
+
+def whitebox_facts(kind: Any, integrator: Integrator | None = None) -> dict[str, Any]:
+    """What the model folder records of how its white-box was stepped (``model.json``,
+    ``training["whitebox"]``): the FMU's kind, and for model exchange the integrator.
+
+    Parameters
+    ----------
+    kind : FmuKind
+    integrator : Integrator, optional
+        Default :data:`DEFAULT_INTEGRATOR` (for a model-exchange kind).
+    """
+    facts: dict[str, Any] = {"kind": kind.label}
+    if kind.interface == "model exchange":
+        facts["integrator"] = (integrator or DEFAULT_INTEGRATOR).to_dict()
+    else:
+        facts["stepped_by"] = "the FMU's own solver (co-simulation)"
+    return facts
+
+
+def recorded_integrator(training: dict[str, Any]) -> Integrator | None:
+    """The integrator a model folder's training facts record (:func:`whitebox_facts`), or
+    ``None`` (a co-simulation white-box, or a folder written before it was recorded)."""
+    data = training.get("whitebox", {}).get("integrator")
+    if not isinstance(data, dict):
+        return None
+    return Integrator(**{k: data[k] for k in ("method", "rtol", "atol", "max_steps")})
 
 
 def _fmpy_version() -> str:
@@ -143,6 +171,7 @@ class _FgbMe(ctypes.Structure):
         ("fmi3", ctypes.c_int),
         ("n", ctypes.c_size_t),
         ("cvode", ctypes.c_void_p),
+        ("max_steps", ctypes.c_long),
         ("x", ctypes.c_void_p),
         *(
             (name, ctypes.c_void_p)
@@ -242,6 +271,7 @@ class CVodeStepper:
     ) -> None:
         from fmpy.sundials import (
             CV_BDF,
+            NV_DATA_S,
             CVodeCreate,
             CVodeInit,
             CVodeSetLinearSolver,
@@ -249,7 +279,6 @@ class CVodeStepper:
             CVodeSVtolerances,
             CVRhsFn,
             N_VNew_Serial,
-            NV_DATA_S,
             SUNContext,
             SUNContext_Create,
             SUNDenseMatrix,
@@ -299,6 +328,7 @@ class CVodeStepper:
                 fmi3=int(bool(fmu["fmi3"])),
                 n=n,
                 cvode=self._memory,
+                max_steps=settings.max_steps,
                 x=ctypes.cast(self._x, ctypes.c_void_p).value,
                 cv_step=_address(self._cvode),
                 cv_reinit=_address(self._reinit),
@@ -380,21 +410,29 @@ class CVodeStepper:
         BaseException
             What the right-hand side or ``completed`` raised (Python loop).
         """
+        self.messages.clear()
         if self.native is not None:
             if self.native.fgb_me_step(ctypes.byref(self._me), start, stop) != 0:
                 call = NATIVE_CALLS[self._me.failed_call]
                 said = " | ".join(self.messages[-3:]) if call == "CVode" else ""
+                if call == "CVode" and self._me.steps and not said:
+                    said = self._too_much_work(start)
                 raise IntegratorError(self._me.failed_status, said or "no message", call)
             return
         self._restart(start, stop)
+        taken = 0
         while True:
-            flag = self._cvode(self._memory, stop, self._x, ctypes.byref(self._reached), CV_ONE_STEP)
+            reached = ctypes.byref(self._reached)
+            flag = self._cvode(self._memory, stop, self._x, reached, CV_ONE_STEP)
             if self._error is not None:
                 error, self._error = self._error, None
                 raise error
             if flag < 0:
                 raise IntegratorError(flag, " | ".join(self.messages[-3:]) or "no message")
             self._steps += 1
+            taken += 1
+            if taken > self.settings.max_steps:
+                raise IntegratorError(-1, self._too_much_work(start))
             t = self._reached.value
             done = flag == CV_TSTOP_RETURN or t >= stop
             after_event = completed(stop if done else t, self._nv_data(self._x))
@@ -403,6 +441,13 @@ class CVodeStepper:
             if after_event is not None:
                 self.x[:] = after_event
                 self._restart(t, stop)
+
+    def _too_much_work(self, start: float) -> str:
+        return (
+            f"more than max_steps = {self.settings.max_steps} internal steps (mxstep) in the "
+            f"communication step from t = {start:.9g} s; the model may be stiffer there than "
+            "expected, or failing: check its parameters and inputs"
+        )
 
     def _restart(self, start: float, stop: float) -> None:
         _ok(self._reinit(self._memory, start, self._x), "CVodeReInit")

@@ -84,7 +84,8 @@ def fmu_kind(path: Path, description: object) -> FmuKind:
         accepted.
     """
     version = "3.0" if str(description.fmiVersion).startswith("3.") else description.fmiVersion
-    accepted = " or ".join(k.label for k in ACCEPTED)
+    labels = [k.label for k in ACCEPTED]
+    accepted = ", ".join(labels[:-1]) + " or " + labels[-1]
     if version not in {k.fmi_version for k in ACCEPTED}:
         raise FmuArchiveError(
             f"{path}: FMI version {description.fmiVersion}; fmu-greybox runs {accepted} FMUs. "

@@ -48,6 +48,7 @@ typedef struct {
     int fmi3;      /* FMI 3.0 signatures of completed / discrete (bool), else FMI 2.0 (int) */
     size_t n;      /* continuous states */
     void *cvode;   /* CVode's memory */
+    long max_steps; /* most internal steps in one communication step */
     void *x;       /* CVode's state vector (N_Vector) */
     /* the FMU's functions (status: 0 OK, 1 Warning, above: failure) */
     int (*set_time)(void *, double);
@@ -166,6 +167,7 @@ static int completed(FgbMe *me, double t, int *restart) {
 int fgb_me_step(FgbMe *me, double start, double stop) {
     double *x = me->array(me->x);
     double reached = start;
+    long taken = 0;
     int status, flag, restart = 1;
     me->failed_call = -1;
     me->failed_status = 0;
@@ -183,6 +185,7 @@ int fgb_me_step(FgbMe *me, double start, double stop) {
         flag = me->cv_step(me->cvode, stop, me->x, &reached, CV_ONE_STEP);
         if (flag < 0) return me->failed_call >= 0 ? -1 : fail(me, CALL_CVODE, flag);
         me->steps++;
+        if (++taken > me->max_steps) return fail(me, CALL_CVODE, -1); /* CV_TOO_MUCH_WORK */
         done = flag == CV_TSTOP_RETURN || reached >= stop;
         if (completed(me, done ? stop : reached, &restart) != 0) return -1;
         if (done) return 0;

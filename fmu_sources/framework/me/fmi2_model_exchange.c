@@ -19,13 +19,13 @@
  * as the co-simulation build projects and records after each of its internal steps. No event
  * indicators: the stops act at completed steps, as in fmi2DoStep.
  *
- * On the admissible set's boundary (a ram held against its stop, a chamber at the cavitation
- * floor) the derivatives are those of the projected motion: a state that model_project would
- * move after a look-ahead of ME_LOOK_AHEAD * solver_step along the derivatives gets the
- * derivative of that projected motion, (projected - x) / look-ahead (0 on the boundary). Held
- * against a stop, the states then stay on it, as they do in the co-simulation build after
- * each internal step, instead of crossing it at every integrator step and restarting the
- * integrator at each of those events.
+ * On the admissible set's boundary the derivatives are those of the motion held there: a
+ * state component that model_project put exactly on the boundary (a ram against its stop at
+ * zero velocity, a chamber at the cavitation floor) has derivative 0 while the projection would
+ * put it back there after two explicit Euler steps of solver_step along the derivatives (the
+ * model pushes outward), as the co-simulation build's next internal step would. Held against a
+ * stop, the states then stay on it instead of crossing it at every integrator step (an event
+ * and a restart of the integrator each time); off the boundary the derivatives are the model's.
  *
  * The states and their derivatives are variables of the model description, with value
  * references past the table's (the table's count is the FMI 3.0 time): FW_VR_STATES + i and
@@ -58,20 +58,19 @@ static Instance *me_instance(fmi2Component c, const char *call, unsigned mask, i
     return inst;
 }
 
-/* Look-ahead of the projected derivatives, as a fraction of solver_step. */
-#define ME_LOOK_AHEAD 1e-6
-
-/* The derivatives at d's states: the model's, and of the projected motion where the
- * projection acts within the look-ahead (see the top of this file). */
+/* The derivatives at d's states: the model's, held at 0 where a state sits on the boundary
+ * and the model pushes it outward (see the top of this file). */
 static void me_derivatives(const SimData *d, double dx[N_STATES]) {
-    const double ahead = ME_LOOK_AHEAD * d->real[FW_SOLVER_STEP];
-    double probe[N_STATES], projected[N_STATES];
+    const double ahead = d->real[FW_SOLVER_STEP];
+    double probe[N_STATES], slope[N_STATES], projected[N_STATES];
     model_derivatives(d, d->x, dx);
     for (int i = 0; i < N_STATES; i++) probe[i] = d->x[i] + ahead * dx[i];
+    model_derivatives(d, probe, slope);
+    for (int i = 0; i < N_STATES; i++) probe[i] += ahead * slope[i];
     memcpy(projected, probe, sizeof projected);
     model_project(d, projected);
     for (int i = 0; i < N_STATES; i++) {
-        if (projected[i] != probe[i]) dx[i] = (projected[i] - d->x[i]) / ahead;
+        if (projected[i] == d->x[i] && probe[i] != d->x[i]) dx[i] = 0.0;
     }
 }
 
