@@ -36,7 +36,7 @@ from test_fmu_kinds import INPUTS, OUTPUTS, input_rows, recording, run_exported
 
 from fmu_greybox.cli import main
 from fmu_greybox.diagnosis import Diagnosis
-from fmu_greybox.errors import ExportError, FmuError
+from fmu_greybox.errors import ExportError, FmuArchiveError, FmuError
 from fmu_greybox.export.fmu import export_greybox
 from fmu_greybox.fmi import integrator as integrator_module
 from fmu_greybox.fmi.archive import open_fmu
@@ -125,6 +125,23 @@ def test_an_fmu_with_both_interfaces_runs_as_co_simulation(whitebox_fmu, me_fmus
         assert archive.kind == FMI2_CS
     rows = input_rows(300)
     np.testing.assert_array_equal(stepped(both, rows), stepped(whitebox_fmu, rows))
+
+
+def test_a_model_exchange_fmu_with_state_events_is_refused(me_fmus, tmp_path) -> None:
+    """Event indicators need the integrator to locate their zero crossings, which it does not
+    yet: refused when opened, rather than stepped past its events."""
+    with zipfile.ZipFile(me_fmus[FMI2_ME]) as source:
+        members = {name: source.read(name) for name in source.namelist()}
+    xml = members["modelDescription.xml"]
+    members["modelDescription.xml"] = xml.replace(
+        b'numberOfEventIndicators="0"', b'numberOfEventIndicators="2"'
+    )
+    events = tmp_path / "events.fmu"
+    with zipfile.ZipFile(events, "w", zipfile.ZIP_DEFLATED) as target:
+        for name, data in members.items():
+            target.writestr(name, data)
+    with pytest.raises(FmuArchiveError, match=r"model-exchange FMU with 2 event indicators"):
+        open_fmu(events)
 
 
 def test_model_exchange_steps_as_co_simulation_within_the_integrators_tolerance(

@@ -540,13 +540,14 @@ class FmuMeInstance(FmuInstance):
         new_discrete = functions["fmi2NewDiscreteStates"]
         info = fmi2EventInfo()
 
-        def discrete(c) -> tuple[int, bool, bool, bool]:
+        def discrete(c) -> tuple[int, bool, bool, bool, bool]:
             status = new_discrete(c, ctypes.byref(info))
             return (
                 status,
                 bool(info.newDiscreteStatesNeeded),
                 bool(info.terminateSimulation),
                 bool(info.valuesOfContinuousStatesChanged),
+                bool(info.nextEventTimeDefined),
             )
 
         self._discrete = discrete
@@ -572,12 +573,14 @@ class FmuMeInstance(FmuInstance):
         continuous states changed."""
         changed = False
         for _ in range(1000):
-            status, needed, terminate, values = self._discrete(self._component)
+            status, needed, terminate, values, timed = self._discrete(self._component)
             self._check(self.CALLS["discrete"], status)
             if terminate:
                 raise FmuError(
                     self.CALLS["discrete"], "terminateSimulation", self.time, self._log.last()
                 )
+            if timed:
+                raise self._time_event()
             changed = changed or values
             if not needed:
                 return changed
@@ -658,12 +661,23 @@ class FmuMeInstance(FmuInstance):
         self.time = stop
         return self.read_outputs()
 
+    def _time_event(self) -> FmuError:
+        return FmuError(
+            self.CALLS["discrete"],
+            "nextEventTimeDefined",
+            self.time,
+            "the FMU asks for a time event, which fmu-greybox's integrator does not schedule "
+            "yet; export the model as co-simulation",
+        )
+
     def _integrator_error(self, exc: IntegratorError) -> FmuError:
         """The :class:`FmuError` of a failed step: CVode's flag and words, or the FMU call
         that failed in the C loop with its status and the FMU's log."""
         if exc.call == "CVode":
             detail = f"{exc.detail} ({self.integrator.summary()})"
             return FmuError(self.CALLS["step"], f"flag {exc.flag}", self.time, detail)
+        if exc.call == "time_event":
+            return self._time_event()
         if exc.call == "terminate":
             call = self.CALLS[NATIVE_CALLS[exc.flag]]
             return FmuError(call, "terminateSimulation", self.time, self._log.last())
@@ -723,10 +737,10 @@ class Fmu3MeInstance(FmuMeInstance):
         next_time = fmi3Float64()
         pointers = (*(ctypes.byref(f) for f in flags), ctypes.byref(next_time))
 
-        def discrete(c) -> tuple[int, bool, bool, bool]:
+        def discrete(c) -> tuple[int, bool, bool, bool, bool]:
             status = update(c, *pointers)
-            needed, terminate, _, values, _ = (bool(f.value) for f in flags)
-            return status, needed, terminate, values
+            needed, terminate, _, values, timed = (bool(f.value) for f in flags)
+            return status, needed, terminate, values, timed
 
         self._discrete = discrete
         self._flags = (fmi3Boolean(), fmi3Boolean())

@@ -148,7 +148,7 @@ DISABLE_VARIABLE = "FMU_GREYBOX_NATIVE_RUN"
 NATIVE_SOURCE = Path(__file__).resolve().parent.parent / "native" / "me_step.c"
 NATIVE_FLAGS = ("-O2", "-std=c11", "-fPIC", "-shared")
 #: The FMU calls of the C loop, in the order of its ``enum`` (``native/me_step.c``); the last
-#: two name CVode and a termination the FMU asked for.
+#: three name CVode, a termination and a time event the FMU asked for.
 NATIVE_CALLS = (
     "set_time",
     "set_states",
@@ -160,6 +160,7 @@ NATIVE_CALLS = (
     "continuous_mode",
     "CVode",
     "terminate",
+    "time_event",
 )
 
 

@@ -94,6 +94,13 @@ def fmu_kind(path: Path, description: object) -> FmuKind:
     if description.coSimulation is not None:  # preferred: the FMU's own solver
         return FmuKind(version, CO_SIMULATION)
     if description.modelExchange is not None:
+        indicators = int(description.numberOfEventIndicators or 0)
+        if indicators:
+            raise FmuArchiveError(
+                f"{path}: an FMI {version} model-exchange FMU with {indicators} event "
+                "indicators (state events), which fmu-greybox's integrator does not locate yet; "
+                "re-export the model as co-simulation (with its own solver)"
+            )
         return FmuKind(version, MODEL_EXCHANGE)
     raise FmuArchiveError(
         f"{path}: an FMI {version} FMU with neither a co-simulation nor a model-exchange "

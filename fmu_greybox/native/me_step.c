@@ -30,7 +30,8 @@ enum {
     CALL_DISCRETE,
     CALL_CONTINUOUS_MODE,
     CALL_CVODE, /* CVode itself (status: its flag) */
-    CALL_TERMINATE /* the FMU asked to terminate (status: the call that asked) */
+    CALL_TERMINATE, /* the FMU asked to terminate (status: the call that asked) */
+    CALL_TIME_EVENT /* the FMU asked for a time event (not supported) */
 };
 
 /* fmi2EventInfo (fmi2FunctionTypes.h): fmi2Boolean is an int. */
@@ -102,23 +103,24 @@ static int settle(FgbMe *me, int *changed) {
     int status;
     *changed = 0;
     for (int round = 0; round < 1000; round++) {
-        int needed, terminate, values;
+        int needed, terminate, values, timed;
         if (me->fmi3) {
             bool flags[5] = {false, false, false, false, false};
             double next = 0.0;
             status = ((int (*)(void *, bool *, bool *, bool *, bool *, bool *, double *))
                           me->discrete)(me->component, &flags[0], &flags[1], &flags[2],
                                         &flags[3], &flags[4], &next);
-            needed = flags[0], terminate = flags[1], values = flags[3];
+            needed = flags[0], terminate = flags[1], values = flags[3], timed = flags[4];
         } else {
             EventInfo2 info;
             memset(&info, 0, sizeof info);
             status = ((int (*)(void *, EventInfo2 *))me->discrete)(me->component, &info);
             needed = info.newDiscreteStatesNeeded, terminate = info.terminateSimulation;
-            values = info.valuesOfContinuousStatesChanged;
+            values = info.valuesOfContinuousStatesChanged, timed = info.nextEventTimeDefined;
         }
         if (status > 1) return fail(me, CALL_DISCRETE, status);
         if (terminate) return fail(me, CALL_TERMINATE, CALL_DISCRETE);
+        if (timed) return fail(me, CALL_TIME_EVENT, 0);
         *changed = *changed || values;
         if (!needed) {
             status = me->continuous_mode(me->component);

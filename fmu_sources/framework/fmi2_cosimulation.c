@@ -284,13 +284,17 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
 #ifdef FW_MODEL_EXCHANGE
     probe.model_exchange = fmuType == fmi2ModelExchange;
     if (fmuType != fmi2CoSimulation && fmuType != fmi2ModelExchange) {
+        log_message(&probe, fmi2Error, "fmi2Instantiate: %s supports model exchange and "
+                    "co-simulation only.", MODEL_IDENTIFIER_STRING);
+        return NULL;
+    }
 #else
     if (fmuType != fmi2CoSimulation) {
-#endif
         log_message(&probe, fmi2Error, "fmi2Instantiate: %s supports co-simulation only.",
                     MODEL_IDENTIFIER_STRING);
         return NULL;
     }
+#endif
     if (!fmuGUID || strcmp(fmuGUID, MODEL_GUID) != 0) {
         log_message(&probe, fmi2Error,
                     "fmi2Instantiate: GUID \"%s\" does not match the binary's \"%s\"; the "
