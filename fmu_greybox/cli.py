@@ -205,22 +205,33 @@ def fmu() -> None:
     type=click.Choice(["2", "3"]),
     default="2",
     show_default=True,
-    help="FMI version of the co-simulation FMUs (3: the framework with its FMI 3.0 shell).",
+    help="FMI version of the FMUs (3: the framework with its FMI 3.0 shell).",
+)
+@click.option(
+    "--interface",
+    type=click.Choice(["cs", "me"]),
+    default="cs",
+    show_default=True,
+    help="cs: co-simulation (the FMU integrates itself with its Rosenbrock method); me: model "
+    "exchange (the FMU gives its states' derivatives; fmu-greybox integrates them with CVode "
+    "at the project's step).",
 )
 @click.pass_context
-def fmu_build_cmd(ctx: click.Context, out_dir: Path, fmi_version: str) -> None:
+def fmu_build_cmd(ctx: click.Context, out_dir: Path, fmi_version: str, interface: str) -> None:
     """Compile the reference actuator FMUs from fmu_sources/.
 
     \b
     Examples:
       fmu-greybox fmu build --out fmus/
       fmu-greybox fmu build --fmi 3 --out fmus3/
+      fmu-greybox fmu build --interface me --out fmus_me/
+      fmu-greybox fmu build --fmi 3 --interface me --out fmus3_me/
     """
     from fmu_greybox.fmi.build import build_reference_fmus
-    from fmu_greybox.fmi.kinds import FMI2_CS, FMI3_CS
+    from fmu_greybox.fmi.kinds import CO_SIMULATION, MODEL_EXCHANGE, FmuKind
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    kind = FMI3_CS if fmi_version == "3" else FMI2_CS
+    kind = FmuKind(f"{fmi_version}.0", MODEL_EXCHANGE if interface == "me" else CO_SIMULATION)
     for name, path in build_reference_fmus(out_dir, kind).items():
         _info(ctx, f"built {name}: {path} ({kind.label})")
 

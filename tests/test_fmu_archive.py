@@ -101,12 +101,8 @@ def hostile(kind: str, fmu: Path, target: Path, outside: Path) -> Path:
         return target
     if kind == "no model description":
         return rewrite(fmu, target, drop=lambda name: name == "modelDescription.xml")
-    if kind == "model exchange only":
-        xml = re.sub(
-            rb"<CoSimulation [^>]*/>",
-            b'<ModelExchange modelIdentifier="HydraulicActuator"/>',
-            description(fmu),
-        )
+    if kind == "neither interface":
+        xml = re.sub(rb"<CoSimulation [^>]*/>", b"", description(fmu))
         return rewrite(fmu, target, replace={"modelDescription.xml": xml})
     if kind == "FMI 3.0":
         return rewrite(fmu, target, replace={"modelDescription.xml": FMI3_DESCRIPTION})
@@ -126,8 +122,9 @@ PROBLEMS = {
     "zip bomb": r"member 'resources/zeros\.bin' expands \d+ times; refused as a likely zip bomb",
     "not a zip": r"not a zip archive, so not an FMU",
     "no model description": r"no modelDescription\.xml at the archive root",
-    "model exchange only": r"an FMI 2\.0 model exchange FMU; fmu-greybox needs co-simulation "
-    r"\(FMI 2\.0 co-simulation or FMI 3\.0 co-simulation\)",
+    "neither interface": r"an FMI 2\.0 FMU with neither a co-simulation nor a model-exchange "
+    r"interface; fmu-greybox runs FMI 2\.0 co-simulation, FMI 3\.0 co-simulation, FMI 2\.0 "
+    r"model exchange or FMI 3\.0 model exchange FMUs",
     "FMI 3.0": rf"no binary for this platform \({fmpy_platform_tuple}, FMI 3\.0 co-simulation\)",
     "no binary for this platform": rf"no binary for this platform \({fmpy_platform}, FMI 2\.0 ",
     "corrupt XML": r"unreadable modelDescription\.xml",

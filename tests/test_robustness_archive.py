@@ -1,7 +1,7 @@
 """Hostile and damaged FMU archives beyond tests/test_fmu_archive.py (issue 7, section 4).
 
 test_fmu_archive.py already refuses ``../`` and absolute members, symbolic links, a high
-compression ratio, a non-zip file, a zip without ``modelDescription.xml``, model exchange only,
+compression ratio, a non-zip file, a zip without ``modelDescription.xml``, neither interface,
 FMI 3.0, no binary for this platform and malformed XML. Here: absurd *declared* sizes (per member
 and in total, refused before extraction), sizes that lie, damaged streams, encryption, compression
 methods FMI does not allow, duplicate members, Windows paths, folders, binaries that do not load,

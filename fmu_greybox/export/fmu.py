@@ -45,6 +45,8 @@ from fmu_greybox.export.slave import (
     greybox_interface,
 )
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu
+from fmu_greybox.fmi.integrator import recorded_integrator
+from fmu_greybox.fmi.kinds import interface as kind_interface
 from fmu_greybox.model.chain_step import DEFAULT_OOD_THRESHOLD
 from fmu_greybox.model.domain import InputDomain
 from fmu_greybox.model.store import (
@@ -224,7 +226,7 @@ def _plan(
     manifest = read_manifest(model_dir)
     model_sha = file_sha256(model_dir / MANIFEST)
     interface = greybox_interface(model, archive, ood_threshold)
-    cosim = archive.model_description.coSimulation
+    cosim = kind_interface(archive.model_description, archive.kind)  # CS or ME flags
     units = etree.parse(str(archive.unzip_dir / "modelDescription.xml")).find("UnitDefinitions")
     identity = f"fmu-greybox:{__version__}:{runtime}:{model_sha}:{ood_threshold!r}"
     stages = "; ".join(f"{stage}: {what}" for stage, what in model.contents().items())
@@ -238,7 +240,7 @@ def _plan(
             f"{model.kind.capitalize()} of {archive.model_name} ({model.config.name}), stage by "
             f"stage {stages} (fmu-greybox); drop-in replacement with the stages' outputs, their "
             "standard deviations, the white-box outputs before the correctors and an "
-            "out-of-domain flag"
+            "out-of-domain flag" + _integration_note(model, archive)
         ),
         "author": author or login_name(),
         "version": version,
@@ -514,6 +516,19 @@ def _replace(root: etree._Element, tag: str, element: etree._Element, before: st
     root.append(element)
 
 
+def _integration_note(model: GreyBoxModel, archive: FmuArchive) -> str:
+    """For a model-exchange white-box, how it is integrated (the model folder's record), as a
+    sentence closing the FMU's description; else nothing."""
+    facts = model.training.whitebox
+    if "integrator" not in facts:
+        return ""
+    integrator = recorded_integrator(model.training.whitebox)
+    return (
+        f". The white-box is an {archive.kind.label} FMU, integrated at each step of "
+        f"{model.dt:g} s by {integrator.summary()}"
+    )
+
+
 def _annotation(
     model, manifest: dict[str, Any], model_sha: str, ood_threshold: float
 ) -> etree._Element:
@@ -531,6 +546,18 @@ def _annotation(
         dt=repr(model.dt),
         ood_threshold=repr(ood_threshold),
     )
+    facts = training.whitebox
+    if facts:  # the white-box's kind and, for model exchange, its integrator
+        whitebox = etree.SubElement(node, "WhiteBox", kind=str(facts.get("kind", "")))
+        integrator = facts.get("integrator")
+        if isinstance(integrator, dict):
+            etree.SubElement(
+                whitebox,
+                "Integrator",
+                step=repr(model.dt),
+                **{k: str(integrator[k]) for k in ("method", "rtol", "atol", "max_steps")},
+                summary=str(integrator.get("summary", "")),
+            )
     for stage, corrector in zip(model.chain.stages, model.chain.correctors_, strict=True):
         etree.SubElement(
             node,

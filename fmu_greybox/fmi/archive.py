@@ -22,7 +22,7 @@ from pathlib import Path, PurePosixPath
 from fmpy import read_model_description
 
 from fmu_greybox.errors import FmuArchiveError
-from fmu_greybox.fmi.kinds import FmuKind, binary_path, fmu_kind
+from fmu_greybox.fmi.kinds import FmuKind, binary_path, fmu_kind, interface
 from fmu_greybox.suggest import did_you_mean
 
 #: Largest total uncompressed size accepted [bytes].
@@ -101,8 +101,8 @@ class FmuArchive:
 
     @property
     def model_identifier(self) -> str:
-        """The co-simulation model identifier (name of the shared library)."""
-        return self.model_description.coSimulation.modelIdentifier
+        """The model identifier of the interface run (name of the shared library)."""
+        return interface(self.model_description, self.kind).modelIdentifier
 
     @property
     def model_name(self) -> str:
@@ -341,7 +341,7 @@ def _read_description(path: Path, unzip_dir: Path) -> object:
 
 def _check_binary(path: Path, unzip_dir: Path, description: object, kind: FmuKind) -> None:
     """Require the shared library for this platform."""
-    library = binary_path(unzip_dir, kind, description.coSimulation.modelIdentifier)
+    library = binary_path(unzip_dir, kind, interface(description, kind).modelIdentifier)
     if not library.is_file():
         binaries = unzip_dir / "binaries"
         found = sorted(p.name for p in binaries.iterdir()) if binaries.is_dir() else []

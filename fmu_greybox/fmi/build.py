@@ -1,4 +1,5 @@
-"""Build FMI 2.0 co-simulation FMUs from the C sources in ``fmu_sources/``.
+"""Build FMI 2.0 co-simulation FMUs from the C sources in ``fmu_sources/`` (FMI 3.0, and
+model exchange, with the framework's shells: :func:`build_fmu`'s ``kind``).
 
 A model is a folder holding ``variables.toml`` (the variable table), ``config.h`` (state layout)
 and ``model.c`` (physics); ``fmu_sources/framework/`` supplies the FMI plumbing and the
@@ -39,7 +40,7 @@ from xml.etree import ElementTree as ET
 from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.errors import FmuBuildError
-from fmu_greybox.fmi.kinds import FMI2_CS, FMI3_CS, FmuKind
+from fmu_greybox.fmi.kinds import ACCEPTED, FMI2_CS, MODEL_EXCHANGE, FmuKind
 from fmu_greybox.resources import data_path
 from fmu_greybox.units import BASE_UNITS, PREFIXES, SYMBOLS, UnitSyntaxError, si_unit
 
@@ -50,6 +51,9 @@ FRAMEWORK_DIR = SOURCES_DIR / "framework"
 """The generic FMI 2.0 co-simulation framework."""
 FMI3_SHELL_DIR = FRAMEWORK_DIR / "fmi3"
 """The FMI 3.0 co-simulation shell around the framework's FMI 2.0 functions."""
+ME_SHELL_DIR = FRAMEWORK_DIR / "me"
+"""The model-exchange functions (FMI 2.0, and the FMI 3.0 shell over them), which the
+framework's files include when compiled with ``-DFW_MODEL_EXCHANGE``."""
 SHA256_SOURCES = tuple(
     Path(__file__).resolve().parents[1] / "native" / n for n in ("sha256.c", "sha256.h")
 )
@@ -141,6 +145,22 @@ class Variable:
 
 
 @dataclass(frozen=True)
+class State:
+    """One continuous state of a model (a ``[[state]]`` row of the table), in the order of the
+    model's ``config.h``; a model-exchange build declares it and its derivative ``der(NAME)``.
+
+    Attributes
+    ----------
+    name, unit, derivative_unit, description : str
+    """
+
+    name: str
+    unit: str
+    derivative_unit: str
+    description: str
+
+
+@dataclass(frozen=True)
 class ModelEntry:
     """One model built from a table: identifier, description, preprocessor defines."""
 
@@ -167,6 +187,8 @@ class VariableTable:
         The models the table describes; the first is the default.
     variables : tuple of Variable
         All variables in value-reference order.
+    states : tuple of State
+        The continuous states (needed by model-exchange builds only).
     """
 
     path: Path
@@ -175,6 +197,7 @@ class VariableTable:
     default_experiment: dict[str, float]
     models: tuple[ModelEntry, ...]
     variables: tuple[Variable, ...]
+    states: tuple[State, ...] = ()
 
     def model(self, identifier: str | None) -> ModelEntry:
         """The model entry ``identifier`` (the first one if ``None``).
@@ -303,6 +326,27 @@ def _parse_variable(path: Path, index: int, raw: dict[str, Any], identifiers: se
     )
 
 
+def _parse_states(path: Path, raw: list[Any], names: set[str]) -> tuple[State, ...]:
+    """The ``[[state]]`` rows of a table: names unique (and no variable's), units valid."""
+    states = []
+    for index, row in enumerate(raw):
+        where = f"state #{index} ({row.get('name', '?') if isinstance(row, dict) else '?'!r})"
+        keys = {"name", "unit", "derivative_unit", "description"}
+        if not isinstance(row, dict) or set(row) != keys:
+            raise _table_error(path, where, f"a state has exactly the keys {sorted(keys)}.")
+        if not all(isinstance(row[k], str) for k in keys):
+            raise _table_error(path, where, "each key of a state is a string.")
+        if not _NAME.fullmatch(row["name"]) or row["name"] in names:
+            raise _table_error(
+                path, where, "name must be a C identifier no variable or other state has."
+            )
+        names.add(row["name"])
+        for key in ("unit", "derivative_unit"):
+            _parse_unit(row[key], path, where)
+        states.append(State(row["name"], row["unit"], row["derivative_unit"], row["description"]))
+    return tuple(states)
+
+
 def _check_start(path: Path, where: str, vtype: str, start: Any) -> float | int | bool | str:
     if vtype == "Real" and isinstance(start, int | float) and not isinstance(start, bool):
         return float(start)
@@ -404,6 +448,7 @@ def load_variable_table(path: Path) -> VariableTable:
         default_experiment=experiment,
         models=tuple(models),
         variables=variables,
+        states=_parse_states(path, raw.get("state", []), set(by_name)),
     )
 
 
@@ -748,6 +793,9 @@ def variables_c_sources(table: VariableTable, identifier: str, guid: str) -> tup
         "/* The framework's internal step (parameter solver_step) */",
         "#define FW_SOLVER_STEP R_solver_step",
         "",
+        "/* States the table declares (a model-exchange build checks them against N_STATES) */",
+        f"#define FW_DECLARED_STATES {len(table.states)}",
+        "",
         "#endif",
         "",
     ]
@@ -810,6 +858,146 @@ def variables_c_sources(table: VariableTable, identifier: str, guid: str) -> tup
         lambda v: _c_string(str(v.start or "")) if v is not None else '""',
     )
     return "\n".join(header), "\n".join(source)
+
+
+def state_references(table: VariableTable, identifier: str) -> tuple[list[int], list[int]]:
+    """Value references of a model-exchange build's states and of their derivatives: past the
+    table's (the first one past it is the FMI 3.0 ``time``), as ``framework/me`` numbers them.
+    """
+    first = max(v.value_reference for v in table.variables_of(identifier)) + 2
+    n = len(table.states)
+    return list(range(first, first + n)), list(range(first + n, first + 2 * n))
+
+
+def model_exchange_description(
+    co_simulation: bytes, table: VariableTable, identifier: str, kind: FmuKind
+) -> bytes:
+    """The model-exchange ``modelDescription.xml`` of a model, from its co-simulation one.
+
+    The ``CoSimulation`` element becomes ``ModelExchange`` (states gettable, settable and
+    serialisable; completed integrator steps needed: they apply the stops and record the
+    truth model's delay line); the table's states are added as local continuous variables
+    (``initial="calculated"``) with their derivatives ``der(NAME)``, and the model structure
+    lists the derivatives (``Derivatives`` / ``ContinuousStateDerivative``) and both among
+    the initial unknowns.
+
+    Parameters
+    ----------
+    co_simulation : bytes
+        What :func:`model_description` (FMI 2.0) or :func:`model_description_fmi3` (FMI 3.0)
+        wrote.
+    table : VariableTable
+    identifier : str
+    kind : FmuKind
+        :data:`~fmu_greybox.fmi.kinds.FMI2_ME` or :data:`~fmu_greybox.fmi.kinds.FMI3_ME`.
+
+    Returns
+    -------
+    bytes
+        UTF-8 XML.
+    """
+    root = ET.fromstring(co_simulation)
+    fmi2 = kind.fmi_version == "2.0"
+    position = list(root).index(root.find("CoSimulation"))
+    root.remove(root.find("CoSimulation"))
+    flags = {
+        "modelIdentifier": identifier,
+        "needsExecutionTool": "false",
+        "canBeInstantiatedOnlyOncePerProcess": "false",
+    }
+    if fmi2:
+        flags |= {
+            "completedIntegratorStepNotNeeded": "false",
+            "canNotUseMemoryManagementFunctions": "false",
+            "canGetAndSetFMUstate": "true",
+            "canSerializeFMUstate": "true",
+            "providesDirectionalDerivative": "false",
+        }
+    else:
+        flags |= {
+            "canGetAndSetFMUState": "true",
+            "canSerializeFMUState": "true",
+            "providesDirectionalDerivatives": "false",
+            "needsCompletedIntegratorStep": "true",
+        }
+    root.insert(position, ET.Element("ModelExchange", flags))
+    _add_units(root, [u for s in table.states for u in (s.unit, s.derivative_unit)], position)
+
+    states, derivatives = state_references(table, identifier)
+    scalars = root.find("ModelVariables")
+    index = len(scalars) + 1  # FMI 2.0: 1-based position in ModelVariables of the first state
+    for i, state in enumerate(table.states):
+        der = f"der({state.name})"
+        rows = [
+            (state.name, states[i], state.description, {"unit": state.unit}),
+            (der, derivatives[i], f"Derivative of {state.name}", {"unit": state.derivative_unit}),
+        ]
+        for name, vr, text, typed in rows:
+            if name == der:
+                typed["derivative"] = str(index + 2 * i if fmi2 else states[i])
+            attributes = {
+                "name": name,
+                "valueReference": str(vr),
+                "description": text,
+                "causality": "local",
+                "variability": "continuous",
+                "initial": "calculated",
+            }
+            if fmi2:
+                ET.SubElement(ET.SubElement(scalars, "ScalarVariable", attributes), "Real", typed)
+            else:
+                ET.SubElement(scalars, "Float64", {**attributes, **typed})
+    n = len(table.states)
+    structure = root.find("ModelStructure")
+    if fmi2:
+        # appended as state, its derivative, the next state, ...
+        state_keys = [str(index + 2 * i) for i in range(n)]
+        der_keys = [str(index + 2 * i + 1) for i in range(n)]
+        listed = ET.Element("Derivatives")
+        for key in der_keys:
+            ET.SubElement(listed, "Unknown", {"index": key})
+        structure.insert(list(structure).index(structure.find("Outputs")) + 1, listed)
+        initial = structure.find("InitialUnknowns")
+        if initial is None:
+            initial = ET.SubElement(structure, "InitialUnknowns")
+        for key in sorted(state_keys + der_keys, key=int):
+            ET.SubElement(initial, "Unknown", {"index": key})
+    else:
+        outputs = [e for e in structure if e.tag == "Output"]
+        at = list(structure).index(outputs[-1]) + 1 if outputs else 0
+        for offset, vr in enumerate(derivatives):
+            element = ET.Element("ContinuousStateDerivative", {"valueReference": str(vr)})
+            structure.insert(at + offset, element)
+        for vr in [*states, *derivatives]:
+            ET.SubElement(structure, "InitialUnknown", {"valueReference": str(vr)})
+    ET.indent(root, space="  ")
+    return ET.tostring(root, encoding="UTF-8", xml_declaration=True) + b"\n"
+
+
+def _add_units(root: ET.Element, units: list[str], interface_position: int) -> None:
+    """Declare ``units`` in the ``UnitDefinitions`` (made after the interface element if
+    missing), keeping them sorted by name as :func:`_units_logging_experiment` writes them."""
+    definitions = root.find("UnitDefinitions")
+    if definitions is None:
+        definitions = ET.Element("UnitDefinitions")
+        root.insert(interface_position + 1, definitions)
+    known = {u.get("name"): u for u in definitions}
+    for unit in units:
+        if unit in known:
+            continue
+        exps, factor, offset = _parse_unit(unit)
+        element = ET.Element("Unit", {"name": unit})
+        attributes = {k: str(exps[k]) for k in BASE_UNITS if k in exps}
+        if factor != 1.0:
+            attributes["factor"] = _number(factor)
+        if offset != 0.0:
+            attributes["offset"] = _number(offset)
+        ET.SubElement(element, "BaseUnit", attributes)
+        known[unit] = element
+    for element in list(definitions):
+        definitions.remove(element)
+    for name in sorted(known):
+        definitions.append(known[name])
 
 
 # ------------------------------------------------------------------------------------------------
@@ -879,8 +1067,9 @@ def c_compiler() -> str:
 
 
 def _framework_sources(kind: FmuKind) -> list[Path]:
-    """The framework's C files for ``kind``: the FMI 2.0 framework, plus the FMI 3.0 shell."""
-    shell = sorted(FMI3_SHELL_DIR.glob("*.c")) if kind == FMI3_CS else []
+    """The framework's C files for ``kind``: the FMI 2.0 framework, plus the FMI 3.0 shell
+    (model exchange: and, included by them, the files of :data:`ME_SHELL_DIR`)."""
+    shell = sorted(FMI3_SHELL_DIR.glob("*.c")) if kind.fmi_version == "3.0" else []
     return [*sorted(FRAMEWORK_DIR.glob("*.c")), *shell]
 
 
@@ -899,6 +1088,8 @@ def _compile(
     for folder in (generated, model_dir, FRAMEWORK_DIR, SHA256_SOURCES[0].parent, fmi2_headers()):
         command += ["-I", str(folder)]
     command += [f"-D{define}" for define in entry.defines]
+    if kind.interface == MODEL_EXCHANGE:
+        command.append("-DFW_MODEL_EXCHANGE")
     command += [str(s) for s in sources] + ["-o", str(library), "-lm"]
     result = subprocess.run(command, capture_output=True, text=True, check=False)
     output = (result.stdout + result.stderr).strip()
@@ -945,7 +1136,10 @@ def build_fmu(
     kind : FmuKind
         :data:`~fmu_greybox.fmi.kinds.FMI2_CS` (the framework) or
         :data:`~fmu_greybox.fmi.kinds.FMI3_CS` (the framework with its FMI 3.0 shell, the
-        same numbers).
+        same numbers); :data:`~fmu_greybox.fmi.kinds.FMI2_ME` or
+        :data:`~fmu_greybox.fmi.kinds.FMI3_ME` for model exchange (the framework's
+        model-exchange functions, ``framework/me``: the model's states and derivatives, no
+        integrator; the table must declare the states, ``[[state]]``).
 
     Returns
     -------
@@ -962,22 +1156,32 @@ def build_fmu(
     out_dir = Path(out_dir)
     table = load_variable_table(model_dir / "variables.toml")
     entry = table.model(identifier)
-    if kind not in (FMI2_CS, FMI3_CS):
-        raise FmuBuildError(f"the builder makes co-simulation FMUs, not {kind.label}")
+    if kind not in ACCEPTED:
+        raise FmuBuildError(f"the builder makes no {kind.label} FMUs")
+    me = kind.interface == MODEL_EXCHANGE
+    if me and not table.states:
+        raise FmuBuildError(
+            f"{table.path}: a model-exchange build declares the model's continuous states; "
+            "list them as [[state]] rows in the order of config.h (see "
+            "HydraulicActuator/variables.toml)"
+        )
     extension = fmi2_platform()[1]
     folder = kind.binary_folder
     c_files = sorted(
         [
             *FRAMEWORK_DIR.glob("*.h"),
             *_framework_sources(kind),
+            *(ME_SHELL_DIR.glob("*.c") if me else ()),
             *SHA256_SOURCES,
             *model_dir.glob("*.[ch]"),
         ]
     )
     guid = _guid(table, entry.identifier, c_files)
     header, source = variables_c_sources(table, entry.identifier, guid)
-    describe = model_description_fmi3 if kind == FMI3_CS else model_description
+    describe = model_description_fmi3 if kind.fmi_version == "3.0" else model_description
     description = describe(table, entry.identifier, guid)
+    if me:
+        description = model_exchange_description(description, table, entry.identifier, kind)
 
     out_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix=f"fmu-build-{entry.identifier}-") as tmp:

@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 
 from fmu_greybox.errors import FmuArchiveError
-from fmu_greybox.fmi.kinds import FMI2_CS, FmuKind
+from fmu_greybox.fmi.kinds import FMI2_CS, MODEL_EXCHANGE, FmuKind
 from fmu_greybox.resources import PREFIX, bench_config, sources_root
 
 #: The reference actuator's models (white-box, truth).
@@ -74,7 +74,8 @@ def model_fmus(model_folder: str, kind: FmuKind = FMI2_CS) -> dict[str, Path]:
         A folder named in :data:`BUILTIN_MODELS`, e.g. ``"ElectroMechanicalPositioner"``.
     kind : FmuKind
         Their kind; other kinds than FMI 2.0 co-simulation (the built-in names) are cached
-        in a sub-folder named after the FMI version, e.g. ``fmi3.0/``.
+        in a sub-folder named after the FMI version, e.g. ``fmi3.0/``, and the interface
+        when model exchange, e.g. ``fmi2.0-me/``.
 
     Returns
     -------
@@ -83,7 +84,8 @@ def model_fmus(model_folder: str, kind: FmuKind = FMI2_CS) -> dict[str, Path]:
     """
     from fmu_greybox.fmi.build import build_model_pair
 
-    folder = cache_dir() if kind == FMI2_CS else cache_dir() / f"fmi{kind.fmi_version}"
+    me = "-me" if kind.interface == MODEL_EXCHANGE else ""
+    folder = cache_dir() if kind == FMI2_CS else cache_dir() / f"fmi{kind.fmi_version}{me}"
     names = [name for name, source in BUILTIN_MODELS.items() if source == model_folder]
     paths = {name: folder / f"{name}.fmu" for name in names}
     if not all(p.is_file() for p in paths.values()):

@@ -1,11 +1,14 @@
-"""A running co-simulation instance, stepped the way a bench steps it.
+"""A running white-box instance, stepped the way a bench steps it.
 
 :class:`FmuInstance` wraps fmpy's ``FMU2Slave`` (FMI 2.0), :class:`Fmu3Instance` its
-``FMU3Slave`` (FMI 3.0); :func:`fmu_instance` picks the one for an FMU's kind
-(:mod:`fmu_greybox.fmi.kinds`). The per-step path (set inputs, ``DoStep``, get outputs) calls
-the FMU's C functions directly with preallocated ``ctypes`` buffers, so a step costs a few
-microseconds of Python. Every failing FMI call raises :class:`~fmu_greybox.errors.FmuError`
-carrying the call, its status, the simulation time and the last messages the FMU logged.
+``FMU3Slave`` (FMI 3.0); :class:`FmuMeInstance` and :class:`Fmu3MeInstance` wrap a
+model-exchange FMU (``FMU2Model``, ``FMU3Model``) with an integrator
+(:mod:`fmu_greybox.fmi.integrator`) behind the same interface; :func:`fmu_instance` picks the
+one for an FMU's kind (:mod:`fmu_greybox.fmi.kinds`). The per-step path (set inputs,
+``DoStep``, get outputs) calls the FMU's C functions directly with preallocated ``ctypes``
+buffers, so a step costs a few microseconds of Python. Every failing FMI call raises
+:class:`~fmu_greybox.errors.FmuError` carrying the call, its status, the simulation time and
+the last messages the FMU logged.
 """
 
 from __future__ import annotations
@@ -23,18 +26,28 @@ import numpy as np
 from fmpy import calloc as fmpy_calloc
 from fmpy import free as fmpy_free
 from fmpy.fmi2 import (
+    FMU2Model,
     FMU2Slave,
+    fmi2Boolean,
     fmi2CallbackAllocateMemoryTYPE,
     fmi2CallbackFreeMemoryTYPE,
     fmi2CallbackFunctions,
     fmi2CallbackLoggerTYPE,
+    fmi2EventInfo,
     printLogMessage,
 )
-from fmpy.fmi3 import FMU3Slave, fmi3Boolean, fmi3Float64
+from fmpy.fmi3 import FMU3Model, FMU3Slave, fmi3Boolean, fmi3Float64
 
 from fmu_greybox.errors import FmuArchiveError, FmuError
 from fmu_greybox.fmi.archive import FmuArchive
-from fmu_greybox.fmi.kinds import FMI2_CS, FMI3_CS
+from fmu_greybox.fmi.integrator import (
+    DEFAULT_INTEGRATOR,
+    NATIVE_CALLS,
+    CVodeStepper,
+    Integrator,
+    IntegratorError,
+)
+from fmu_greybox.fmi.kinds import FMI2_CS, FMI2_ME, FMI3_CS, FMI3_ME
 
 _STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
 _WARNING = 1
@@ -449,13 +462,305 @@ class Fmu3Instance(FmuInstance):
         )
 
 
+class FmuMeInstance(FmuInstance):
+    """One instance of an FMI 2.0 model-exchange FMU, stepped by an integrator: the interface
+    of :class:`FmuInstance`.
+
+    :meth:`step` sets the inputs, then integrates the FMU's states over the step with
+    ``integrator`` (:class:`~fmu_greybox.fmi.integrator.CVodeStepper`: CVode restarted from
+    the FMU's state at every step, stopped exactly at its end), calling
+    ``fmi2CompletedIntegratorStep`` after each internal step and handling the events it asks
+    for (``fmi2NewDiscreteStates`` until no update is needed; CVode restarts from the states
+    the event set). The FMU's time and states are the integrator's at the step's end, so the
+    FMU state (:meth:`get_state`, :meth:`serialize_state`) holds everything a step starts
+    from.
+
+    Parameters
+    ----------
+    archive, inputs, outputs, parameters, start_values, instance_name, start_time
+        As :class:`FmuInstance`.
+    integrator : Integrator, optional
+        Default :data:`~fmu_greybox.fmi.integrator.DEFAULT_INTEGRATOR`.
+    """
+
+    SLAVE = FMU2Model
+    CALLS: ClassVar[dict[str, str]] = {
+        **FmuInstance.CALLS,
+        "instantiate": "fmi2Instantiate",
+        "step": "CVode",
+        "set_time": "fmi2SetTime",
+        "set_states": "fmi2SetContinuousStates",
+        "get_states": "fmi2GetContinuousStates",
+        "derivatives": "fmi2GetDerivatives",
+        "nominals": "fmi2GetNominalsOfContinuousStates",
+        "completed": "fmi2CompletedIntegratorStep",
+        "event_mode": "fmi2EnterEventMode",
+        "discrete": "fmi2NewDiscreteStates",
+        "continuous_mode": "fmi2EnterContinuousTimeMode",
+    }
+
+    def __init__(
+        self,
+        archive: FmuArchive,
+        inputs: Sequence[str] = (),
+        outputs: Sequence[str] = (),
+        parameters: Mapping[str, float] | None = None,
+        start_values: Mapping[str, float] | None = None,
+        instance_name: str = "instance",
+        start_time: float = 0.0,
+        integrator: Integrator | None = None,
+    ) -> None:
+        self.integrator = integrator or DEFAULT_INTEGRATOR
+        self.n_states = len(archive.model_description.derivatives)
+        self._stepper: CVodeStepper | None = None
+        self._component = None
+        super().__init__(
+            archive, inputs, outputs, parameters, start_values, instance_name, start_time
+        )
+
+    # ------------------------------------------------------------------ set-up
+    def _bind_calls(self, functions: Mapping[str, object]) -> None:
+        """The per-step C functions, as ``_set_real``/``_get_real`` of :class:`FmuInstance` and
+        the model-exchange ones with FMI 2.0 signatures: ``_set_time(c, t)``,
+        ``_set_states(c, x, n)``, ``_get_states``, ``_derivatives``, ``_nominals`` alike,
+        ``_completed(c, no_prior, enter, terminate)``, ``_event_mode(c)``,
+        ``_discrete(c) -> (status, needed, terminate, values changed)`` and
+        ``_continuous_mode(c)``."""
+        self._set_real = functions["fmi2SetReal"]
+        self._get_real = functions["fmi2GetReal"]
+        self._raw = {key: functions[self.CALLS[key]] for key in NATIVE_CALLS[:8]}
+        self._set_time = functions["fmi2SetTime"]
+        self._set_states = functions["fmi2SetContinuousStates"]
+        self._get_states = functions["fmi2GetContinuousStates"]
+        self._derivatives = functions["fmi2GetDerivatives"]
+        self._nominals = functions["fmi2GetNominalsOfContinuousStates"]
+        self._completed = functions["fmi2CompletedIntegratorStep"]
+        self._event_mode = functions["fmi2EnterEventMode"]
+        self._continuous_mode = functions["fmi2EnterContinuousTimeMode"]
+        new_discrete = functions["fmi2NewDiscreteStates"]
+        info = fmi2EventInfo()
+
+        def discrete(c) -> tuple[int, bool, bool, bool, bool]:
+            status = new_discrete(c, ctypes.byref(info))
+            return (
+                status,
+                bool(info.newDiscreteStatesNeeded),
+                bool(info.terminateSimulation),
+                bool(info.valuesOfContinuousStatesChanged),
+                bool(info.nextEventTimeDefined),
+            )
+
+        self._discrete = discrete
+        self._flags = (fmi2Boolean(), fmi2Boolean())
+
+    def _initialise(self, start_time: float, values: Mapping[str, float]) -> None:
+        """Initialise as :class:`FmuInstance`, settle the initial event, enter continuous-time
+        mode and make the integrator (once)."""
+        super()._initialise(start_time, values)
+        self._settle_event()
+        self._check(self.CALLS["continuous_mode"], self._continuous_mode(self._component))
+        if self._stepper is None:
+            n = self.n_states
+            self._x_buf = (ctypes.c_double * n)()
+            self._check(self.CALLS["nominals"], self._nominals(self._component, self._x_buf, n))
+            nominals = np.array(self._x_buf[:], dtype=np.float64)
+            fmu = {"component": self._component, "fmi3": self.PREFIX == "fmi3"}
+            fmu |= {name: self._raw[name] for name in NATIVE_CALLS[:8]}
+            self._stepper = CVodeStepper(n, self._rhs, nominals, self.integrator, fmu)
+
+    def _settle_event(self) -> bool:
+        """In event mode: ``NewDiscreteStates`` until no update is needed; whether the
+        continuous states changed."""
+        changed = False
+        for _ in range(1000):
+            status, needed, terminate, values, timed = self._discrete(self._component)
+            self._check(self.CALLS["discrete"], status)
+            if terminate:
+                raise FmuError(
+                    self.CALLS["discrete"], "terminateSimulation", self.time, self._log.last()
+                )
+            if timed:
+                raise self._time_event()
+            changed = changed or values
+            if not needed:
+                return changed
+        raise FmuError(
+            self.CALLS["discrete"], "newDiscreteStatesNeeded after 1000 iterations", self.time
+        )
+
+    # ------------------------------------------------------------------ stepping
+    def _rhs(self, t: float, x, dx) -> int:
+        """CVode's right-hand side: the FMU's derivatives at time ``t`` and states ``x``."""
+        c, n = self._component, self.n_states
+        for call, status in (
+            ("set_time", self._set_time(c, t)),
+            ("set_states", self._set_states(c, x, n)),
+            ("derivatives", self._derivatives(c, dx, n)),
+        ):
+            if status > _WARNING:
+                self.time = t
+                self._check(self.CALLS[call], status)  # raises; CVodeStepper re-raises it
+        return 0
+
+    def _after_step(self, t: float, x) -> np.ndarray | None:
+        """After an accepted internal step: the FMU takes its time and states, then
+        ``CompletedIntegratorStep``; an event it asks for is handled, returning the states
+        it set."""
+        c, n = self._component, self.n_states
+        self._check(self.CALLS["set_time"], self._set_time(c, t))
+        self._check(self.CALLS["set_states"], self._set_states(c, x, n))
+        enter, terminate = self._flags
+        self._check(
+            self.CALLS["completed"],
+            self._completed(c, 1, ctypes.byref(enter), ctypes.byref(terminate)),
+        )
+        if terminate.value:
+            raise FmuError(self.CALLS["completed"], "terminateSimulation", t, self._log.last())
+        if not enter.value:
+            return None
+        self._check(self.CALLS["event_mode"], self._event_mode(c))
+        changed = self._settle_event()
+        self._check(self.CALLS["continuous_mode"], self._continuous_mode(c))
+        if not changed:
+            return None
+        self._check(self.CALLS["get_states"], self._get_states(c, self._x_buf, n))
+        return np.array(self._x_buf[:], dtype=np.float64)
+
+    def step(self, u: Sequence[float] | np.ndarray, h: float) -> np.ndarray:
+        """Set the bound inputs, integrate one communication step, read the bound outputs
+        (as :meth:`FmuInstance.step`).
+
+        Raises
+        ------
+        FmuError
+            An FMI call failed (its name and status), or the integrator did (call
+            ``"CVode"``, with what CVode said).
+        """
+        n_in = len(self._in_buf)
+        if n_in:
+            self._in_buf[:] = u
+            self._check(
+                self.CALLS["set"],
+                self._set_real(self._component, self._in_vr, n_in, self._in_buf),
+            )
+        if not (h > 0.0 and np.isfinite(h)):
+            raise FmuError(
+                self.CALLS["step"],
+                "refused",
+                self.time,
+                f"communicationStepSize = {h:g} s must be positive",
+            )
+        stepper, c, n = self._stepper, self._component, self.n_states
+        self._check(self.CALLS["get_states"], self._get_states(c, self._x_buf, n))
+        stepper.x[:] = self._x_buf
+        start, stop = self.time, self.time + h
+        try:
+            stepper.advance(start, stop, self._after_step)
+        except IntegratorError as exc:
+            raise self._integrator_error(exc) from exc
+        self.time = stop
+        return self.read_outputs()
+
+    def _time_event(self) -> FmuError:
+        return FmuError(
+            self.CALLS["discrete"],
+            "nextEventTimeDefined",
+            self.time,
+            "the FMU asks for a time event, which fmu-greybox's integrator does not schedule "
+            "yet; export the model as co-simulation",
+        )
+
+    def _integrator_error(self, exc: IntegratorError) -> FmuError:
+        """The :class:`FmuError` of a failed step: CVode's flag and words, or the FMU call
+        that failed in the C loop with its status and the FMU's log."""
+        if exc.call == "CVode":
+            detail = f"{exc.detail} ({self.integrator.summary()})"
+            return FmuError(self.CALLS["step"], f"flag {exc.flag}", self.time, detail)
+        if exc.call == "time_event":
+            return self._time_event()
+        if exc.call == "terminate":
+            call = self.CALLS[NATIVE_CALLS[exc.flag]]
+            return FmuError(call, "terminateSimulation", self.time, self._log.last())
+        status = status_label(exc.flag, self.PREFIX)
+        return FmuError(self.CALLS[exc.call], status, self.time, self._log.last())
+
+    def close(self) -> None:
+        """Terminate and free the instance and the integrator (idempotent, never raises)."""
+        if self._stepper is not None:
+            self._stepper.close()
+            self._stepper = None
+        if self._component is not None:
+            super().close()
+
+
+class Fmu3MeInstance(FmuMeInstance):
+    """One instance of an FMI 3.0 model-exchange FMU: :class:`FmuMeInstance` with the FMI 3.0
+    calls (as :class:`Fmu3Instance` is :class:`FmuInstance` with them)."""
+
+    SLAVE = FMU3Model
+    PREFIX = "fmi3"
+    CALLS: ClassVar[dict[str, str]] = {
+        **Fmu3Instance.CALLS,
+        "instantiate": "fmi3InstantiateModelExchange",
+        "step": "CVode",
+        "set_time": "fmi3SetTime",
+        "set_states": "fmi3SetContinuousStates",
+        "get_states": "fmi3GetContinuousStates",
+        "derivatives": "fmi3GetContinuousStateDerivatives",
+        "nominals": "fmi3GetNominalsOfContinuousStates",
+        "completed": "fmi3CompletedIntegratorStep",
+        "event_mode": "fmi3EnterEventMode",
+        "discrete": "fmi3UpdateDiscreteStates",
+        "continuous_mode": "fmi3EnterContinuousTimeMode",
+    }
+    STATE_METHODS = Fmu3Instance.STATE_METHODS
+    _instantiate = Fmu3Instance._instantiate
+    _setup = Fmu3Instance._setup
+    _enter = Fmu3Instance._enter
+
+    def _bind_calls(self, functions: Mapping[str, object]) -> None:
+        """The FMI 3.0 functions behind the FMI 2.0 signatures of :class:`FmuMeInstance`."""
+        set_float, get_float = functions["fmi3SetFloat64"], functions["fmi3GetFloat64"]
+        self._set_real = lambda c, refs, n, values: set_float(c, refs, n, values, n)
+        self._get_real = lambda c, refs, n, values: get_float(c, refs, n, values, n)
+        self._raw = {key: functions[self.CALLS[key]] for key in NATIVE_CALLS[:8]}
+        self._set_time = functions["fmi3SetTime"]
+        self._set_states = functions["fmi3SetContinuousStates"]
+        self._get_states = functions["fmi3GetContinuousStates"]
+        self._derivatives = functions["fmi3GetContinuousStateDerivatives"]
+        self._nominals = functions["fmi3GetNominalsOfContinuousStates"]
+        self._completed = functions["fmi3CompletedIntegratorStep"]
+        self._event_mode = functions["fmi3EnterEventMode"]
+        self._continuous_mode = functions["fmi3EnterContinuousTimeMode"]
+        update = functions["fmi3UpdateDiscreteStates"]
+        flags = [fmi3Boolean() for _ in range(5)]
+        next_time = fmi3Float64()
+        pointers = (*(ctypes.byref(f) for f in flags), ctypes.byref(next_time))
+
+        def discrete(c) -> tuple[int, bool, bool, bool, bool]:
+            status = update(c, *pointers)
+            needed, terminate, _, values, timed = (bool(f.value) for f in flags)
+            return status, needed, terminate, values, timed
+
+        self._discrete = discrete
+        self._flags = (fmi3Boolean(), fmi3Boolean())
+
+
 #: The instance class of each accepted kind.
-INSTANCE_CLASSES: dict = {FMI2_CS: FmuInstance, FMI3_CS: Fmu3Instance}
+INSTANCE_CLASSES: dict = {
+    FMI2_CS: FmuInstance,
+    FMI3_CS: Fmu3Instance,
+    FMI2_ME: FmuMeInstance,
+    FMI3_ME: Fmu3MeInstance,
+}
 
 
-def fmu_instance(archive: FmuArchive, *args: object, **kwargs: object) -> FmuInstance:
+def fmu_instance(
+    archive: FmuArchive, *args: object, integrator: Integrator | None = None, **kwargs: object
+) -> FmuInstance:
     """An instance of ``archive`` of the class for its kind; arguments as
-    :class:`FmuInstance`.
+    :class:`FmuInstance`, and the ``integrator`` of a model-exchange FMU (default
+    :data:`~fmu_greybox.fmi.integrator.DEFAULT_INTEGRATOR`; a co-simulation FMU has its own).
 
     Raises
     ------
@@ -469,4 +774,6 @@ def fmu_instance(archive: FmuArchive, *args: object, **kwargs: object) -> FmuIns
         raise FmuArchiveError(
             f"{archive.path}: {archive.kind.label} FMUs cannot be stepped here"
         ) from None
+    if issubclass(instance_class, FmuMeInstance):
+        kwargs["integrator"] = integrator
     return instance_class(archive, *args, **kwargs)

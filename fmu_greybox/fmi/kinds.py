@@ -7,8 +7,10 @@ kind, and the C paths (the native simulation runner and the native grey-box expo
 ``dlopen`` an FMI 2.0 co-simulation binary) ask :attr:`FmuKind.native`.
 
 Accepted today (``docs/config.md``, "White-box FMUs accepted"): FMI 2.0 co-simulation
-(``binaries/linux64``; stepped by fmpy or the C runner) and FMI 3.0 co-simulation
-(``binaries/x86_64-linux``; stepped by fmpy, refused by the C paths).
+(``binaries/linux64``; stepped by fmpy or the C runner), FMI 3.0 co-simulation
+(``binaries/x86_64-linux``; stepped by fmpy, refused by the C paths), and FMI 2.0 and FMI 3.0
+model exchange (stepped by an integrator in Python, :mod:`fmu_greybox.fmi.integrator`; refused
+by the C paths). An FMU offering both interfaces is run as co-simulation.
 """
 
 from __future__ import annotations
@@ -60,8 +62,10 @@ class FmuKind:
 
 FMI2_CS = FmuKind("2.0", CO_SIMULATION)
 FMI3_CS = FmuKind("3.0", CO_SIMULATION)
+FMI2_ME = FmuKind("2.0", MODEL_EXCHANGE)
+FMI3_ME = FmuKind("3.0", MODEL_EXCHANGE)
 #: The kinds :func:`fmu_kind` accepts.
-ACCEPTED = (FMI2_CS, FMI3_CS)
+ACCEPTED = (FMI2_CS, FMI3_CS, FMI2_ME, FMI3_ME)
 
 
 def fmu_kind(path: Path, description: object) -> FmuKind:
@@ -80,20 +84,36 @@ def fmu_kind(path: Path, description: object) -> FmuKind:
         accepted.
     """
     version = "3.0" if str(description.fmiVersion).startswith("3.") else description.fmiVersion
-    accepted = " or ".join(k.label for k in ACCEPTED)
+    labels = [k.label for k in ACCEPTED]
+    accepted = ", ".join(labels[:-1]) + " or " + labels[-1]
     if version not in {k.fmi_version for k in ACCEPTED}:
         raise FmuArchiveError(
             f"{path}: FMI version {description.fmiVersion}; fmu-greybox runs {accepted} FMUs. "
             "Export the model as one of these"
         )
-    if description.coSimulation is None:
-        kinds = "model exchange" if description.modelExchange is not None else "no interface"
-        raise FmuArchiveError(
-            f"{path}: an FMI {version} {kinds} FMU; fmu-greybox needs co-simulation "
-            f"({accepted}). Re-export the model with the co-simulation interface (with its "
-            "own solver)"
-        )
-    return FmuKind(version, CO_SIMULATION)
+    if description.coSimulation is not None:  # preferred: the FMU's own solver
+        return FmuKind(version, CO_SIMULATION)
+    if description.modelExchange is not None:
+        indicators = int(description.numberOfEventIndicators or 0)
+        if indicators:
+            raise FmuArchiveError(
+                f"{path}: an FMI {version} model-exchange FMU with {indicators} event "
+                "indicators (state events), which fmu-greybox's integrator does not locate yet; "
+                "re-export the model as co-simulation (with its own solver)"
+            )
+        return FmuKind(version, MODEL_EXCHANGE)
+    raise FmuArchiveError(
+        f"{path}: an FMI {version} FMU with neither a co-simulation nor a model-exchange "
+        f"interface; fmu-greybox runs {accepted} FMUs. Re-export the model with one of them"
+    )
+
+
+def interface(description: object, kind: FmuKind) -> object:
+    """The model description's element of ``kind``'s interface (fmpy's ``CoSimulation`` or
+    ``ModelExchange``): its model identifier and capability flags."""
+    if kind.interface == CO_SIMULATION:
+        return description.coSimulation
+    return description.modelExchange
 
 
 def binary_path(unzip_dir: Path, kind: FmuKind, identifier: str) -> Path:

@@ -40,6 +40,7 @@ from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_dir, atomic_write
 from fmu_greybox.errors import ConfigError, ModelFormatError
 from fmu_greybox.fmi.archive import FmuArchive
+from fmu_greybox.fmi.integrator import recorded_integrator
 from fmu_greybox.gp import SparseGPR
 from fmu_greybox.model.calibration import UNCALIBRATED, VarianceCalibration
 from fmu_greybox.model.chain import GreyBoxChain
@@ -184,6 +185,7 @@ class GreyBoxModel:
             start_time,
             self.substeps,
             instance_name,
+            recorded_integrator(self.training.whitebox),
         )
 
 

@@ -59,6 +59,9 @@ class TrainingRecord:
         The white-box FMU file trained with.
     whitebox_sha256 : str
         Its SHA-256.
+    whitebox : mapping of str to object
+        Its kind, and for model exchange how it was integrated
+        (:func:`~fmu_greybox.fmi.integrator.whitebox_facts`).
     seconds : float or None
         Wall time of the training [s].
     parts : mapping or None
@@ -85,6 +88,7 @@ class TrainingRecord:
     calibration_recordings: list[dict[str, Any]] = field(default_factory=list)
     whitebox_source: str = ""
     whitebox_sha256: str = ""
+    whitebox: Mapping[str, Any] = field(default_factory=dict)
     seconds: float | None = None
     parts: Mapping[str, Any] | None = None
     extra: Mapping[str, Any] = field(default_factory=dict)

@@ -26,6 +26,7 @@ import numpy as np
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.fmi.instance import fmu_instance
+from fmu_greybox.fmi.integrator import Integrator
 from fmu_greybox.model.terms import Term, term_from_dict
 
 #: FMU steps per communication step while a feedback term is active.
@@ -163,6 +164,7 @@ class _Part:
         start_time: float,
         dt: float,
         instance_name: str,
+        integrator: Integrator | None = None,
     ) -> None:
         terms = layout.terms
         self.layout = layout
@@ -184,6 +186,7 @@ class _Part:
             start_values=start_values,
             instance_name=instance_name,
             start_time=start_time,
+            integrator=integrator,
         )
         self._held = np.empty(len(inputs))
         self._row = np.empty(len(inputs))
@@ -277,6 +280,9 @@ class NamedModel:
         FMU steps per communication step while a feedback term is active.
     instance_name : str
         FMI instance name (instances beyond the first get ``@stage`` appended).
+    integrator : Integrator, optional
+        How a model-exchange white-box is integrated (default
+        :data:`~fmu_greybox.fmi.integrator.DEFAULT_INTEGRATOR`; unused for co-simulation).
 
     Raises
     ------
@@ -297,6 +303,7 @@ class NamedModel:
         start_time: float = 0.0,
         substeps: int = DEFAULT_SUBSTEPS,
         instance_name: str = "whitebox",
+        integrator: Integrator | None = None,
     ) -> None:
         stages = list(stages) if stages is not None else [0] * len(outputs)
         self.output_names = list(outputs)
@@ -305,7 +312,7 @@ class NamedModel:
             for layout in part_layouts(outputs, terms, stages, parameters, substeps):
                 name = instance_name if not self.parts else f"{instance_name}@{layout.level}"
                 self.parts.append(
-                    _Part(archive, inputs, layout, start_values, start_time, dt, name)
+                    _Part(archive, inputs, layout, start_values, start_time, dt, name, integrator)
                 )
         except BaseException:
             self.close()

@@ -13,6 +13,7 @@ import numpy as np
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.integrator import whitebox_facts
 from fmu_greybox.model.chain import GreyBoxChain, RecordedRun
 from fmu_greybox.model.domain import training_ranges
 from fmu_greybox.model.fit_cache import FitCache
@@ -340,6 +341,8 @@ def fit_model(
         ],
         whitebox_source=str(fmu_path),
         whitebox_sha256=file_sha256(fmu_path),
+        # its kind, and how a model-exchange white-box was integrated (fmi/integrator.py)
+        whitebox=whitebox_facts(archive.kind),
         seconds=round(time.perf_counter() - started, 2),
     )
     model = GreyBoxModel(

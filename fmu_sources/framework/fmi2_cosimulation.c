@@ -4,6 +4,11 @@
  * State machine of FMI 2.0 co-simulation: instantiated -> initialization mode -> step complete
  * -> terminated, with fmi2Reset back to instantiated from any phase and an error phase after a
  * failed call in which only getters, fmi2Reset and fmi2FreeInstance are allowed.
+ *
+ * Built with FW_MODEL_EXCHANGE (a model-exchange FMU), the FMI 2.0 model-exchange functions of
+ * me/fmi2_model_exchange.c are compiled in as well (included at the end of this file): an
+ * instance made with fmi2ModelExchange spends "step complete" in event mode or continuous-time
+ * mode, and is stepped by the master's integrator instead of fmi2DoStep.
  */
 #include <math.h>
 #include <stdarg.h>
@@ -34,7 +39,17 @@ typedef struct {
     fmi2CallbackFunctions callbacks;
     int logging; /* errors are logged unless switched off with fmi2SetDebugLogging */
     SimData data;
+#ifdef FW_MODEL_EXCHANGE
+    int model_exchange;  /* instantiated as fmi2ModelExchange */
+    int continuous_time; /* in continuous-time mode (else event mode), after initialisation */
+    int projection_due;  /* a completed integrator step left states for the event to project */
+#endif
 } Instance;
+
+#ifdef FW_MODEL_EXCHANGE
+static fmi2Status me_get_real(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                              fmi2Real value[]);
+#endif
 
 /* Serialised FMU state: this header, the SimData bytes, and the SHA-256 of both as 64 hex
  * digits (STATE_DIGEST). Valid only for the binary that wrote it (same GUID, same layout). */
@@ -108,11 +123,21 @@ static const char *phase_name(int phase) {
     }
 }
 
+/* The phase in words, as the instance's interface names it (model exchange: event mode or
+ * continuous-time mode instead of step complete). */
+static const char *phase_label(const Instance *inst) {
+#ifdef FW_MODEL_EXCHANGE
+    if (inst->model_exchange && inst->data.phase == FW_STEP_COMPLETE) {
+        return inst->continuous_time ? "continuous-time mode" : "event mode";
+    }
+#endif
+    return phase_name(inst->data.phase);
+}
+
 /* Refuse a call outside its phases. Does not change the phase (a misuse is not a model error). */
 static int allowed(Instance *inst, const char *call, unsigned mask) {
     if (mask & IN(inst->data.phase)) return 1;
-    log_message(inst, fmi2Error, "%s is not allowed in phase \"%s\".", call,
-                phase_name(inst->data.phase));
+    log_message(inst, fmi2Error, "%s is not allowed in phase \"%s\".", call, phase_label(inst));
     return 0;
 }
 
@@ -194,10 +219,13 @@ static int settable(Instance *inst, const char *call, const FwVariable *v) {
     } else if (phase == FW_STEP_COMPLETE) {
         ok = v->causality == FW_INPUT ||
              (v->causality == FW_PARAMETER && v->variability == FW_TUNABLE);
+#ifdef FW_MODEL_EXCHANGE
+        if (inst->model_exchange && inst->continuous_time) ok = v->causality == FW_INPUT;
+#endif
     }
     if (!ok) {
         log_message(inst, fmi2Error, "%s: variable \"%s\" cannot be set in phase \"%s\"%s.", call,
-                    v->name, phase_name(phase),
+                    v->name, phase_label(inst),
                     phase == FW_STEP_COMPLETE ? " (only inputs and tunable parameters can)" : "");
     }
     return ok;
@@ -253,11 +281,20 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     probe.name = (char *)name;
     probe.callbacks = *functions;
     probe.logging = 1;
+#ifdef FW_MODEL_EXCHANGE
+    probe.model_exchange = fmuType == fmi2ModelExchange;
+    if (fmuType != fmi2CoSimulation && fmuType != fmi2ModelExchange) {
+        log_message(&probe, fmi2Error, "fmi2Instantiate: %s supports model exchange and "
+                    "co-simulation only.", MODEL_IDENTIFIER_STRING);
+        return NULL;
+    }
+#else
     if (fmuType != fmi2CoSimulation) {
         log_message(&probe, fmi2Error, "fmi2Instantiate: %s supports co-simulation only.",
                     MODEL_IDENTIFIER_STRING);
         return NULL;
     }
+#endif
     if (!fmuGUID || strcmp(fmuGUID, MODEL_GUID) != 0) {
         log_message(&probe, fmi2Error,
                     "fmi2Instantiate: GUID \"%s\" does not match the binary's \"%s\"; the "
@@ -324,8 +361,12 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
     }
     if (check_parameters(inst, "fmi2ExitInitializationMode") != fmi2OK) return fmi2Error;
     model_initialize(&inst->data);
-    inst->data.phase = FW_STEP_COMPLETE;
+    inst->data.phase = FW_STEP_COMPLETE; /* model exchange: event mode */
     inst->data.outputs_valid = 0;
+#ifdef FW_MODEL_EXCHANGE
+    inst->continuous_time = 0;
+    inst->projection_due = 0;
+#endif
     return fmi2OK;
 }
 
@@ -429,6 +470,11 @@ static fmi2Status write_string(Instance *inst, const FwVariable *v, size_t i, co
 
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                        fmi2Real value[]) {
+#ifdef FW_MODEL_EXCHANGE
+    for (size_t i = 0; i < nvr; i++) { /* states and derivatives: past the table */
+        if (vr[i] >= N_VALUE_REFERENCES) return me_get_real(c, vr, nvr, value);
+    }
+#endif
     return get_values(c, "fmi2GetReal", vr, nvr, FW_REAL, value, read_real);
 }
 
@@ -682,6 +728,13 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
     const double h = communicationStepSize;
     (void)noSetFMUStatePriorToCurrentPoint;
     if (!inst || !allowed(inst, call, IN(FW_STEP_COMPLETE))) return fmi2Error;
+#ifdef FW_MODEL_EXCHANGE
+    if (inst->model_exchange) {
+        return refuse(inst, call, "the instance was made for model exchange: the master's "
+                      "integrator advances it (fmi2SetTime, fmi2SetContinuousStates, "
+                      "fmi2GetDerivatives).");
+    }
+#endif
     d = &inst->data;
 
     if (!(h > 0.0) || !isfinite(h)) {
@@ -753,3 +806,7 @@ fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2Stri
     (void)s, (void)value;
     return unsupported(c, "fmi2GetStringStatus");
 }
+
+#ifdef FW_MODEL_EXCHANGE
+#include "me/fmi2_model_exchange.c"
+#endif

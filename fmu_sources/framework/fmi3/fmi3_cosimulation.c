@@ -7,7 +7,9 @@
  * one model step the same numbers. Types: Float64 is the table's Real, Int32 its Integer,
  * Boolean and String as in FMI 2.0; the other FMI 3.0 types, clocks, event mode, model
  * exchange and scheduled execution are refused with a message (modelDescription.xml declares
- * none of them).
+ * none of them). Built with FW_MODEL_EXCHANGE, the FMI 3.0 model-exchange functions of
+ * me/fmi3_model_exchange.c (a shell over the FMI 2.0 ones of me/fmi2_model_exchange.c) replace
+ * the refusals of model exchange and event mode at the end of this file.
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -41,14 +43,20 @@ static fmi3Status status3(fmi2Status status) {
     return status == fmi2Pending ? fmi3Error : (fmi3Status)status;
 }
 
+#ifdef FW_MODEL_EXCHANGE
+#define FW_FMI3_INTERFACE "model exchange"
+#else
+#define FW_FMI3_INTERFACE "co-simulation"
+#endif
+
 /* Log a call this FMU does not support and refuse it. */
 static fmi3Status unsupported(fmi3Instance instance, const char *call) {
     const Shell *shell = (const Shell *)instance;
     if (shell && shell->log && shell->logging) {
         char message[256];
-        snprintf(message, sizeof message, "%s is not supported by %s (FMI 3.0 co-simulation "
+        snprintf(message, sizeof message, "%s is not supported by %s (FMI 3.0 %s "
                  "with Float64, Int32, Boolean and String variables only).", call,
-                 MODEL_IDENTIFIER_STRING);
+                 MODEL_IDENTIFIER_STRING, FW_FMI3_INTERFACE);
         shell->log(shell->environment, fmi3Error, "logStatusError", message);
     }
     return fmi3Error;
@@ -346,11 +354,9 @@ fmi3Status fmi3GetAdjointDerivative(fmi3Instance instance, const fmi3ValueRefere
 
 #define INSTANCE_ONLY(call) \
     fmi3Status call(fmi3Instance instance) { return unsupported(instance, #call); }
-INSTANCE_ONLY(fmi3EnterEventMode)
 INSTANCE_ONLY(fmi3EnterConfigurationMode)
 INSTANCE_ONLY(fmi3ExitConfigurationMode)
 INSTANCE_ONLY(fmi3EvaluateDiscreteStates)
-INSTANCE_ONLY(fmi3EnterContinuousTimeMode)
 INSTANCE_ONLY(fmi3EnterStepMode)
 
 #define CLOCK_DECIMAL(call, constness)                                                 \
@@ -381,14 +387,6 @@ fmi3Status fmi3GetIntervalFraction(fmi3Instance instance, const fmi3ValueReferen
                                    fmi3IntervalQualifier qualifiers[]) {
     return unsupported(instance, "fmi3GetIntervalFraction");
 }
-fmi3Status fmi3UpdateDiscreteStates(fmi3Instance instance, fmi3Boolean *discreteStatesNeedUpdate,
-                                    fmi3Boolean *terminateSimulation,
-                                    fmi3Boolean *nominalsOfContinuousStatesChanged,
-                                    fmi3Boolean *valuesOfContinuousStatesChanged,
-                                    fmi3Boolean *nextEventTimeDefined,
-                                    fmi3Float64 *nextEventTime) {
-    return unsupported(instance, "fmi3UpdateDiscreteStates");
-}
 fmi3Status fmi3GetOutputDerivatives(fmi3Instance instance, const fmi3ValueReference vr[],
                                     size_t nvr, const fmi3Int32 orders[], fmi3Float64 values[],
                                     size_t nValues) {
@@ -399,19 +397,33 @@ fmi3Status fmi3ActivateModelPartition(fmi3Instance instance, fmi3ValueReference 
     return unsupported(instance, "fmi3ActivateModelPartition");
 }
 
-/* Model exchange (not declared). */
-fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String instantiationToken,
-                                          fmi3String resourcePath, fmi3Boolean visible,
-                                          fmi3Boolean loggingOn,
-                                          fmi3InstanceEnvironment instanceEnvironment,
-                                          fmi3LogMessageCallback logMessage) {
-    return NULL;
-}
 fmi3Instance fmi3InstantiateScheduledExecution(
     fmi3String instanceName, fmi3String instantiationToken, fmi3String resourcePath,
     fmi3Boolean visible, fmi3Boolean loggingOn, fmi3InstanceEnvironment instanceEnvironment,
     fmi3LogMessageCallback logMessage, fmi3ClockUpdateCallback clockUpdate,
     fmi3LockPreemptionCallback lockPreemption, fmi3UnlockPreemptionCallback unlockPreemption) {
+    return NULL;
+}
+
+#ifdef FW_MODEL_EXCHANGE
+#include "me/fmi3_model_exchange.c"
+#else
+/* Model exchange and event mode (not declared). */
+INSTANCE_ONLY(fmi3EnterEventMode)
+INSTANCE_ONLY(fmi3EnterContinuousTimeMode)
+fmi3Status fmi3UpdateDiscreteStates(fmi3Instance instance, fmi3Boolean *discreteStatesNeedUpdate,
+                                    fmi3Boolean *terminateSimulation,
+                                    fmi3Boolean *nominalsOfContinuousStatesChanged,
+                                    fmi3Boolean *valuesOfContinuousStatesChanged,
+                                    fmi3Boolean *nextEventTimeDefined,
+                                    fmi3Float64 *nextEventTime) {
+    return unsupported(instance, "fmi3UpdateDiscreteStates");
+}
+fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String instantiationToken,
+                                          fmi3String resourcePath, fmi3Boolean visible,
+                                          fmi3Boolean loggingOn,
+                                          fmi3InstanceEnvironment instanceEnvironment,
+                                          fmi3LogMessageCallback logMessage) {
     return NULL;
 }
 fmi3Status fmi3CompletedIntegratorStep(fmi3Instance instance,
@@ -440,3 +452,4 @@ fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance instance, size_t *n) {
 fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance instance, size_t *n) {
     return unsupported(instance, "fmi3GetNumberOfContinuousStates");
 }
+#endif /* FW_MODEL_EXCHANGE */
