@@ -284,7 +284,7 @@ def test_a_greybox_trained_through_model_exchange_equals_the_co_simulation_one(
     plan_cs = models[FMI2_CS].chain.plan().arrays[0]
     for kind in ME_KINDS:
         np.testing.assert_array_equal(models[kind].chain.plan().arrays[0], plan_cs)
-        facts = models[kind].training["whitebox"]
+        facts = models[kind].training.whitebox
         assert facts["kind"] == kind.label
         assert facts["integrator"] | {"summary": ""} == {
             "method": "cvode",
@@ -293,7 +293,7 @@ def test_a_greybox_trained_through_model_exchange_equals_the_co_simulation_one(
             "max_steps": 20_000,
             "summary": "",
         }
-    assert models[FMI2_CS].training["whitebox"] == {
+    assert models[FMI2_CS].training.whitebox == {
         "kind": "FMI 2.0 co-simulation",
         "stepped_by": "the FMU's own solver (co-simulation)",
     }
