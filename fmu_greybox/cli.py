@@ -207,22 +207,34 @@ def fmu() -> None:
     show_default=True,
     help="FMI version of the co-simulation FMUs (3: the framework with its FMI 3.0 shell).",
 )
+@click.option(
+    "--platform",
+    "platform_name",
+    type=click.Choice(["host", "win64"]),
+    default="host",
+    show_default=True,
+    help="Platform of the binaries (win64: cross-compiled with mingw-w64, FMI 2.0 only).",
+)
 @click.pass_context
-def fmu_build_cmd(ctx: click.Context, out_dir: Path, fmi_version: str) -> None:
+def fmu_build_cmd(ctx: click.Context, out_dir: Path, fmi_version: str, platform_name: str) -> None:
     """Compile the reference actuator FMUs from fmu_sources/.
 
     \b
     Examples:
       fmu-greybox fmu build --out fmus/
       fmu-greybox fmu build --fmi 3 --out fmus3/
+      fmu-greybox fmu build --platform win64 --out fmus_win64/
     """
     from fmu_greybox.fmi.build import build_reference_fmus
     from fmu_greybox.fmi.kinds import FMI2_CS, FMI3_CS
+    from fmu_greybox.fmi.platforms import platform_named
 
     out_dir.mkdir(parents=True, exist_ok=True)
     kind = FMI3_CS if fmi_version == "3" else FMI2_CS
-    for name, path in build_reference_fmus(out_dir, kind).items():
-        _info(ctx, f"built {name}: {path} ({kind.label})")
+    target = platform_named(platform_name)
+    label = kind.label if platform_name == "host" else f"{kind.label}, {target.folder}"
+    for name, path in build_reference_fmus(out_dir, kind, target).items():
+        _info(ctx, f"built {name}: {path} ({label})")
 
 
 @main.command()
