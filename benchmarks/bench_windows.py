@@ -10,7 +10,9 @@ runtime, which then carries ``binaries/linux64`` and ``binaries/win64``. Both ma
 refused (twice the trained step, a jump in time, every input 1e30).
 
 Printed: per output, the largest difference between the two runs relative to the signal's range
-over the linux64 run; the worst of these; both step times; both sets of refusal statuses.
+over the linux64 run; the worst of these; both step times; both sets of refusal statuses; and
+the cost of a white-box with a win64 binary only, stepped through fmpy's remoting over Wine,
+beside its linux64 build (start-up and wall time per step).
 
 Usage: ``.venv/bin/python benchmarks/bench_windows.py [--rows N]`` (needs ``wine64`` and
 ``gcc-mingw-w64-x86-64``).
@@ -21,6 +23,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import tempfile
+import time
 import zipfile
 from pathlib import Path
 
@@ -31,6 +34,7 @@ from fmpy import read_model_description
 from fmu_greybox.export.fmu import export_greybox
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import model_fmus, reference_project
+from fmu_greybox.fmi.instance import fmu_instance
 from fmu_greybox.fmi.platforms import WIN64
 from fmu_greybox.model.store import save_model
 from fmu_greybox.project.config import load_config
@@ -102,6 +106,27 @@ def relative_differences(runs: dict[str, c_master.MasterRun], names: list[str]) 
     return result
 
 
+def whitebox_step_times(rows: np.ndarray) -> dict[str, tuple[float, float]]:
+    """Wall time to start an instance [s] and per step [us] of the reference white-box, its
+    linux64 build stepped by fmpy and its win64 build through fmpy's remoting over Wine."""
+    builds = {
+        "linux64": model_fmus("HydraulicActuator")["HydraulicActuator"],
+        "win64 through Wine": model_fmus("HydraulicActuator", target=WIN64)["HydraulicActuator"],
+    }
+    outputs = ["spool_position", "ram_position", "itfv_pressure"]
+    times = {}
+    for label, fmu in builds.items():
+        with open_fmu(fmu) as archive:
+            started = time.perf_counter()
+            with fmu_instance(archive, INPUTS, outputs) as instance:
+                ready = time.perf_counter()
+                for u in rows:
+                    instance.step(u, 1e-3)
+                done = time.perf_counter()
+        times[label] = (ready - started, 1e6 * (done - ready) / len(rows))
+    return times
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--rows", type=int, default=2000, help="steps of 1 ms")
@@ -123,6 +148,9 @@ def main() -> None:
     for label, run in runs.items():
         refusals = ", ".join(f"{k} {v}" for k, v in run.refusals.items())
         print(f"{label}: {run.cpu_us:.1f} us CPU per step; refusal statuses: {refusals}")
+    print("the white-box alone, stepped from Python (wall time):")
+    for label, (start, step) in whitebox_step_times(rows).items():
+        print(f"  {label}: {start:.2f} s to start, {step:.0f} us per step")
 
 
 if __name__ == "__main__":

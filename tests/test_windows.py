@@ -1,13 +1,14 @@
 """Windows white-boxes and benches, on this Linux machine (``fmu_greybox/fmi/wine.py``).
 
 The reference actuator cross-compiled for win64 with mingw-w64 (``fmu build --platform
-win64``) is opened, stepped through fmpy's remoting over Wine, diagnosed and trained on, and
-compared with the linux64 build of the same sources. Both compilers are gcc with the same
-options (``-O2 -ffp-contract=off``, no fast math), so the arithmetic is the same but for the C
-library's functions (glibc's and msvcrt's); the outputs are compared to 1e-12 of each
-signal's scale (:func:`test_fmu_kinds.assert_close`: a last-bit difference in a library
-function, carried over a few hundred implicit integrator steps, stays far below that) and are
-in practice equal to the last bit.
+win64``) is opened, stepped through fmpy's remoting over Wine and trained on, and compared with
+the linux64 build of the same sources. Both compilers are gcc with the same options (``-O2
+-ffp-contract=off``, no fast math), so the arithmetic is the same but for the C library's
+functions (glibc's and msvcrt's); the outputs are compared to 1e-12 of each signal's scale
+(:func:`test_fmu_kinds.assert_close`: a last-bit difference in a library function, carried
+over a few hundred implicit integrator steps, stays far below that) and are in practice equal
+to the last bit. The diagnosis is not run through Wine: every step is a round trip to the
+server, and a diagnosis of a 1 s recording did not finish in 20 minutes (docs/config.md).
 
 Wine (Debian's ``wine64``) and mingw-w64 (``gcc-mingw-w64-x86-64``) are installed by
 ``scripts/test.sh``; without them the tests skip, except in CI (``CI`` set), where they fail.
@@ -28,7 +29,6 @@ from click.testing import CliRunner
 from test_fmu_kinds import INPUTS, OUTPUTS, assert_close, input_rows, recording, stepped
 
 from fmu_greybox.cli import main
-from fmu_greybox.diagnosis import Diagnosis
 from fmu_greybox.errors import FmuArchiveError, FmuBuildError
 from fmu_greybox.fmi import wine
 from fmu_greybox.fmi.archive import open_fmu
@@ -142,25 +142,6 @@ def test_the_c_runner_refuses_a_win64_whitebox(win64_whitebox) -> None:
 
 
 # ------------------------------------------------------------------------ diagnosis and training
-def test_the_diagnosis_names_concealed_friction_through_win64_as_through_linux64(
-    whitebox_fmu, truth_fmu, win64_whitebox
-) -> None:
-    bench = recording(whitebox_fmu, truth_fmu, {"coulomb_friction": 700.0}, seed=23, duration=2)
-    project = load_config(reference_project())
-    found = {}
-    for platform, path in (("linux64", whitebox_fmu), ("win64", win64_whitebox)):
-        config = dataclasses.replace(project, fmu=str(path))
-        found[platform] = Diagnosis(config, greybox=None).fit(bench).findings_
-    assert [(f.effect, f.stage) for f in found["win64"]] == [("coulomb_friction", "RAM")]
-    for win, linux in zip(found["win64"], found["linux64"], strict=True):
-        assert (win.effect, win.summary, win.magnitude) == (
-            linux.effect,
-            linux.summary,
-            linux.magnitude,
-        )
-        assert win.explained_fraction == pytest.approx(linux.explained_fraction, rel=1e-12)
-
-
 def test_a_greybox_trained_through_win64_equals_the_linux64_one(
     whitebox_fmu, truth_fmu, win64_whitebox
 ) -> None:
