@@ -12,19 +12,26 @@
  * text file of rows of input values (whitespace-separated); OUTPUTS: written with the outputs
  * after each step, 17 significant digits. With REPEATS > 1 the run is repeated from
  * initialisation (fmi2Reset) and the least CPU time per step is printed. Prints
- * "steps N", "cpu_us_per_step X" and "python_in_process yes|no" (from /proc/self/maps).
+ * "steps N", "cpu_us_per_step X" and "python_in_process yes|no" (from /proc/self/maps), then
+ * the status of three steps a bench must see refused, each from a fresh initialisation with
+ * the first row: "refused_step_size S" (twice the step), "refused_time_jump S" (from 0.5 s
+ * while the FMU is at 0 s) and "refused_input S" (every input 1e30).
  * Exit status 1 when a call fails (the FMU's messages are on stderr).
  *
- * Build: gcc -O2 -std=c11 -I<fmi2 headers> c_master.c -o c_master -ldl
+ * It loads the FMU's binary for the platform it is compiled for (native/dynlib.h: dlopen, or
+ * LoadLibrary on Windows, where it runs under Wine in the tests).
+ *
+ * Build: gcc -O2 -std=c11 -I<fmi2 headers> -I<fmu_greybox/native> c_master.c -o c_master -ldl
+ *   or:  x86_64-w64-mingw32-gcc -O2 -std=c11 -static -I... c_master.c -o c_master.exe
  */
 #define _POSIX_C_SOURCE 200809L
-#include <dlfcn.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
 
+#include "dynlib.h"
 #include "fmi2Functions.h"
 
 typedef struct {
@@ -52,7 +59,7 @@ static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status sta
 }
 
 static void *symbol(void *library, const char *name) {
-    void *found = dlsym(library, name);
+    void *found = dynlib_symbol(library, name);
     if (found == NULL) {
         fprintf(stderr, "the FMU lacks %s\n", name);
         exit(1);
@@ -107,9 +114,24 @@ static int python_in_process(void) {
 }
 
 static double cpu_seconds(void) {
+#if defined(_WIN32)
+    FILETIME created, exited, kernel, user; /* 100 ns units */
+    GetProcessTimes(GetCurrentProcess(), &created, &exited, &kernel, &user);
+    return 1e-7 * (double)(((unsigned long long)user.dwHighDateTime << 32) | user.dwLowDateTime);
+#else
     struct timespec t;
     clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
     return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+#endif
+}
+
+/* Set up the experiment at 0 s and initialise with the inputs u. */
+static void initialise(const Api *api, fmi2Component c, const fmi2ValueReference *in_vr,
+                       size_t n_in, const double *u) {
+    check(api->setup(c, fmi2False, 0.0, 0.0, fmi2False, 0.0), "fmi2SetupExperiment");
+    check(api->set_real(c, in_vr, n_in, u), "fmi2SetReal");
+    check(api->enter(c), "fmi2EnterInitializationMode");
+    check(api->exit_init(c), "fmi2ExitInitializationMode");
 }
 
 /* Initialise with the first row, then step over the rows; the outputs into out. Returns the
@@ -118,10 +140,7 @@ static double run(const Api *api, fmi2Component c, double step, const fmi2ValueR
                   size_t n_in, const fmi2ValueReference *out_vr, size_t n_out, const double *u,
                   size_t rows, double *out) {
     double started;
-    check(api->setup(c, fmi2False, 0.0, 0.0, fmi2False, 0.0), "fmi2SetupExperiment");
-    check(api->set_real(c, in_vr, n_in, u), "fmi2SetReal");
-    check(api->enter(c), "fmi2EnterInitializationMode");
-    check(api->exit_init(c), "fmi2ExitInitializationMode");
+    initialise(api, c, in_vr, n_in, u);
     started = cpu_seconds();
     for (size_t k = 0; k < rows; k++) {
         check(api->set_real(c, in_vr, n_in, u + k * n_in), "fmi2SetReal");
@@ -129,6 +148,29 @@ static double run(const Api *api, fmi2Component c, double step, const fmi2ValueR
         check(api->get_real(c, out_vr, n_out, out + k * n_out), "fmi2GetReal");
     }
     return cpu_seconds() - started;
+}
+
+/* The status of one step (from time, of size h, inputs u) after a fresh initialisation with
+ * the first row u0; the FMU is reset after. */
+static int probe(const Api *api, fmi2Component c, const fmi2ValueReference *in_vr, size_t n_in,
+                 const double *u0, const double *u, double time, double h) {
+    int status;
+    initialise(api, c, in_vr, n_in, u0);
+    status = (int)api->set_real(c, in_vr, n_in, u);
+    if (status <= fmi2Warning) status = (int)api->do_step(c, time, h, fmi2True);
+    check(api->reset(c), "fmi2Reset");
+    return status;
+}
+
+/* Print the status of the three steps a bench must see refused (see the header). */
+static void print_refusals(const Api *api, fmi2Component c, double step,
+                           const fmi2ValueReference *in_vr, size_t n_in, const double *u) {
+    double *absurd = malloc((n_in + 1) * sizeof(double));
+    for (size_t i = 0; i < n_in; i++) absurd[i] = 1e30;
+    printf("refused_step_size %d\n", probe(api, c, in_vr, n_in, u, u, 0.0, 2.0 * step));
+    printf("refused_time_jump %d\n", probe(api, c, in_vr, n_in, u, u, 0.5, step));
+    printf("refused_input %d\n", probe(api, c, in_vr, n_in, u, absurd, 0.0, step));
+    free(absurd);
 }
 
 int main(int argc, char **argv) {
@@ -148,10 +190,12 @@ int main(int argc, char **argv) {
         return 2;
     }
     repeats = argc > 9 ? atoi(argv[9]) : 1;
-    snprintf(path, sizeof path, "%s/binaries/linux64/%s.so", argv[1], argv[2]);
-    library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    snprintf(path, sizeof path, "%s/binaries/" DYNLIB_PLATFORM "/%s" DYNLIB_EXTENSION, argv[1],
+             argv[2]);
+    library = dynlib_open(path);
     if (library == NULL) {
-        fprintf(stderr, "dlopen %s: %s\n", path, dlerror());
+        char reason[512];
+        fprintf(stderr, "loading %s: %s\n", path, dynlib_error(reason, sizeof reason));
         return 1;
     }
     api.instantiate = symbol(library, "fmi2Instantiate");
@@ -189,8 +233,9 @@ int main(int argc, char **argv) {
     if (file != NULL) fclose(file);
     printf("steps %zu\ncpu_us_per_step %.3f\npython_in_process %s\n", rows,
            1e6 * best / (double)rows, python_in_process() ? "yes" : "no");
+    print_refusals(&api, c, atof(argv[4]), in_vr, n_in, u);
     api.free_instance(c);
-    dlclose(library);
+    dynlib_close(library);
     free(u);
     free(out);
     return 0;

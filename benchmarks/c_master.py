@@ -6,6 +6,7 @@ Used by ``tests/test_native_fmu.py`` (equivalence; no Python in the process) and
 
 from __future__ import annotations
 
+import os
 import subprocess
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,16 +14,27 @@ from pathlib import Path
 import numpy as np
 from fmpy import extract, read_model_description
 
-from fmu_greybox.fmi.build import c_compiler, fmi2_headers
+from fmu_greybox.export.native import NATIVE_DIR
+from fmu_greybox.fmi.build import fmi2_headers
+from fmu_greybox.fmi.platforms import BinaryPlatform, compiler_of, host_platform
+from fmu_greybox.fmi.wine import wine_program
 
 SOURCE = Path(__file__).resolve().parent / "c_master.c"
+#: The statuses of the refused steps the master reports (see ``c_master.c``).
+REFUSALS = ("refused_step_size", "refused_time_jump", "refused_input")
 
 
-def build(folder: Path) -> Path:
-    """Compile the master into ``folder``; returns the program."""
-    program = folder / "c_master"
-    command = [c_compiler(), "-O2", "-std=c11", f"-I{fmi2_headers()}", str(SOURCE)]
-    subprocess.run([*command, "-o", str(program), "-ldl"], check=True, capture_output=True)
+def build(folder: Path, target: BinaryPlatform | None = None) -> Path:
+    """Compile the master into ``folder`` for ``target`` (this machine when ``None``; win64:
+    a static ``c_master.exe``, run under Wine by :func:`run`); returns the program."""
+    target = target or host_platform()
+    program = folder / ("c_master.exe" if target.windows else "c_master")
+    command = [compiler_of(target), "-O2", "-std=c11", f"-I{fmi2_headers()}", f"-I{NATIVE_DIR}"]
+    command += ["-static"] if target.windows else []
+    libraries = [] if target.windows else ["-ldl"]
+    subprocess.run(
+        [*command, str(SOURCE), "-o", str(program), *libraries], check=True, capture_output=True
+    )
     return program
 
 
@@ -39,11 +51,14 @@ class MasterRun:
         least over the repeats.
     python_in_process : bool
         Whether ``/proc/self/maps`` of the master named anything Python.
+    refusals : dict of str to int
+        The fmi2Status of each refused step of :data:`REFUSALS`.
     """
 
     outputs: np.ndarray
     cpu_us: float
     python_in_process: bool
+    refusals: dict[str, int]
 
 
 def run(
@@ -55,7 +70,8 @@ def run(
     folder: Path,
     repeats: int = 1,
 ) -> MasterRun:
-    """Step an FMU over input rows (row k acts over step k) in the C master.
+    """Step an FMU over input rows (row k acts over step k) in the C master (a Windows master,
+    ``c_master.exe``, under Wine).
 
     Raises
     ------
@@ -66,8 +82,14 @@ def run(
     refs = {v.name: v.valueReference for v in description.modelVariables}
     unpacked = extract(str(fmu), str(folder / "fmu"))
     np.savetxt(folder / "inputs.txt", rows, fmt="%.17g")
+    windows = program.suffix == ".exe"
+    env = {"PATH": "/usr/bin:/bin"}  # nothing of this Python's environment
+    if windows:  # Wine finds its prefix from HOME (or WINEPREFIX)
+        env.update({k: v for k, v in os.environ.items() if k in ("HOME", "WINEPREFIX")})
+        env["WINEDEBUG"] = "-all"
     done = subprocess.run(
         [
+            *([wine_program()] if windows else []),
             str(program),
             unpacked,
             description.coSimulation.modelIdentifier,
@@ -82,7 +104,7 @@ def run(
         capture_output=True,
         text=True,
         check=False,
-        env={"PATH": "/usr/bin:/bin"},  # nothing of this Python's environment
+        env=env,
     )
     if done.returncode != 0:
         raise RuntimeError(f"the C master failed on {fmu.name}: {done.stderr}")
@@ -91,4 +113,5 @@ def run(
         outputs=np.loadtxt(folder / "outputs.txt", ndmin=2),
         cpu_us=float(report["cpu_us_per_step"]),
         python_in_process=report["python_in_process"] == "yes",
+        refusals={name: int(report[name]) for name in REFUSALS},
     )

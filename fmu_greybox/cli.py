@@ -216,8 +216,18 @@ def fmu() -> None:
     "exchange (the FMU gives its states' derivatives; fmu-greybox integrates them with CVode "
     "at the project's step).",
 )
+@click.option(
+    "--platform",
+    "platform_name",
+    type=click.Choice(["host", "win64"]),
+    default="host",
+    show_default=True,
+    help="Platform of the binaries (win64: cross-compiled with mingw-w64, FMI 2.0 only).",
+)
 @click.pass_context
-def fmu_build_cmd(ctx: click.Context, out_dir: Path, fmi_version: str, interface: str) -> None:
+def fmu_build_cmd(
+    ctx: click.Context, out_dir: Path, fmi_version: str, interface: str, platform_name: str
+) -> None:
     """Compile the reference actuator FMUs from fmu_sources/.
 
     \b
@@ -226,14 +236,18 @@ def fmu_build_cmd(ctx: click.Context, out_dir: Path, fmi_version: str, interface
       fmu-greybox fmu build --fmi 3 --out fmus3/
       fmu-greybox fmu build --interface me --out fmus_me/
       fmu-greybox fmu build --fmi 3 --interface me --out fmus3_me/
+      fmu-greybox fmu build --platform win64 --out fmus_win64/
     """
     from fmu_greybox.fmi.build import build_reference_fmus
     from fmu_greybox.fmi.kinds import CO_SIMULATION, MODEL_EXCHANGE, FmuKind
+    from fmu_greybox.fmi.platforms import platform_named
 
     out_dir.mkdir(parents=True, exist_ok=True)
     kind = FmuKind(f"{fmi_version}.0", MODEL_EXCHANGE if interface == "me" else CO_SIMULATION)
-    for name, path in build_reference_fmus(out_dir, kind).items():
-        _info(ctx, f"built {name}: {path} ({kind.label})")
+    target = platform_named(platform_name)
+    label = kind.label if platform_name == "host" else f"{kind.label}, {target.folder}"
+    for name, path in build_reference_fmus(out_dir, kind, target).items():
+        _info(ctx, f"built {name}: {path} ({label})")
 
 
 @main.command()

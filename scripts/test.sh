@@ -25,6 +25,10 @@ install_missing() {
 install_missing chromium "the report rendering test" chromium
 # the fuzz targets' short runs (tests/test_fuzz.py) need clang with libFuzzer and the sanitizers
 install_missing clang "the fuzz tests" clang libclang-rt-dev
+# the Windows tests (tests/test_windows.py) cross-compile FMUs and a master for win64 and run them
+# under Wine (Debian's wine64 puts the program in /usr/lib/wine, off the PATH)
+install_missing x86_64-w64-mingw32-gcc "the Windows tests" gcc-mingw-w64-x86-64
+install_missing /usr/lib/wine/wine64 "the Windows tests" wine64
 # the package as a user installs it: wheel, fresh venv, a short run away from the checkout
 bash scripts/wheel_check.sh
 status=0

@@ -4,6 +4,8 @@ Layout of the FMU::
 
     modelDescription.xml
     binaries/<platform>/<identifier>.so   compiled here from sources/ (gcc, buildDescription.xml)
+    binaries/win64/<identifier>.dll       when the white-box has a win64 binary: the same
+                                          sources cross-compiled with mingw-w64
     sources/                              the C sources, the FMI 2.0 headers, greybox_config.h
                                           and buildDescription.xml: a bench rebuilds from them
     resources/greybox.dat                 the trained numbers (native_data.py), checked against
@@ -40,6 +42,7 @@ from fmu_greybox.export.slave import MODEL_FOLDER, STEP_RTOL
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.fmi.build import c_compiler, fmi2_headers, fmi2_platform
 from fmu_greybox.fmi.kinds import require_native
+from fmu_greybox.fmi.platforms import WIN64, BinaryPlatform, compiler_of
 from fmu_greybox.model.native_data import data_file_bytes
 from fmu_greybox.model.native_terms import kind_code, kind_defines
 from fmu_greybox.model.native_whitebox import whitebox_sections
@@ -55,6 +58,7 @@ SOURCES = (
     "greybox_fmu.c",
     "whitebox.c",
     "whitebox.h",
+    "dynlib.h",
     "terms.c",
     "terms.h",
     "chain_core.c",
@@ -69,6 +73,9 @@ FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 #: is compiled with too, so that both runtimes step the chain with the same machine code).
 EXTRA_CFLAGS = ("-fPIC", "-fvisibility=hidden", "-Wall", "-Wextra")
 LIBRARIES = ("m", "dl")
+#: Options and libraries a Windows DLL does without (position-independent code is the rule
+#: there; ``native/dynlib.h`` loads the white-box with kernel32, which is always linked).
+POSIX_ONLY = ("-fPIC", "dl")
 DATA_FILE = "greybox.dat"
 CONFIG_HEADER = "greybox_config.h"
 BUILD_DESCRIPTION = "buildDescription.xml"
@@ -114,6 +121,8 @@ def package_native(plan: ExportPlan, archive: FmuArchive, out: Path) -> None:
         write_sources(sources, identifier, plan.guid, file_sha256(resources / DATA_FILE))
         folder, extension = fmi2_platform()
         compile_sources(sources, root / "binaries" / folder / f"{identifier}{extension}")
+        if folder != WIN64.folder and has_win64_binary(archive):
+            add_win64_binary(sources, root / "binaries" / WIN64.folder / f"{identifier}.dll")
         (root / "modelDescription.xml").write_bytes(model_description(plan))
         staged = Path(tmp) / "staged.fmu"
         _zip_folder(root, staged)
@@ -206,8 +215,16 @@ def build_description(identifier: str) -> bytes:
     return etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
 
 
-def compile_sources(sources: Path, library: Path) -> None:
+def compile_sources(sources: Path, library: Path, target: BinaryPlatform | None = None) -> None:
     """Compile a ``sources/`` folder into the shared library, as its build description says.
+
+    Parameters
+    ----------
+    sources : Path
+    library : Path
+    target : BinaryPlatform or None
+        This machine when ``None``; for a Windows target the POSIX-only options and libraries
+        (:data:`POSIX_ONLY`) are left out and the target's own flags added.
 
     Raises
     ------
@@ -217,11 +234,15 @@ def compile_sources(sources: Path, library: Path) -> None:
     root = etree.parse(str(sources / BUILD_DESCRIPTION)).getroot()
     configuration = root.find("BuildConfiguration")
     files = configuration.find("SourceFileSet")
-    command = [_compiler(), *files.get("compilerOptions").split(), "-shared"]
+    windows = target is not None and target.windows
+    options = [o for o in files.get("compilerOptions").split() if not (windows and o in POSIX_ONLY)]
+    libraries = [lib.get("name") for lib in configuration.findall("Library")]
+    libraries = [lib for lib in libraries if not (windows and lib in POSIX_ONLY)]
+    command = [_compiler(target), *options, "-shared", *(target.flags if windows else ())]
     command += [f"-I{sources / d.get('name')}" for d in files.findall("IncludeDirectory")]
     command += [str(sources / f.get("name")) for f in files.findall("SourceFile")]
     command += ["-o", str(library)]
-    command += [f"-l{lib.get('name')}" for lib in configuration.findall("Library")]
+    command += [f"-l{lib}" for lib in libraries]
     library.parent.mkdir(parents=True, exist_ok=True)
     done = subprocess.run(command, capture_output=True, text=True, check=False)
     output = (done.stdout + done.stderr).strip()
@@ -234,11 +255,36 @@ def compile_sources(sources: Path, library: Path) -> None:
         warnings.warn(f"compiler messages for the native grey-box:\n{output}", stacklevel=2)
 
 
-def _compiler() -> str:
+def _compiler(target: BinaryPlatform | None = None) -> str:
     try:
-        return c_compiler()
+        return compiler_of(target) if target is not None else c_compiler()
     except FmuBuildError as exc:
         raise ExportError(f"{exc} (or export with --runtime python)") from exc
+
+
+def has_win64_binary(archive: FmuArchive) -> bool:
+    """Whether the white-box FMU carries a win64 binary (``binaries/win64/<identifier>.dll``)."""
+    folder = archive.unzip_dir / "binaries" / WIN64.folder
+    return (folder / f"{archive.model_identifier}.dll").is_file()
+
+
+def add_win64_binary(sources: Path, library: Path) -> None:
+    """Cross-compile ``sources/`` for win64 with mingw-w64 into ``library``; without mingw-w64
+    warn (naming its package) and leave the FMU for linux64 only.
+
+    Raises
+    ------
+    ExportError
+        mingw-w64 fails on the sources (its output is quoted).
+    """
+    try:
+        compiler_of(WIN64)
+    except FmuBuildError as exc:
+        warnings.warn(
+            f"the white-box has a win64 binary but the grey-box gets none: {exc}", stacklevel=2
+        )
+        return
+    compile_sources(sources, library, WIN64)
 
 
 # ---------------------------------------------------------------------------- description

@@ -5,7 +5,7 @@ byte is written to disk the archive is checked for paths escaping the extraction
 absolute paths, links, encryption, compression methods FMI does not allow, absurd declared sizes
 (per member, in total, and as a compression ratio) and a missing ``modelDescription.xml``; then
 the model must be of a kind fmu-greybox runs (:mod:`fmu_greybox.fmi.kinds`) with a binary for
-this platform.
+this platform, or a win64 binary that runs here through Wine (:mod:`fmu_greybox.fmi.wine`).
 """
 
 from __future__ import annotations
@@ -19,10 +19,12 @@ import zlib
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
+from fmpy import platform as fmi2
 from fmpy import read_model_description
 
 from fmu_greybox.errors import FmuArchiveError
 from fmu_greybox.fmi.kinds import FmuKind, binary_path, fmu_kind, interface
+from fmu_greybox.fmi.wine import add_wine_remoting, runs_through_wine
 from fmu_greybox.suggest import did_you_mean
 
 #: Largest total uncompressed size accepted [bytes].
@@ -192,8 +194,10 @@ def open_fmu(path: str | Path) -> FmuArchive:
     FmuArchiveError
         If the file is missing, not a zip archive, hostile (a path escaping the folder, a link,
         an absurd declared size or compression ratio), encrypted or compressed in a way FMI does
-        not allow, damaged, of a kind not accepted, lacks a binary for this platform, or is
-        a pythonfmu FMU without the slave module its binary loads.
+        not allow, damaged, of a kind not accepted, lacks a binary for this platform (an FMI
+        2.0 co-simulation FMU with a win64 binary only runs through Wine, when Wine is
+        installed: :mod:`fmu_greybox.fmi.wine`), or is a pythonfmu FMU without the slave module
+        its binary loads.
     """
     path = Path(path)
     if path.is_dir():
@@ -210,6 +214,8 @@ def open_fmu(path: str | Path) -> FmuArchive:
         _extract_checked(path, unzip_dir)
         description = _read_description(path, unzip_dir)
         kind = fmu_kind(path, description)
+        if runs_through_wine(unzip_dir, description.coSimulation.modelIdentifier, kind, fmi2):
+            kind = add_wine_remoting(path, unzip_dir)
         _check_binary(path, unzip_dir, description, kind)
         _check_python_runtime(path, unzip_dir, description)
     except BaseException:

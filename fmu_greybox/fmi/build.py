@@ -41,6 +41,7 @@ from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.errors import FmuBuildError
 from fmu_greybox.fmi.kinds import ACCEPTED, FMI2_CS, MODEL_EXCHANGE, FmuKind
+from fmu_greybox.fmi.platforms import BinaryPlatform, compiler_of, host_platform
 from fmu_greybox.resources import data_path
 from fmu_greybox.units import BASE_UNITS, PREFIXES, SYMBOLS, UnitSyntaxError, si_unit
 
@@ -1074,7 +1075,12 @@ def _framework_sources(kind: FmuKind) -> list[Path]:
 
 
 def _compile(
-    model_dir: Path, entry: ModelEntry, generated: Path, library: Path, kind: FmuKind
+    model_dir: Path,
+    entry: ModelEntry,
+    generated: Path,
+    library: Path,
+    kind: FmuKind,
+    target: BinaryPlatform,
 ) -> None:
     sources = [
         *_framework_sources(kind),
@@ -1082,9 +1088,7 @@ def _compile(
         *sorted(model_dir.glob("*.c")),
         generated / "fmu_variables.c",
     ]
-    command = [c_compiler(), *CFLAGS, "-shared"]
-    if not sys.platform.startswith("win"):
-        command.append("-fPIC")
+    command = [compiler_of(target), *CFLAGS, "-shared", *target.flags]
     for folder in (generated, model_dir, FRAMEWORK_DIR, SHA256_SOURCES[0].parent, fmi2_headers()):
         command += ["-I", str(folder)]
     command += [f"-D{define}" for define in entry.defines]
@@ -1120,7 +1124,11 @@ def _index_html(entry: ModelEntry, readme: str) -> bytes:
 
 
 def build_fmu(
-    model_dir: Path, out_dir: Path, identifier: str | None = None, kind: FmuKind = FMI2_CS
+    model_dir: Path,
+    out_dir: Path,
+    identifier: str | None = None,
+    kind: FmuKind = FMI2_CS,
+    target: BinaryPlatform | None = None,
 ) -> Path:
     """Build one co-simulation FMU from a model folder.
 
@@ -1140,6 +1148,10 @@ def build_fmu(
         :data:`~fmu_greybox.fmi.kinds.FMI3_ME` for model exchange (the framework's
         model-exchange functions, ``framework/me``: the model's states and derivatives, no
         integrator; the table must declare the states, ``[[state]]``).
+    target : BinaryPlatform or None
+        The platform of its binary: this machine's when ``None``, or
+        :data:`~fmu_greybox.fmi.platforms.WIN64` (FMI 2.0 only: cross-compiled with mingw-w64
+        into ``binaries/win64/<identifier>.dll``).
 
     Returns
     -------
@@ -1165,8 +1177,11 @@ def build_fmu(
             "list them as [[state]] rows in the order of config.h (see "
             "HydraulicActuator/variables.toml)"
         )
-    extension = fmi2_platform()[1]
-    folder = kind.binary_folder
+    target = target or host_platform()
+    if target.windows and kind != FMI2_CS:
+        raise FmuBuildError(f"the {target.folder} build makes FMI 2.0 FMUs, not {kind.label}")
+    extension = target.extension
+    folder = target.folder if target.windows else kind.binary_folder
     c_files = sorted(
         [
             *FRAMEWORK_DIR.glob("*.h"),
@@ -1189,7 +1204,7 @@ def build_fmu(
         (generated / "fmu_variables.h").write_text(header, encoding="utf-8")
         (generated / "fmu_variables.c").write_text(source, encoding="utf-8")
         library = generated / f"{entry.identifier}{extension}"
-        _compile(model_dir, entry, generated, library, kind)
+        _compile(model_dir, entry, generated, library, kind, target)
         target = out_dir / f"{entry.identifier}.fmu"
         with atomic_write(target, "wb") as stream, zipfile.ZipFile(stream, "w") as archive:
             _zip_write(archive, "modelDescription.xml", description)
@@ -1204,7 +1219,9 @@ def build_fmu(
     return target
 
 
-def build_reference_fmus(out_dir: Path, kind: FmuKind = FMI2_CS) -> dict[str, Path]:
+def build_reference_fmus(
+    out_dir: Path, kind: FmuKind = FMI2_CS, target: BinaryPlatform | None = None
+) -> dict[str, Path]:
     """Build the reference actuator FMUs (white-box and truth), in parallel.
 
     Parameters
@@ -1213,6 +1230,8 @@ def build_reference_fmus(out_dir: Path, kind: FmuKind = FMI2_CS) -> dict[str, Pa
         Where the FMUs are written.
     kind : FmuKind
         Their kind (see :func:`build_fmu`).
+    target : BinaryPlatform or None
+        Their binaries' platform (see :func:`build_fmu`).
 
     Returns
     -------
@@ -1224,10 +1243,12 @@ def build_reference_fmus(out_dir: Path, kind: FmuKind = FMI2_CS) -> dict[str, Pa
     FmuBuildError
         As :func:`build_fmu`.
     """
-    return build_model_pair(REFERENCE_MODEL_DIR, out_dir, kind)
+    return build_model_pair(REFERENCE_MODEL_DIR, out_dir, kind, target)
 
 
-def build_model_pair(model_dir: Path, out_dir: Path, kind: FmuKind = FMI2_CS) -> dict[str, Path]:
+def build_model_pair(
+    model_dir: Path, out_dir: Path, kind: FmuKind = FMI2_CS, target: BinaryPlatform | None = None
+) -> dict[str, Path]:
     """Build every model a folder's table declares (white-box and truth), in parallel.
 
     Parameters
@@ -1239,6 +1260,8 @@ def build_model_pair(model_dir: Path, out_dir: Path, kind: FmuKind = FMI2_CS) ->
         Where the FMUs are written.
     kind : FmuKind
         Their kind (see :func:`build_fmu`).
+    target : BinaryPlatform or None
+        Their binaries' platform (see :func:`build_fmu`).
 
     Returns
     -------
@@ -1253,5 +1276,5 @@ def build_model_pair(model_dir: Path, out_dir: Path, kind: FmuKind = FMI2_CS) ->
     table = load_variable_table(Path(model_dir) / "variables.toml")
     identifiers = [m.identifier for m in table.models]
     with ThreadPoolExecutor(max_workers=len(identifiers)) as pool:
-        paths = pool.map(lambda i: build_fmu(model_dir, out_dir, i, kind), identifiers)
+        paths = pool.map(lambda i: build_fmu(model_dir, out_dir, i, kind, target), identifiers)
         return dict(zip(identifiers, paths, strict=True))

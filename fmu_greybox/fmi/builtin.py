@@ -14,6 +14,7 @@ from pathlib import Path
 
 from fmu_greybox.errors import FmuArchiveError
 from fmu_greybox.fmi.kinds import FMI2_CS, MODEL_EXCHANGE, FmuKind
+from fmu_greybox.fmi.platforms import BinaryPlatform
 from fmu_greybox.resources import PREFIX, bench_config, sources_root
 
 #: The reference actuator's models (white-box, truth).
@@ -48,7 +49,8 @@ def sources_digest() -> str:
     digest = hashlib.sha256()
     root = sources_root()
     files = sorted(p for p in root.rglob("*") if p.is_file() and p.suffix != ".csv")
-    for path in [*files, *fmu_build.SHA256_SOURCES, Path(fmu_build.__file__)]:
+    builders = [Path(fmu_build.__file__), Path(fmu_build.__file__).with_name("platforms.py")]
+    for path in [*files, *fmu_build.SHA256_SOURCES, *builders]:
         digest.update(str(path.relative_to(path.parents[1])).encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()
@@ -65,7 +67,9 @@ def reference_fmus() -> dict[str, Path]:
     return model_fmus(BUILTIN_MODELS[REFERENCE_MODELS[0]])
 
 
-def model_fmus(model_folder: str, kind: FmuKind = FMI2_CS) -> dict[str, Path]:
+def model_fmus(
+    model_folder: str, kind: FmuKind = FMI2_CS, target: BinaryPlatform | None = None
+) -> dict[str, Path]:
     """Paths of the built-in FMUs of one model folder, building them once if needed.
 
     Parameters
@@ -76,6 +80,9 @@ def model_fmus(model_folder: str, kind: FmuKind = FMI2_CS) -> dict[str, Path]:
         Their kind; other kinds than FMI 2.0 co-simulation (the built-in names) are cached
         in a sub-folder named after the FMI version, e.g. ``fmi3.0/``, and the interface
         when model exchange, e.g. ``fmi2.0-me/``.
+    target : BinaryPlatform or None
+        The platform of their binaries, this machine's when ``None``; another is cached in a
+        sub-folder named after it, e.g. ``win64/``.
 
     Returns
     -------
@@ -86,11 +93,12 @@ def model_fmus(model_folder: str, kind: FmuKind = FMI2_CS) -> dict[str, Path]:
 
     me = "-me" if kind.interface == MODEL_EXCHANGE else ""
     folder = cache_dir() if kind == FMI2_CS else cache_dir() / f"fmi{kind.fmi_version}{me}"
+    folder = folder / target.folder if target is not None else folder
     names = [name for name, source in BUILTIN_MODELS.items() if source == model_folder]
     paths = {name: folder / f"{name}.fmu" for name in names}
     if not all(p.is_file() for p in paths.values()):
         folder.mkdir(parents=True, exist_ok=True)
-        paths = build_model_pair(sources_root() / model_folder, folder, kind)
+        paths = build_model_pair(sources_root() / model_folder, folder, kind, target)
     return paths
 
 

@@ -20,6 +20,7 @@ import threading
 import weakref
 from collections import deque
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -48,6 +49,14 @@ from fmu_greybox.fmi.integrator import (
     IntegratorError,
 )
 from fmu_greybox.fmi.kinds import FMI2_CS, FMI2_ME, FMI3_CS, FMI3_ME
+from fmu_greybox.fmi.wine import (
+    FMI2_WINE,
+    RemoteSlot,
+    keep_server_alive,
+    remove_lock_folder,
+    server_pid,
+    stop_server,
+)
 
 _STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
 _WARNING = 1
@@ -746,12 +755,89 @@ class Fmu3MeInstance(FmuMeInstance):
         self._flags = (fmi3Boolean(), fmi3Boolean())
 
 
+class WineInstance(FmuInstance):
+    """An instance of an FMI 2.0 co-simulation FMU whose win64 binary runs through fmpy's
+    remoting over Wine (:mod:`fmu_greybox.fmi.wine`): :class:`FmuInstance`, holding the one
+    place the remoting has for a running instance (:class:`~fmu_greybox.fmi.wine.RemoteSlot`)
+    from its creation to :meth:`close`.
+
+    Raises
+    ------
+    FmuArchiveError
+        If another such instance runs in this process.
+    """
+
+    def __init__(self, archive: FmuArchive, *args: object, **kwargs: object) -> None:
+        self._slot = RemoteSlot(archive.path)
+        self._lock_folder: Path | None = None
+        self._server: int | None = None
+        self._component = None
+        try:
+            super().__init__(archive, *args, **kwargs)
+        except BaseException:
+            self.close()
+            raise
+
+    def _instantiate(self) -> None:
+        """Instantiate, keeping the Wine server alive (:func:`~fmu_greybox.fmi.wine.
+        keep_server_alive`) when the client names its lock file in the log, and noting the
+        server's process when the client names it.
+
+        ``fmi2Instantiate`` is called holding the GIL: the client forks the server's process
+        and logs from the child, whose logger (Python) would wait forever for a GIL another
+        thread held at the fork.
+        """
+        self._log = _WineLog(self._log, self)
+        raw = self._slave.dll.fmi2Instantiate
+        address = ctypes.cast(raw, ctypes.c_void_p).value
+        self._slave.fmi2Instantiate = ctypes.PYFUNCTYPE(raw.restype, *raw.argtypes)(address)
+        super()._instantiate()
+
+    def heard(self, message: str) -> None:
+        """Act on a message of the remoting client (see :meth:`_instantiate`)."""
+        folder = keep_server_alive(message)
+        self._lock_folder = folder or self._lock_folder
+        pid = server_pid(message)
+        self._server = pid if pid is not None else self._server
+
+    def close(self) -> None:
+        """Terminate the instance, stop its Wine server (:func:`~fmu_greybox.fmi.wine.
+        stop_server`, in place of the client's ``fmi2FreeInstance``, so the client library
+        stays loaded: its RPC threads outlive the instance) and free its place (idempotent,
+        never raises)."""
+        if self._component is not None:
+            try:
+                self._slave.terminate()
+            except Exception:
+                pass
+            self._component = None
+        stop_server(self._server)
+        self._server = None
+        remove_lock_folder(self._lock_folder)
+        self._lock_folder = None
+        self._slot.release()
+
+
+class _WineLog(_LogBuffer):
+    """The log of a :class:`WineInstance`: keeps its messages as :class:`_LogBuffer` does and
+    hands each to :meth:`WineInstance.heard`."""
+
+    def __init__(self, log: _LogBuffer, instance: WineInstance) -> None:
+        super().__init__(log.messages.maxlen, log.prefix)
+        self.instance = instance
+
+    def __call__(self, env, instance, status, category, message) -> None:
+        super().__call__(env, instance, status, category, message)
+        self.instance.heard(message.decode("utf-8", "replace") if message else "")
+
+
 #: The instance class of each accepted kind.
 INSTANCE_CLASSES: dict = {
     FMI2_CS: FmuInstance,
     FMI3_CS: Fmu3Instance,
     FMI2_ME: FmuMeInstance,
     FMI3_ME: Fmu3MeInstance,
+    FMI2_WINE: WineInstance,
 }
 
 

@@ -38,15 +38,20 @@ class FmuKind:
         ``"2.0"`` or ``"3.0"``.
     interface : str
         :data:`CO_SIMULATION` or :data:`MODEL_EXCHANGE`.
+    remote : str
+        The platform of a binary run through fmpy's remoting (``"win64"``: over Wine,
+        :mod:`fmu_greybox.fmi.wine`), or ``""`` for a binary of this machine.
     """
 
     fmi_version: str
     interface: str
+    remote: str = ""
 
     @property
     def label(self) -> str:
-        """E.g. ``"FMI 3.0 co-simulation"``."""
-        return f"FMI {self.fmi_version} {self.interface}"
+        """E.g. ``"FMI 3.0 co-simulation"``, ``"FMI 2.0 co-simulation (win64 through Wine)"``."""
+        through = f" ({self.remote} through Wine)" if self.remote else ""
+        return f"FMI {self.fmi_version} {self.interface}{through}"
 
     @property
     def binary_folder(self) -> str:

@@ -44,7 +44,7 @@ from fmu_greybox.model.whitebox import part_layouts
 NATIVE_DIR = Path(__file__).resolve().parent.parent / "native"
 #: The runner's sources (``native/``), in compile order, and the headers they include.
 SOURCES = ("simulate.c", "whitebox.c", "terms.c", "greybox_data.c", "sha256.c")
-HEADERS = ("whitebox.h", "terms.h", "greybox_data.h", "sha256.h")
+HEADERS = ("whitebox.h", "dynlib.h", "terms.h", "greybox_data.h", "sha256.h")
 FLAGS = ("-O3", "-std=c11", "-fPIC", "-shared")
 #: Set to ``0`` to step every simulation in Python (the reference the runner is tested against).
 DISABLE_VARIABLE = "FMU_GREYBOX_NATIVE_RUN"

@@ -37,8 +37,9 @@
 enum { MODE_RESIDUAL = 0, MODE_INCREMENT = 1, MODE_OUTPUT = 2 };
 
 /* Versions of a loop-heavy function for wide vector units, chosen when the module loads (GCC on
- * x86-64; elsewhere the one portable version). */
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+ * x86-64 ELF: the choice needs ifunc, which Windows DLLs lack; elsewhere the one portable
+ * version). */
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(_WIN32)
 #define VECTOR_VERSIONS __attribute__((target_clones("avx512f", "avx2", "default")))
 #else
 #define VECTOR_VERSIONS

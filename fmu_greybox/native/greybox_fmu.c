@@ -250,6 +250,9 @@ static int uri_folder(const char *uri, char *path, size_t size) {
     }
     while (n > 1 && path[n - 1] == '/') n--;
     path[n] = '\0';
+#if defined(_WIN32)
+    if (n > 2 && path[0] == '/' && path[2] == ':') memmove(path, path + 1, n); /* /C:/x -> C:/x */
+#endif
     return *at == '\0' ? 0 : -1;
 }
 

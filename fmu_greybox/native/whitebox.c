@@ -7,42 +7,15 @@
 #define _POSIX_C_SOURCE 200809L
 #include "whitebox.h"
 
-#include <dlfcn.h>
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
 
+#include "dynlib.h"
 #include "sha256.h"
 
-#if defined(__APPLE__)
-#define WB_PLATFORM "darwin64"
-#define WB_EXTENSION ".dylib"
-#elif defined(__linux__) && (defined(__x86_64__) || defined(__aarch64__))
-#define WB_PLATFORM "linux64"
-#define WB_EXTENSION ".so"
-#elif defined(__linux__)
-#define WB_PLATFORM "linux32"
-#define WB_EXTENSION ".so"
-#else
-#error "the native grey-box FMU loads its white-box with dlopen: build it on Linux or macOS"
-#endif
-
-/* glibc's RTLD_DEEPBIND: the white-box's own fmi2 functions win over ours. The sanitizer
-   runtimes refuse it (google/sanitizers issue 611): a build with AddressSanitizer (the
-   tests') loads the white-box without it. */
-#if defined(__SANITIZE_ADDRESS__)
-#define WB_SANITIZED 1
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-#define WB_SANITIZED 1
-#endif
-#endif
-
-#if defined(RTLD_DEEPBIND) && !defined(WB_SANITIZED)
-#define WB_DLOPEN_FLAGS (RTLD_NOW | RTLD_LOCAL | RTLD_DEEPBIND)
-#else
-#define WB_DLOPEN_FLAGS (RTLD_NOW | RTLD_LOCAL)
-#endif
+#define WB_PLATFORM DYNLIB_PLATFORM
+#define WB_EXTENSION DYNLIB_EXTENSION
 
 #define PART_FIELDS 6 /* columns, bound outputs, parameters, terms, sub-steps, entry stage */
 
@@ -105,10 +78,11 @@ static int load_library(Whitebox *w, const GreyboxData *data, const char *resour
                  path, actual, recorded);
         return -1;
     }
-    w->api.library = dlopen(path, WB_DLOPEN_FLAGS);
+    w->api.library = dynlib_open(path);
     if (w->api.library == NULL) {
+        char reason[512];
         snprintf(message, size, "cannot load the embedded white-box binary %s: %s", path,
-                 dlerror());
+                 dynlib_error(reason, sizeof reason));
         return -1;
     }
     return 0;
@@ -116,7 +90,7 @@ static int load_library(Whitebox *w, const GreyboxData *data, const char *resour
 
 /* Resolve one fmi2 function of the white-box into *slot. */
 static int resolve(Whitebox *w, const char *name, void *slot, char *message, size_t size) {
-    void *symbol = dlsym(w->api.library, name);
+    void *symbol = dynlib_symbol(w->api.library, name);
     if (symbol == NULL) {
         snprintf(message, size, "the embedded white-box lacks %s; it is not an FMI 2.0 "
                  "co-simulation FMU with state functions", name);
@@ -155,13 +129,15 @@ static int resolve_api(Whitebox *w, char *message, size_t size) {
     return 0;
 }
 
-/* A file: URI of a folder, with the characters a URI may not hold percent-encoded. */
+/* A file: URI of a folder, with the characters a URI may not hold percent-encoded (a Windows
+   folder C:/x gives file:///C:/x). */
 static void folder_uri(const char *folder, char *uri, size_t size) {
     static const char hex[] = "0123456789ABCDEF";
-    size_t at = (size_t)snprintf(uri, size, "file://");
+    const int drive = folder[0] != '\0' && folder[1] == ':';
+    size_t at = (size_t)snprintf(uri, size, drive ? "file:///" : "file://");
     for (const unsigned char *c = (const unsigned char *)folder; *c && at + 4 < size; c++) {
         if ((*c >= 'a' && *c <= 'z') || (*c >= 'A' && *c <= 'Z') || (*c >= '0' && *c <= '9') ||
-            strchr("/-._~", *c) != NULL) {
+            strchr("/-._~", *c) != NULL || (drive && c == (const unsigned char *)folder + 1)) {
             uri[at++] = (char)*c;
         } else {
             uri[at++] = '%';
@@ -468,7 +444,7 @@ void wb_close(Whitebox *w) {
     }
     if (w->parts != NULL) w->release(w->parts);
     if (w->input_vr != NULL) w->release(w->input_vr);
-    if (w->api.library != NULL) dlclose(w->api.library);
+    if (w->api.library != NULL) dynlib_close(w->api.library);
     w->parts = NULL;
     w->input_vr = NULL;
     w->tables = NULL;

@@ -1,0 +1,101 @@
+"""The platforms a binary is compiled for: this machine, or win64 cross-compiled with mingw-w64.
+
+One place knows the FMI 2.0 binary folder, the shared-library extension, the compiler and the
+flags of each: the white-box builder (:mod:`fmu_greybox.fmi.build`) and the native grey-box
+export (:mod:`fmu_greybox.export.native`) compile for either through :func:`compile_command`.
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+
+from fmu_greybox.errors import FmuBuildError
+
+
+@dataclass(frozen=True)
+class BinaryPlatform:
+    """Where and how a shared library for one FMI 2.0 platform is built.
+
+    Attributes
+    ----------
+    folder : str
+        The FMI 2.0 folder under ``binaries/``, e.g. ``"win64"``.
+    extension : str
+        The shared library's extension, e.g. ``".dll"``.
+    compiler : str
+        The C compiler's command, e.g. ``"x86_64-w64-mingw32-gcc"``; empty for this machine's
+        (``$CC`` or gcc, :func:`fmu_greybox.fmi.build.c_compiler`).
+    flags : tuple of str
+        Options beyond the sources' own: position-independent code on Unix; on Windows the
+        compiler's runtime linked in, so that the DLL needs none of mingw-w64's DLLs.
+    package : str
+        The Debian package that installs the compiler (for the message when it is missing).
+    """
+
+    folder: str
+    extension: str
+    compiler: str
+    flags: tuple[str, ...]
+    package: str = ""
+
+    @property
+    def windows(self) -> bool:
+        """Whether the binary is a Windows DLL."""
+        return self.folder.startswith("win")
+
+
+#: Windows on x86-64, cross-compiled with Debian's mingw-w64.
+WIN64 = BinaryPlatform(
+    "win64", ".dll", "x86_64-w64-mingw32-gcc", ("-static-libgcc",), "gcc-mingw-w64-x86-64"
+)
+
+
+def host_platform() -> BinaryPlatform:
+    """This machine's platform (its FMI 2.0 folder and extension, ``$CC`` or gcc).
+
+    Raises
+    ------
+    FmuBuildError
+        On a platform FMI 2.0 has no binary folder for.
+    """
+    from fmu_greybox.fmi.build import fmi2_platform
+
+    folder, extension = fmi2_platform()
+    return BinaryPlatform(folder, extension, "", () if folder.startswith("win") else ("-fPIC",))
+
+
+def platform_named(name: str) -> BinaryPlatform:
+    """``"host"`` (this machine) or ``"win64"``.
+
+    Raises
+    ------
+    FmuBuildError
+        For another name.
+    """
+    if name == "host":
+        return host_platform()
+    if name == WIN64.folder:
+        return WIN64
+    raise FmuBuildError(f"no build platform {name!r}; choose host or {WIN64.folder}")
+
+
+def compiler_of(platform: BinaryPlatform) -> str:
+    """The full path of the platform's C compiler.
+
+    Raises
+    ------
+    FmuBuildError
+        If it is not installed; the message names the Debian package.
+    """
+    if not platform.compiler:
+        from fmu_greybox.fmi.build import c_compiler
+
+        return c_compiler()
+    found = shutil.which(platform.compiler)
+    if not found:
+        raise FmuBuildError(
+            f"the {platform.folder} cross-compiler {platform.compiler} is not installed: "
+            f"apt-get install {platform.package}"
+        )
+    return found

@@ -1,0 +1,208 @@
+"""Windows white-boxes and benches, on this Linux machine (``fmu_greybox/fmi/wine.py``).
+
+The reference actuator cross-compiled for win64 with mingw-w64 (``fmu build --platform
+win64``) is opened, stepped through fmpy's remoting over Wine and trained on, and compared with
+the linux64 build of the same sources. Both compilers are gcc with the same options (``-O2
+-ffp-contract=off``, no fast math), so the arithmetic is the same but for the C library's
+functions (glibc's and msvcrt's); the outputs are compared to 1e-12 of each signal's scale
+(:func:`test_fmu_kinds.assert_close`: a last-bit difference in a library function, carried
+over a few hundred implicit integrator steps, stays far below that) and are in practice equal
+to the last bit. The diagnosis is not run through Wine: every step is a round trip to the
+server, and a diagnosis of a 1 s recording did not finish in 20 minutes (docs/config.md).
+
+Wine (Debian's ``wine64``) and mingw-w64 (``gcc-mingw-w64-x86-64``) are installed by
+``scripts/test.sh``; without them the tests skip, except in CI (``CI`` set), where they fail.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import shutil
+import zipfile
+from pathlib import Path
+
+import bench_windows
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from test_fmu_kinds import INPUTS, OUTPUTS, assert_close, input_rows, recording, stepped
+
+from fmu_greybox.cli import main
+from fmu_greybox.errors import FmuArchiveError, FmuBuildError
+from fmu_greybox.fmi import wine
+from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.fmi.builtin import model_fmus, reference_project
+from fmu_greybox.fmi.instance import WineInstance, fmu_instance
+from fmu_greybox.fmi.platforms import WIN64, compiler_of
+from fmu_greybox.model.native_run import run_native
+from fmu_greybox.project.config import load_config
+from fmu_greybox.workflow.train import train_model, with_inducing
+
+
+def require_windows_tools() -> None:
+    """Skip without Wine or mingw-w64, unless in CI (where ``scripts/test.sh`` installs them)."""
+    missing = []
+    try:
+        compiler_of(WIN64)
+    except FmuBuildError:
+        missing.append(WIN64.package)
+    try:
+        wine.wine_program()
+    except FmuArchiveError:
+        missing.append(wine.WINE_PACKAGE)
+    if not missing:
+        return
+    if os.environ.get("CI"):
+        pytest.fail(f"{', '.join(missing)} missing: scripts/test.sh installs them")
+    pytest.skip(f"{', '.join(missing)} not installed (apt-get install {' '.join(missing)})")
+
+
+@pytest.fixture(scope="module")
+def win64_fmus() -> dict[str, Path]:
+    """The reference actuator (white-box, truth) with win64 binaries only."""
+    require_windows_tools()
+    return model_fmus("HydraulicActuator", target=WIN64)
+
+
+@pytest.fixture(scope="module")
+def win64_whitebox(win64_fmus) -> Path:
+    return win64_fmus["HydraulicActuator"]
+
+
+# ------------------------------------------------------------------------ building and opening
+def test_the_fmu_build_command_cross_compiles_for_win64(tmp_path) -> None:
+    require_windows_tools()
+    done = CliRunner().invoke(main, ["fmu", "build", "--platform", "win64", "--out", str(tmp_path)])
+    assert done.exit_code == 0, done.output
+    path = tmp_path / "HydraulicActuator.fmu"
+    assert f"built HydraulicActuator: {path} (FMI 2.0 co-simulation, win64)" in done.output
+    with zipfile.ZipFile(path) as fmu:
+        binaries = [n for n in fmu.namelist() if n.startswith("binaries/")]
+        library = fmu.read("binaries/win64/HydraulicActuator.dll")
+    assert binaries == ["binaries/win64/HydraulicActuator.dll"]
+    assert library[:2] == b"MZ"  # a Windows executable image
+
+
+def test_a_win64_build_of_fmi3_is_refused(tmp_path) -> None:
+    done = CliRunner().invoke(
+        main, ["fmu", "build", "--fmi", "3", "--platform", "win64", "--out", str(tmp_path)]
+    )
+    assert done.exit_code != 0
+    assert "the win64 build makes FMI 2.0 FMUs, not FMI 3.0 co-simulation" in done.output
+
+
+def test_a_win64_only_fmu_opens_as_run_through_wine(win64_whitebox) -> None:
+    with open_fmu(win64_whitebox) as archive:
+        assert archive.kind == wine.FMI2_WINE
+        assert archive.kind.label == "FMI 2.0 co-simulation (win64 through Wine)"
+        assert not archive.kind.native
+        assert archive.inputs == list(INPUTS)
+
+
+def test_without_wine_a_win64_only_fmu_is_refused_naming_the_package(
+    win64_whitebox, tmp_path, monkeypatch
+) -> None:
+    monkeypatch.setenv("PATH", str(tmp_path))
+    monkeypatch.setattr(wine, "DEBIAN_WINE_FOLDER", tmp_path / "no-wine")
+    with pytest.raises(FmuArchiveError, match=r"apt-get install wine64 \(Debian\)"):
+        open_fmu(win64_whitebox)
+
+
+# ------------------------------------------------------------------------ stepping
+def test_win64_through_wine_steps_as_linux64(whitebox_fmu, win64_whitebox) -> None:
+    rows = input_rows(400)
+    linux, windows = stepped(whitebox_fmu, rows), stepped(win64_whitebox, rows)
+    assert np.ptp(linux[:, 1]) > 1e-3  # the ram moved
+    for j, name in enumerate(OUTPUTS):
+        assert_close(windows[:, j], linux[:, j], name)
+
+
+def test_one_win64_instance_runs_at_a_time_and_its_server_stops(win64_whitebox) -> None:
+    """fmpy's remoting listens on one TCP port: a second instance is refused with the reason,
+    and freeing the first lets the next one run (its server and lock folder gone)."""
+    rows = input_rows(50)
+    with open_fmu(win64_whitebox) as archive:
+        with fmu_instance(archive, INPUTS, OUTPUTS) as first:
+            assert isinstance(first, WineInstance)
+            lock = first._lock_folder
+            assert lock is not None and lock.is_dir()
+            with pytest.raises(FmuArchiveError, match=r"fmpy's remoting serves one at a time"):
+                fmu_instance(archive, INPUTS, OUTPUTS)
+        assert not lock.exists()
+        with fmu_instance(archive, INPUTS, OUTPUTS) as second:
+            second.step(rows[0], 1e-3)
+
+
+def test_the_c_runner_refuses_a_win64_whitebox(win64_whitebox) -> None:
+    with open_fmu(win64_whitebox) as archive:
+        refused = r"the native simulation runner loads .* this one is FMI 2\.0 co-simulation"
+        with pytest.raises(FmuArchiveError, match=refused):
+            run_native(archive, INPUTS, input_rows(3), 1e-3, OUTPUTS, [], [0] * 4, None, 0.0, 4)
+
+
+# ------------------------------------------------------------------------ diagnosis and training
+def test_a_greybox_trained_through_win64_equals_the_linux64_one(
+    whitebox_fmu, truth_fmu, win64_whitebox
+) -> None:
+    bench = recording(whitebox_fmu, truth_fmu, {"coulomb_friction": 600.0}, seed=11, duration=2)
+    config = with_inducing(load_config(reference_project()), 20, max_iter=15)
+    models = {
+        platform: train_model(dataclasses.replace(config, fmu=str(path)), bench)
+        for platform, path in (("linux64", whitebox_fmu), ("win64", win64_whitebox))
+    }
+    (plan_linux, params_linux), (plan_win, params_win) = (
+        models[p].chain.plan().arrays for p in ("linux64", "win64")
+    )
+    np.testing.assert_array_equal(plan_win, plan_linux)
+    assert_close(params_win, params_linux, "trained parameters")
+
+
+def test_wine_is_found_where_debian_installs_it() -> None:
+    require_windows_tools()
+    program = Path(wine.wine_program())
+    assert program.name == "wine64" and os.access(program, os.X_OK)
+    assert shutil.which("wine64") is not None or program.parent == wine.DEBIAN_WINE_FOLDER
+
+
+# ------------------------------------------------------------------------ the grey-box for win64
+@pytest.fixture(scope="module")
+def trained_greybox(tmp_path_factory) -> tuple[Path, object]:
+    """A native grey-box FMU exported from a white-box with linux64 and win64 binaries, and
+    the recording it was trained on."""
+    require_windows_tools()
+    folder = tmp_path_factory.mktemp("win64_greybox")
+    return bench_windows.native_greybox(folder, bench_windows.dual_platform_whitebox(folder))
+
+
+@pytest.fixture(scope="module")
+def native_greybox(trained_greybox) -> Path:
+    return trained_greybox[0]
+
+
+def test_the_native_greybox_carries_win64_when_the_whitebox_does(native_greybox) -> None:
+    with zipfile.ZipFile(native_greybox) as fmu:
+        names = fmu.namelist()
+        library = fmu.read("binaries/win64/hydraulic_actuator_greybox.dll")
+    assert "binaries/linux64/hydraulic_actuator_greybox.so" in names
+    assert "resources/whitebox/binaries/win64/HydraulicActuator.dll" in names
+    assert "sources/dynlib.h" in names
+    assert library[:2] == b"MZ"
+
+
+def test_the_win64_greybox_under_wine_gives_the_linux64_numbers_and_refusals(
+    trained_greybox, tmp_path
+) -> None:
+    """The bare C master for Windows (under Wine) against the same master for Linux: every
+    output within 1e-9 of its range (compiled from the same sources with the same options: in
+    practice equal), the refused steps refused with the same fmi2Status (fmi2Error)."""
+    native_greybox, recording = trained_greybox
+    rows = np.column_stack([recording[n] for n in INPUTS])[:1000]
+    runs = bench_windows.both_masters(native_greybox, rows, tmp_path)
+    names = bench_windows.real_outputs(native_greybox)
+    assert np.ptp(runs["linux64"].outputs[:, names.index("ram_position")]) > 1e-3
+    differences = bench_windows.relative_differences(runs, names)
+    assert max(differences.values()) <= 1e-9, differences
+    assert runs["win64"].refusals == runs["linux64"].refusals
+    assert set(runs["win64"].refusals.values()) == {3}  # fmi2Error
+    assert not runs["win64"].python_in_process
