@@ -56,7 +56,7 @@ from spread import conditions, conditions_line
 from fmu_greybox import _chainstep
 from fmu_greybox.export.native import NATIVE_DIR, core_cflags
 from fmu_greybox.fmi.archive import open_fmu
-from fmu_greybox.fmi.build import c_compiler
+from fmu_greybox.fmi.platforms import c_compiler
 from fmu_greybox.gp.linalg import aligned_zeros
 from fmu_greybox.gp.predictive import packed_factor, point_factor
 from fmu_greybox.model.stage_data import prepare

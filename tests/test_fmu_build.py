@@ -16,12 +16,13 @@ from fmpy.validation import validate_fmu
 
 from fmu_greybox.errors import FmuBuildError
 from fmu_greybox.fmi import build as fmu_build
+from fmu_greybox.fmi import platforms
 from fmu_greybox.fmi.build import (
     REFERENCE_MODEL_DIR,
     build_fmu,
-    fmi2_platform,
     load_variable_table,
 )
+from fmu_greybox.fmi.platforms import fmi2_platform
 
 TRUTH_EFFECTS = (
     "gain_error",
@@ -160,8 +161,8 @@ def test_table_errors_say_what_to_mend(tmp_path: Path) -> None:
 
 
 def test_unsupported_platform(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(fmu_build.platform, "machine", lambda: "aarch64")
-    monkeypatch.setattr(fmu_build.sys, "platform", "linux")
+    monkeypatch.setattr(platforms.platform, "machine", lambda: "aarch64")
+    monkeypatch.setattr(platforms.sys, "platform", "linux")
     with pytest.raises(FmuBuildError, match="no binary folder for linux on aarch64"):
         fmi2_platform()
 

@@ -40,9 +40,9 @@ from fmu_greybox.atomic import atomic_write
 from fmu_greybox.errors import ExportError, FmuBuildError
 from fmu_greybox.export.slave import MODEL_FOLDER, STEP_RTOL
 from fmu_greybox.fmi.archive import FmuArchive
-from fmu_greybox.fmi.build import c_compiler, fmi2_headers, fmi2_platform
+from fmu_greybox.fmi.build import fmi2_headers
 from fmu_greybox.fmi.kinds import require_native
-from fmu_greybox.fmi.platforms import WIN64, BinaryPlatform, compiler_of
+from fmu_greybox.fmi.platforms import WIN64, BinaryPlatform, c_compiler, compiler_of, fmi2_platform
 from fmu_greybox.model.native_data import data_file_bytes
 from fmu_greybox.model.native_terms import kind_code, kind_defines
 from fmu_greybox.model.native_whitebox import whitebox_sections

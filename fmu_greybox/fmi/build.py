@@ -20,12 +20,8 @@ from __future__ import annotations
 
 import hashlib
 import html
-import os
-import platform
 import re
-import shutil
 import subprocess
-import sys
 import tempfile
 import tomllib
 import uuid
@@ -41,7 +37,11 @@ from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.errors import FmuBuildError
 from fmu_greybox.fmi.kinds import ACCEPTED, FMI2_CS, MODEL_EXCHANGE, FmuKind
-from fmu_greybox.fmi.platforms import BinaryPlatform, compiler_of, host_platform
+from fmu_greybox.fmi.platforms import (
+    BinaryPlatform,
+    compiler_of,
+    host_platform,
+)
 from fmu_greybox.resources import data_path
 from fmu_greybox.units import BASE_UNITS, PREFIXES, SYMBOLS, UnitSyntaxError, si_unit
 
@@ -1006,34 +1006,6 @@ def _add_units(root: ET.Element, units: list[str], interface_position: int) -> N
 # ------------------------------------------------------------------------------------------------
 
 
-def fmi2_platform() -> tuple[str, str]:
-    """FMI 2.0 platform folder and shared-library extension of this machine.
-
-    Returns
-    -------
-    tuple of str
-        E.g. ``("linux64", ".so")``.
-
-    Raises
-    ------
-    FmuBuildError
-        On a platform FMI 2.0 has no binary folder for (e.g. Linux on ARM).
-    """
-    machine = platform.machine().lower()
-    bits = 64 if sys.maxsize > 2**32 else 32
-    intel = machine in {"x86_64", "amd64", "i386", "i686", "x86"}
-    if sys.platform.startswith("linux") and intel:
-        return f"linux{bits}", ".so"
-    if sys.platform == "darwin":
-        return "darwin64", ".dylib"
-    if sys.platform.startswith("win") and intel:
-        return f"win{bits}", ".dll"
-    raise FmuBuildError(
-        f"FMI 2.0 defines no binary folder for {sys.platform} on {machine}; "
-        "build on linux64, win64 or darwin64."
-    )
-
-
 def fmi2_headers() -> Path:
     """Folder of the FMI 2.0 C headers shipped with fmpy.
 
@@ -1050,21 +1022,6 @@ def fmi2_headers() -> Path:
     if not (folder / "fmi2Functions.h").is_file():
         raise FmuBuildError(f"{folder} lacks fmi2Functions.h; reinstall fmpy.")
     return folder
-
-
-def c_compiler() -> str:
-    """The C compiler: ``$CC`` or gcc.
-
-    Raises
-    ------
-    FmuBuildError
-        If it is not found.
-    """
-    compiler = os.environ.get("CC", "gcc")
-    found = shutil.which(compiler)
-    if not found:
-        raise FmuBuildError(f"C compiler {compiler!r} not found: install gcc or set CC.")
-    return found
 
 
 def _framework_sources(kind: FmuKind) -> list[Path]:

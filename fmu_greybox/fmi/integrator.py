@@ -205,8 +205,8 @@ def me_library() -> ctypes.CDLL | None:
     (then with a warning saying why, once per process: the loop runs in Python)."""
     if os.environ.get(DISABLE_VARIABLE, "1") == "0":
         return None
-    from fmu_greybox.fmi.build import c_compiler
     from fmu_greybox.fmi.builtin import cache_dir
+    from fmu_greybox.fmi.platforms import c_compiler
 
     digest = hashlib.sha256(" ".join(NATIVE_FLAGS).encode() + NATIVE_SOURCE.read_bytes())
     library = cache_dir().parent / "me-step" / digest.hexdigest()[:16] / "libfgbmestep.so"

@@ -7,7 +7,10 @@ export (:mod:`fmu_greybox.export.native`) compile for either through :func:`comp
 
 from __future__ import annotations
 
+import os
+import platform
 import shutil
+import sys
 from dataclasses import dataclass
 
 from fmu_greybox.errors import FmuBuildError
@@ -25,7 +28,7 @@ class BinaryPlatform:
         The shared library's extension, e.g. ``".dll"``.
     compiler : str
         The C compiler's command, e.g. ``"x86_64-w64-mingw32-gcc"``; empty for this machine's
-        (``$CC`` or gcc, :func:`fmu_greybox.fmi.build.c_compiler`).
+        (``$CC`` or gcc, :func:`c_compiler`).
     flags : tuple of str
         Options beyond the sources' own: position-independent code on Unix; on Windows the
         compiler's runtime linked in, so that the DLL needs none of mingw-w64's DLLs.
@@ -59,8 +62,6 @@ def host_platform() -> BinaryPlatform:
     FmuBuildError
         On a platform FMI 2.0 has no binary folder for.
     """
-    from fmu_greybox.fmi.build import fmi2_platform
-
     folder, extension = fmi2_platform()
     return BinaryPlatform(folder, extension, "", () if folder.startswith("win") else ("-fPIC",))
 
@@ -89,8 +90,6 @@ def compiler_of(platform: BinaryPlatform) -> str:
         If it is not installed; the message names the Debian package.
     """
     if not platform.compiler:
-        from fmu_greybox.fmi.build import c_compiler
-
         return c_compiler()
     found = shutil.which(platform.compiler)
     if not found:
@@ -98,4 +97,47 @@ def compiler_of(platform: BinaryPlatform) -> str:
             f"the {platform.folder} cross-compiler {platform.compiler} is not installed: "
             f"apt-get install {platform.package}"
         )
+    return found
+
+
+def fmi2_platform() -> tuple[str, str]:
+    """FMI 2.0 platform folder and shared-library extension of this machine.
+
+    Returns
+    -------
+    tuple of str
+        E.g. ``("linux64", ".so")``.
+
+    Raises
+    ------
+    FmuBuildError
+        On a platform FMI 2.0 has no binary folder for (e.g. Linux on ARM).
+    """
+    machine = platform.machine().lower()
+    bits = 64 if sys.maxsize > 2**32 else 32
+    intel = machine in {"x86_64", "amd64", "i386", "i686", "x86"}
+    if sys.platform.startswith("linux") and intel:
+        return f"linux{bits}", ".so"
+    if sys.platform == "darwin":
+        return "darwin64", ".dylib"
+    if sys.platform.startswith("win") and intel:
+        return f"win{bits}", ".dll"
+    raise FmuBuildError(
+        f"FMI 2.0 defines no binary folder for {sys.platform} on {machine}; "
+        "build on linux64, win64 or darwin64."
+    )
+
+
+def c_compiler() -> str:
+    """The C compiler: ``$CC`` or gcc.
+
+    Raises
+    ------
+    FmuBuildError
+        If it is not found.
+    """
+    compiler = os.environ.get("CC", "gcc")
+    found = shutil.which(compiler)
+    if not found:
+        raise FmuBuildError(f"C compiler {compiler!r} not found: install gcc or set CC.")
     return found

@@ -31,10 +31,11 @@ import numpy as np
 
 from fmu_greybox.errors import FmuBuildError, FmuError
 from fmu_greybox.fmi.archive import FmuArchive
-from fmu_greybox.fmi.build import c_compiler, fmi2_headers
+from fmu_greybox.fmi.build import fmi2_headers
 from fmu_greybox.fmi.builtin import cache_dir
 from fmu_greybox.fmi.instance import status_label
 from fmu_greybox.fmi.kinds import require_native
+from fmu_greybox.fmi.platforms import c_compiler
 from fmu_greybox.model.native_data import data_file_bytes
 from fmu_greybox.model.native_terms import NATIVE_KINDS, kind_defines
 from fmu_greybox.model.native_whitebox import whitebox_sections
