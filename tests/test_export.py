@@ -277,7 +277,7 @@ def test_interface_is_a_drop_in_replacement(greybox_fmu: Path, model_dir: Path) 
     annotation = root.find("VendorAnnotations/Tool[@name='fmu-greybox']/GreyBox")
     assert annotation.get("model_sha256") == file_sha256(model_dir / MANIFEST)
     assert annotation.get("whitebox_sha256") == file_sha256(model_dir / "whitebox.fmu")
-    assert [s.get("name") for s in annotation] == ["EHV", "RAM", "ITFV"]
+    assert [s.get("name") for s in annotation.iter("Stage")] == ["EHV", "RAM", "ITFV"]
 
 
 # ---------------------------------------------------------------------------- equivalence

@@ -25,6 +25,7 @@ WRITTEN_KEYS = {
     "target_selection",
     "calibration_check",
     "calibration_recordings",
+    "whitebox",
     "whitebox_source",
     "whitebox_sha256",
     "seconds",
