@@ -254,3 +254,24 @@ def test_a_rounded_retimed_reordered_copy_is_found_and_another_recording_is_not(
     rows = dict(recorded_rows([original, copy, other]))
     assert trained_mask(rows["b.csv"], fingerprint(rows["a.csv"])).all()
     assert not trained_mask(rows["c.csv"], fingerprint(rows["a.csv"])).any()
+
+
+def test_rows_moved_across_a_cell_edge_by_less_than_the_tolerance_are_found() -> None:
+    """Values placed just inside a cell's edge and moved across it by a tenth of the tolerance
+    are training rows, in any combination of columns; moved by a hundred times the tolerance
+    they are not."""
+    from fmu_greybox.project.fingerprint import RESOLUTION, TOLERANCE, full_scale
+
+    rng = np.random.default_rng(3)
+    scale = full_scale(rng.standard_normal((1, 4)) * 10.0)
+    cell = scale * RESOLUTION
+    centres = rng.integers(-10**6, 10**6, (2000, 4)).astype(float)
+    sides = rng.choice([-1.0, 0.0, 1.0], (2000, 4))
+    edge = centres + sides * (0.5 - 0.05 * TOLERANCE / RESOLUTION)
+    trained = fingerprint(np.vstack([edge * cell, scale[None, :]]))
+    across = (edge + sides * 0.1 * TOLERANCE / RESOLUTION) * cell
+    away = (edge + sides * 100.0 * TOLERANCE / RESOLUTION) * cell
+    assert trained.scale is not None and np.allclose(trained.scale, scale)
+    assert trained_mask(across, trained).all()
+    moved = sides.any(axis=1)
+    assert not trained_mask(away, trained)[moved].any()

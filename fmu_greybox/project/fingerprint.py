@@ -178,21 +178,67 @@ def trained_mask(values: np.ndarray, trained: RowFingerprint) -> np.ndarray:
     -------
     ndarray of bool, shape (n,)
     """
+    known = np.sort(trained.digests)
     if trained.scale is None:
-        return np.isin(row_digests(values), trained.digests)
+        return _among(row_digests(values), known)
     cells, offset = _cells(values, trained.scale)
-    found = np.isin(_cell_digest(cells), trained.digests)
+    found = _among(_cell_digest(cells), known)
     near = np.abs(offset) > 0.5 - TOLERANCE / RESOLUTION
-    for i in np.flatnonzero(~found & near.any(axis=1)):
-        columns = np.flatnonzero(near[i])
-        steps = np.sign(offset[i, columns]).astype("<i8")
-        for moved in itertools.product((0, 1), repeat=columns.size):
-            candidate = cells[i].copy()
-            candidate[columns] += steps * np.array(moved, dtype="<i8")
-            if any(moved) and np.isin(_cell_digest(candidate[None, :]), trained.digests)[0]:
-                found[i] = True
-                break
+    unsure = np.flatnonzero(~found & near.any(axis=1))
+    patterns, group = np.unique(near[unsure], axis=0, return_inverse=True)
+    for g, pattern in enumerate(patterns):
+        rows = unsure[group.ravel() == g]
+        found[rows] = _found_next_door(cells[rows], np.sign(offset[rows]), pattern, known)
     return found
+
+
+def _found_next_door(
+    cells: np.ndarray, sides: np.ndarray, near: np.ndarray, known: np.ndarray
+) -> np.ndarray:
+    """Whether rows near cell edges in the same columns are known once moved across them.
+
+    Parameters
+    ----------
+    cells : ndarray of int64, shape (n, k)
+        The rows' cells.
+    sides : ndarray, shape (n, k)
+        The side of its cell's centre each value lies on (-1, 0 or 1).
+    near : ndarray of bool, shape (k,)
+        The columns whose values lie near a cell's edge, the same in every row.
+    known : ndarray of uint64, shape (m,), sorted
+        The training rows' digests.
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+    """
+    columns = np.flatnonzero(near)
+    steps = sides[:, columns].astype("<i8")
+    found = np.zeros(len(cells), dtype=bool)
+    for moved in itertools.product((0, 1), repeat=columns.size):
+        if any(moved):
+            candidate = cells.copy()
+            candidate[:, columns] += steps * np.array(moved, dtype="<i8")
+            found |= _among(_cell_digest(candidate), known)
+    return found
+
+
+def _among(digests: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """Which ``digests`` are in the sorted array ``known``, by binary search.
+
+    Parameters
+    ----------
+    digests : ndarray of uint64, shape (n,)
+    known : ndarray of uint64, shape (m,), sorted
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+    """
+    if known.size == 0:
+        return np.zeros(digests.shape, dtype=bool)
+    at = np.minimum(np.searchsorted(known, digests), known.size - 1)
+    return known[at] == digests
 
 
 def shared_rows(values: np.ndarray, other: RowFingerprint) -> float:
