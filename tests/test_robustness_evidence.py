@@ -265,7 +265,7 @@ def test_rows_moved_across_a_cell_edge_by_less_than_the_tolerance_are_found() ->
     rng = np.random.default_rng(3)
     scale = full_scale(rng.standard_normal((1, 4)) * 10.0)
     cell = scale * RESOLUTION
-    centres = rng.integers(-10**6, 10**6, (2000, 4)).astype(float)
+    centres = rng.integers(-(10**6), 10**6, (2000, 4)).astype(float)
     sides = rng.choice([-1.0, 0.0, 1.0], (2000, 4))
     edge = centres + sides * (0.5 - 0.05 * TOLERANCE / RESOLUTION)
     trained = fingerprint(np.vstack([edge * cell, scale[None, :]]))
