@@ -29,7 +29,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import filtfilt, welch
+import scipy.fft
+from scipy.signal import filtfilt, get_window
 
 from fmu_greybox.diagnosis.hypotheses import Hypothesis
 from fmu_greybox.diagnosis.noise import Bands
@@ -64,7 +65,8 @@ class SpectrumView:
     def __init__(self, experiment: Experiment, rows: int) -> None:
         self.segment = max(8, min(self.SEGMENT, rows // 4))
         self.fs = 1.0 / experiment.dt
-        freq, recorded = welch(experiment.recorded[:rows], fs=self.fs, nperseg=self.segment, axis=0)
+        self.window = get_window("hann", self.segment)
+        freq, recorded = self.density(experiment.recorded[:rows])
         self.white = 2.0 * experiment.dt * experiment.sigma**2
         self.log_recorded = np.log(recorded + self.white)
         scale = math.sqrt(max(1.0, 2.0 * rows / self.segment - 1.0))
@@ -74,9 +76,33 @@ class SpectrumView:
             for j, ratio in enumerate(whitening.ratio.T):
                 self.weight[:, j] /= np.sqrt(1.0 + np.interp(freq, whitening.frequency, ratio))
 
+    def density(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One-sided power spectral densities of the columns of ``x`` by Welch's method: Hann
+        segments of :attr:`segment` samples overlapping by half, each less its mean (what
+        :func:`scipy.signal.welch` computes by default, equal to rounding, with every segment
+        transformed at once).
+
+        Parameters
+        ----------
+        x : ndarray, shape (n, k)
+
+        Returns
+        -------
+        frequency : ndarray, shape (segment // 2 + 1,)
+        density : ndarray, shape (segment // 2 + 1, k)
+        """
+        hop = self.segment - self.segment // 2
+        starts = np.arange((x.shape[0] - self.segment) // hop + 1) * hop
+        segments = x[starts[:, None] + np.arange(self.segment)[None, :]]
+        segments = segments - segments.mean(axis=1, keepdims=True)
+        spectra = scipy.fft.rfft(segments * self.window[None, :, None], axis=1)
+        power = (spectra.real**2 + spectra.imag**2) / (self.fs * np.sum(self.window**2))
+        power[:, 1 : (self.segment + 1) // 2] *= 2.0  # one-sided: all but 0 and Nyquist
+        return np.fft.rfftfreq(self.segment, 1.0 / self.fs), power.mean(axis=0)
+
     def residual(self, simulated: np.ndarray) -> np.ndarray | None:
         """The spectrum residual of a simulation of the rows, flattened (None if not finite)."""
-        _, power = welch(simulated, fs=self.fs, nperseg=self.segment, axis=0)
+        _, power = self.density(simulated)
         r = (np.log(power + self.white) - self.log_recorded) * self.weight
         return r.ravel() if np.all(np.isfinite(r)) else None
 

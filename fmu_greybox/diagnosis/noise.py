@@ -218,15 +218,20 @@ class DriftWhitening:
         power = np.mean(np.abs(np.fft.rfft(_mirrored(deviations, 1), axis=1)) ** 2, axis=0)
         self.ratio = _smooth(power / (2 * n * sigma**2))
         self.drift = np.sqrt(np.mean(deviations**2, axis=(0, 1))) / sigma
+        self._weights: dict[int, np.ndarray] = {}
 
     def weights(self, n: int) -> np.ndarray:
         """Gain of the whitening filter on the rfft grid of ``n`` samples, shape
-        (n // 2 + 1, n_observed)."""
-        freq = np.fft.rfftfreq(n, self.dt)
-        ratio = np.column_stack(
-            [np.interp(freq, self.frequency, column) for column in self.ratio.T]
-        )
-        return 1.0 / np.sqrt(1.0 + ratio)
+        (n // 2 + 1, n_observed) (read-only: kept for the next residual of that length)."""
+        if n not in self._weights:
+            freq = np.fft.rfftfreq(n, self.dt)
+            ratio = np.column_stack(
+                [np.interp(freq, self.frequency, column) for column in self.ratio.T]
+            )
+            gain = 1.0 / np.sqrt(1.0 + ratio)
+            gain.setflags(write=False)
+            self._weights[n] = gain
+        return self._weights[n]
 
     def __call__(self, residual: np.ndarray) -> np.ndarray:
         """The residual, whitened column by column (a new array, same shape (n, n_observed)).
