@@ -92,9 +92,9 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 import third_party  # noqa: E402
 
+from fmu_greybox.data.noise import SIGNIFICANT_STRUCTURE  # noqa: E402
 from fmu_greybox.diagnosis import Diagnosis  # noqa: E402
 from fmu_greybox.diagnosis.findings import named_physics  # noqa: E402
-from fmu_greybox.diagnosis.noise import SIGNIFICANT_STRUCTURE  # noqa: E402
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu  # noqa: E402
 from fmu_greybox.fmi.builtin import reference_fmus  # noqa: E402
 from fmu_greybox.model.calibration import Z95, calibration_spread, chance_within  # noqa: E402

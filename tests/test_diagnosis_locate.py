@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
+from fmu_greybox.data.noise import noise_level
 from fmu_greybox.diagnosis.hypotheses import physics_label
 from fmu_greybox.diagnosis.locate import Locator, _inherited, regime_signals
-from fmu_greybox.diagnosis.noise import noise_level
 from fmu_greybox.diagnosis.runner import Experiment
 from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.fmi.archive import open_fmu

@@ -9,7 +9,7 @@ from third_party import INPUTS as SERVO_INPUTS
 from third_party import SENSOR_NOISE as SERVO_NOISE
 from third_party import record
 
-from fmu_greybox.diagnosis.noise import (
+from fmu_greybox.data.noise import (
     DriftWhitening,
     InputSmoother,
     input_noise_levels,

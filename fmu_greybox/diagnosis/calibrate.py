@@ -32,8 +32,8 @@ import numpy as np
 import scipy.fft
 from scipy.signal import filtfilt, get_window
 
+from fmu_greybox.data.noise import Bands
 from fmu_greybox.diagnosis.hypotheses import Hypothesis
-from fmu_greybox.diagnosis.noise import Bands
 from fmu_greybox.diagnosis.runner import Experiment, Simulator
 from fmu_greybox.model.calibration import autocorrelation_time
 from fmu_greybox.model.terms import Term
@@ -42,14 +42,14 @@ from fmu_greybox.model.terms import Term
 class SpectrumView:
     """The spectrum view of a residual over the first ``rows`` rows of an experiment.
 
-    The residual is, per observed output and Welch frequency bin, ``w (log(S_sim + N) -
-    log(S_rec + N))``: ``S`` the power spectral densities (Welch, segments of
-    :data:`SEGMENT` samples, a quarter of the rows at most), ``N`` the sensor noise's density
-    (the recording carries it, the simulation does not), ``w`` the whitening gain against the
-    drift input noise drives (:class:`~.noise.DriftWhitening`): the simulation carries that
-    drift and the recording does not, so where it dominates (an integrating output's low
-    frequencies) a bin says nothing about the hypotheses and has no weight. Each is scaled by
-    the square root of the number of segments averaged, which makes it about unit variance.
+    The residual is, per observed output and Welch frequency bin, ``w (log(S_sim + N) - log(S_rec +
+    N))``: ``S`` the power spectral densities (Welch, segments of :data:`SEGMENT` samples, a quarter
+    of the rows at most), ``N`` the sensor noise's density (the recording carries it, the simulation
+    does not), ``w`` the whitening gain against the drift input noise drives
+    (:class:`~fmu_greybox.data.noise.DriftWhitening`): the simulation carries that drift and the
+    recording does not, so where it dominates (an integrating output's low frequencies) a bin says
+    nothing about the hypotheses and has no weight. Each is scaled by the square root of the number
+    of segments averaged, which makes it about unit variance.
 
     Parameters
     ----------

@@ -26,6 +26,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from fmu_greybox.data.noise import ResidualJudge
 from fmu_greybox.data.recording import Recording
 from fmu_greybox.diagnosis.findings import (
     Finding,
@@ -348,6 +349,10 @@ class Diagnosis:
                 {"correctors": alone, "terms": named[train:], "terms+correctors": gb},
                 {name: float(np.std(recorded[:train, q])) for q, name in enumerate(names)},
                 train,
+                judge=ResidualJudge(
+                    experiment.sigma[targets],
+                    None if experiment.whitening is None else experiment.whitening.columns(targets),
+                ),
             )
         self.simulated_["greybox"], self.simulated_["greybox_std"] = gb, gb_std
         for q, name in enumerate(names):

@@ -14,10 +14,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fmu_greybox.data.noise import SIGNIFICANT_STRUCTURE, structure_left
 from fmu_greybox.diagnosis.alternatives import separation
 from fmu_greybox.diagnosis.hypotheses import Hypothesis, quantity
 from fmu_greybox.diagnosis.locate import Regime, StageResidual
-from fmu_greybox.diagnosis.noise import SIGNIFICANT_STRUCTURE, structure_left
 from fmu_greybox.diagnosis.runner import Experiment
 from fmu_greybox.diagnosis.select import ForwardSelection, Round
 
@@ -133,7 +133,7 @@ def stage_structure(
 ) -> tuple[float, float]:
     """Structure of a stage's signals before and after a change: whitened power beyond noise
     in the frequency bands where either leaves structure beyond chance
-    (:func:`~.noise.structure_left`), over the whole recording."""
+    (:func:`~fmu_greybox.data.noise.structure_left`), over the whole recording."""
     cols = [j for j, s in enumerate(experiment.stages) if s == stage]
     new, old, _ = structure_left(experiment.bands(after), experiment.bands(before))
     return float(np.sum(old[cols])), float(np.sum(new[cols]))

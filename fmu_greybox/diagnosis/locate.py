@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter, welch
 
-from fmu_greybox.diagnosis.noise import SIGNIFICANT_RATIO, significance
+from fmu_greybox.data.noise import SIGNIFICANT_RATIO, significance
 from fmu_greybox.diagnosis.runner import Experiment
 from fmu_greybox.diagnosis.signals import SignalMap
 
@@ -102,7 +102,7 @@ class SignalResidual:
         RMS of the drift that input noise alone drives, in noise levels.
     significant : bool
         Whether the residual exceeds the noise (``noise_ratio > threshold``, or a frequency
-        band holds significant structure, :func:`~.noise.significance`).
+        band holds significant structure, :func:`~fmu_greybox.data.noise.significance`).
     structure_bands : list of str
         Frequency bands holding significant structure of their own.
     regimes : list of Regime

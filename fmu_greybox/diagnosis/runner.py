@@ -23,16 +23,16 @@ from typing import Protocol
 
 import numpy as np
 
-from fmu_greybox.data.recording import Recording
-from fmu_greybox.diagnosis.noise import (
+from fmu_greybox.data.noise import (
     Bands,
     DriftWhitening,
     InputSmoother,
-    input_noise_levels,
+    estimate_noise_model,
+    floored_levels,
     noise_level,
     residual_bands,
-    sensor_noise_level,
 )
+from fmu_greybox.data.recording import Recording
 from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.errors import FmuError
 from fmu_greybox.fmi.archive import FmuArchive
@@ -113,7 +113,7 @@ class Experiment:
         """
         binding = bind_project_inputs(config, archive, recording)
         recorded = np.column_stack([recording[s.column] for s in signals.observed])
-        sigma = _floored([noise_level(x) for x in recorded.T], recorded)
+        sigma = floored_levels([noise_level(x) for x in recorded.T], recorded)
         return cls(
             archive=archive,
             inputs=binding.inputs,
@@ -137,10 +137,10 @@ class Experiment:
         """Set the noise model (:mod:`.noise`) and return the white-box simulation it leads to.
 
         Each recorded input's noise is estimated, and noisy inputs are smoothed against it
-        (:class:`~.noise.InputSmoother`: the simulations that follow answer the inputs, not
-        their sensors' noise). Then, against the white-box over those inputs: each observed
-        signal's sensor noise, and the whitening against the drift that ``runs`` simulations
-        with the inputs' remaining error re-drawn show.
+        (:class:`~fmu_greybox.data.noise.InputSmoother`: the simulations that follow answer
+        the inputs, not their sensors' noise). Then, against the white-box over those inputs:
+        each observed signal's sensor noise, and the whitening against the drift that ``runs``
+        simulations with the inputs' remaining error re-drawn show.
 
         Parameters
         ----------
@@ -154,36 +154,25 @@ class Experiment:
         ndarray, shape (n, n_outputs), or None
             The white-box over the (smoothed) inputs; None if the FMU fails on them.
         """
-        self.input_sigma = input_noise_levels(self.u, self.recorded)
-        self.whitening = None
-        self.smoother = None
-        if np.any(self.input_sigma > 0):
-            self.smoother = InputSmoother(self.u, self.input_sigma)
-            self.u = self.smoother(self.u)
-            self._cache = {}
-        simulated = self.simulate([])
-        if simulated is None:
+        caches: list[dict] = []  # the first run is over the inputs kept: its cache is kept
+
+        def simulate_over(u: np.ndarray) -> np.ndarray | None:
+            caches.append({})
+            return dataclasses.replace(self, u=u, _cache=caches[-1]).simulate([])
+
+        noise = estimate_noise_model(self.u, self.recorded, simulate_over, self.dt, runs, seed)
+        self._cache = caches[0]
+        if noise is None:
             return None
-        pairs = zip(self.recorded.T, simulated.T, strict=True)
-        levels = [sensor_noise_level(recorded, sim) for recorded, sim in pairs]
-        self.sigma = _floored(levels, self.recorded)
-        if self.smoother is None or runs < 1:
-            return simulated
-        rng = np.random.default_rng(seed)
-        deviations = []
-        for _ in range(runs):
-            run = self.renoised(rng).simulate([])
-            if run is not None:
-                deviations.append(run - simulated)
-        if deviations:
-            self.whitening = DriftWhitening(np.array(deviations), self.sigma, self.dt)
-        return simulated
+        self.input_sigma, self.smoother = noise.input_sigma, noise.smoother
+        self.u, self.sigma, self.whitening = noise.u, noise.sigma, noise.whitening
+        return noise.simulated
 
     def renoised(self, rng: np.random.Generator) -> Experiment:
-        """A copy whose inputs carry a fresh draw of their error: the smoothed inputs' remaining
-        error (:meth:`~.noise.InputSmoother.noise`) after :meth:`estimate_noise` (none where it
-        found no input noise), else white noise at each input's second-difference noise
-        level."""
+        """A copy whose inputs carry a fresh draw of their error: the smoothed inputs'
+        remaining error (:meth:`~fmu_greybox.data.noise.InputSmoother.noise`) after
+        :meth:`estimate_noise` (none where it found no input noise), else white noise at each
+        input's second-difference noise level."""
         if self.input_sigma is None:
             sigma = np.array([noise_level(x) for x in self.u.T])
             u = self.u + rng.standard_normal(self.u.shape) * sigma
@@ -243,14 +232,8 @@ class Experiment:
 
     def bands(self, simulated: np.ndarray, start: int = 0) -> Bands:
         """Band powers of the residual against sensor noise and input-noise drift
-        (:func:`~.noise.residual_bands`); arguments as :meth:`residual`."""
+        (:func:`~fmu_greybox.data.noise.residual_bands`); arguments as :meth:`residual`."""
         return residual_bands(self.normalised(simulated, start), self.whitening, self.dt)
-
-
-def _floored(levels: Sequence[float], recorded: np.ndarray) -> np.ndarray:
-    """Noise levels floored at 1e-6 of each signal's RMS (for noise-free recordings)."""
-    floor = 1e-6 * np.sqrt(np.mean(recorded**2, axis=0)) + 1e-300
-    return np.maximum(np.asarray(levels, dtype=np.float64), floor)
 
 
 _WORKER: dict[str, Experiment] = {}

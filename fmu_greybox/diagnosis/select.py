@@ -61,10 +61,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fmu_greybox.data.noise import SIGNIFICANT_RATIO, significance, structure_left
 from fmu_greybox.diagnosis.alternatives import is_alternative, nearly_as_good, physics_of
 from fmu_greybox.diagnosis.calibrate import Calibrator, Candidate, HeldOut
 from fmu_greybox.diagnosis.hypotheses import Hypothesis, ParameterMismatch
-from fmu_greybox.diagnosis.noise import SIGNIFICANT_RATIO, significance, structure_left
 from fmu_greybox.diagnosis.runner import Simulator
 from fmu_greybox.model.calibration import autocorrelation_time
 
@@ -524,11 +524,11 @@ def _extended(kept: Candidate, hypothesis: Hypothesis | None, theta: np.ndarray)
 def heldout_ratio(new: HeldOut | None, old: HeldOut | None) -> float:
     """Geometric mean over the observed signals of the held-out structure ratio ``new / old``.
 
-    A signal's structure is its whitened held-out power beyond noise in the frequency bands
-    where either fit leaves structure beyond chance (:attr:`~.noise.Bands.structured`); both
-    are regularised by the power at the chance threshold of those bands, so that a signal
-    left at noise level by both counts 1. Structure concentrated in a band (an offset, a
-    resonance) then counts in full, not diluted by the noise of the other bands.
+    A signal's structure is its whitened held-out power beyond noise in the frequency bands where
+    either fit leaves structure beyond chance (:attr:`~fmu_greybox.data.noise.Bands.structured`);
+    both are regularised by the power at the chance threshold of those bands, so that a signal left
+    at noise level by both counts 1. Structure concentrated in a band (an offset, a resonance) then
+    counts in full, not diluted by the noise of the other bands.
 
     Parameters
     ----------

@@ -18,10 +18,15 @@ Each stage then ships the first part, in the order of
 :data:`~fmu_greybox.project.config.STAGE_PARTS`, that the best one does not beat clearly
 (:func:`choose_stage_part`): the white-box, the terms, the terms with correctors, the
 correctors alone (fewer additions first, and the named physics, which extrapolates, before data,
-which does not). Beating clearly takes two things: an RMSE lower by more than
-:data:`EQUAL_MARGIN` over the held-out rows, and a lower RMSE in most of the :data:`BLOCKS`
+which does not). Beating clearly takes two things: an RMS error lower by more than
+:data:`EQUAL_MARGIN` over the held-out rows, and a lower one in most of the :data:`BLOCKS`
 consecutive blocks they are cut into, so that one stretch of the recording (a manoeuvre the
-correctors happen to know) does not decide for all. A stage that ships no named terms takes the
+correctors happen to know) does not decide for all. ``train`` judges the error as the
+diagnosis does (:class:`~fmu_greybox.data.noise.ResidualJudge`): in sensor-noise units and
+whitened against the drift that the inputs' noise drives through the white-box. That drift is
+one realisation of noise, which the next recording does not repeat: a corrector that learns
+where it wandered on the training recording wins on that recording's later rows, by raw RMSE,
+and loses on the next recording. A stage that ships no named terms takes the
 plain white-box (the terms' ``stages_off``); a stage that ships no corrector passes it through.
 A stage's ``ship`` setting, or ``train --ship`` for every stage, names the part instead.
 """
@@ -30,7 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -88,8 +93,11 @@ class PartsComparison:
     ----------
     stages : dict
         Stage -> ``{PART}_rmse`` for each part compared, ``blocks`` (part -> RMSE in each of
-        the :data:`BLOCKS` blocks of the held-out rows), ``best`` (the part with the lowest
-        RMSE) and ``shipped`` (the part chosen for the stage, :func:`choose_stage_part`).
+        the :data:`BLOCKS` blocks of the held-out rows), with a judge (:func:`compare_parts`)
+        ``judged`` and ``judged_blocks`` (the same of the judged residual, in noise units),
+        ``best`` (the part with the lowest RMSE, or judged residual when judged) and
+        ``shipped`` (the part chosen for the stage, :func:`choose_stage_part`, on the judged
+        residual when judged).
     score : dict
         Part -> mean over the stages of its RMSE divided by the stage's scale (its training
         target's spread).
@@ -249,6 +257,7 @@ def compare_parts(
     first_row: int,
     ship: str = BEST,
     stage_ship: Mapping[str, str] | None = None,
+    judge: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> PartsComparison:
     """Compare the candidates' predictions of the held-out rows, stage by stage.
 
@@ -271,6 +280,10 @@ def compare_parts(
         ``terms+correctors`` when too few rows were held out to compare.
     stage_ship : mapping of str to str, optional
         Stage -> its ``ship`` setting (:attr:`~fmu_greybox.project.config.StageConfig.ship`).
+    judge : callable, optional
+        Residuals (recorded minus predicted, shape (m, Q)) -> the residuals the choice is made
+        on, same shape (:class:`~fmu_greybox.data.noise.ResidualJudge`: in noise units,
+        whitened against input-noise drift). Without it, the RMSE decides.
 
     Returns
     -------
@@ -287,17 +300,25 @@ def compare_parts(
     decided = m >= MIN_COMPARED_ROWS
     stages: dict[str, dict] = {}
     normalised: dict[str, list[float]] = {part: [] for part in compared}
+    judged = {p: judge(recorded - predictions[p]) for p in compared} if judge else None
     for q, name in enumerate(names):
         total = {p: rmse(predictions[p][:, q], recorded[:, q]) for p in compared}
         blocks = {p: block_rmse(predictions[p][:, q], recorded[:, q]) for p in compared}
         for part in compared:
             normalised[part].append(total[part] / (scale[name] or 1.0))
+        row: dict[str, Any] = {f"{part}_rmse": total[part] for part in compared}
+        row["blocks"] = blocks
+        if judged is not None:  # the choice is made on the judged residual
+            zero = np.zeros(m)
+            total = {p: rmse(judged[p][:, q], zero) for p in compared}
+            blocks = {p: block_rmse(judged[p][:, q], zero) for p in compared}
+            row["judged"] = total
+            row["judged_blocks"] = blocks
         chosen = ship if ship != BEST else (stage_ship or {}).get(name, BEST)
         if chosen == BEST:
             chosen = choose_stage_part(total, blocks) if decided else "terms+correctors"
         stages[name] = {
-            **{f"{part}_rmse": total[part] for part in compared},
-            "blocks": blocks,
+            **row,
             "best": min(compared, key=total.__getitem__),
             "shipped": chosen,
         }
@@ -342,7 +363,12 @@ class FittedModel:
         return mean[self.split :]
 
 
-def compare_fitted(named: FittedModel, plain: FittedModel, ship: str) -> PartsComparison:
+def compare_fitted(
+    named: FittedModel,
+    plain: FittedModel,
+    ship: str,
+    judge: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> PartsComparison:
     """Compare the three parts of two chains fitted on the same rows (see the module
     docstring).
 
@@ -354,6 +380,8 @@ def compare_fitted(named: FittedModel, plain: FittedModel, ship: str) -> PartsCo
         Correctors trained on the plain white-box, on the same rows.
     ship : str
         One of :data:`SHIP_CHOICES`.
+    judge : callable, optional
+        As :func:`compare_parts`.
 
     Returns
     -------
@@ -375,5 +403,6 @@ def compare_fitted(named: FittedModel, plain: FittedModel, ship: str) -> PartsCo
         named.split + 1,
         ship,
         {stage.name: stage.ship for stage in named.model.config.stages},
+        judge,
     )
     return dataclasses.replace(comparison, trained_rows=[0, named.split])

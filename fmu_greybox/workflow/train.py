@@ -17,7 +17,7 @@ from fmu_greybox.fmi.integrator import whitebox_facts
 from fmu_greybox.model.chain import GreyBoxChain, RecordedRun
 from fmu_greybox.model.domain import training_ranges
 from fmu_greybox.model.fit_cache import FitCache
-from fmu_greybox.model.stage_data import prepare
+from fmu_greybox.model.stage_data import estimate_noise, prepare
 from fmu_greybox.model.store import GreyBoxModel, file_sha256
 from fmu_greybox.model.terms import Term
 from fmu_greybox.model.training import TrainingRecord
@@ -210,7 +210,9 @@ def compare_parts_forward(
     """Correctors alone, ``terms`` alone and both, compared forward in time: correctors
     trained on the first half of the training rows (:func:`comparison_config`), every part
     free-run from the first row and scored on every later row
-    (:func:`~fmu_greybox.workflow.parts.compare_fitted`). ``fits``: shared by the two chains
+    (:func:`~fmu_greybox.workflow.parts.compare_fitted`), judged in noise units and whitened
+    against the drift the inputs' noise drives
+    (:func:`~fmu_greybox.model.stage_data.estimate_noise`). ``fits``: shared by the two chains
     (and with the model that ships), so that a stage both see alike is fitted once.
 
     Returns
@@ -252,7 +254,11 @@ def compare_parts_forward(
         ]
     )
     seconds = max(named.model.training.seconds, plain.model.training.seconds)
-    return compare_fitted(named, plain, ship), seconds, {"terms": named, "correctors": plain}
+    with open_fmu(whitebox_path(config)) as archive:
+        noise = estimate_noise(config, named.model.chain, archive, named.data, terms)
+    judge = None if noise is None else noise.judge()
+    comparison = compare_fitted(named, plain, ship, judge)
+    return comparison, seconds, {"terms": named, "correctors": plain}
 
 
 def comparison_config(config: ProjectConfig, chain: GreyBoxChain, n: int) -> ProjectConfig:

@@ -29,7 +29,9 @@ Three estimates, each from the recording and the FMU, none from a model of the t
 
 from __future__ import annotations
 
+import copy
 import itertools
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -220,6 +222,14 @@ class DriftWhitening:
         self.drift = np.sqrt(np.mean(deviations**2, axis=(0, 1))) / sigma
         self._weights: dict[int, np.ndarray] = {}
 
+    def columns(self, which: Sequence[int]) -> DriftWhitening:
+        """The whitening of some of the signals only, in the order of ``which``."""
+        chosen = copy.copy(self)
+        chosen.ratio = self.ratio[:, list(which)]
+        chosen.drift = self.drift[list(which)]
+        chosen._weights = {}
+        return chosen
+
     def weights(self, n: int) -> np.ndarray:
         """Gain of the whitening filter on the rfft grid of ``n`` samples, shape
         (n // 2 + 1, n_observed) (read-only: kept for the next residual of that length)."""
@@ -245,6 +255,136 @@ class DriftWhitening:
             return residual.copy()
         spectrum = np.fft.rfft(_mirrored(residual, 0), axis=0) * self.weights(2 * n)
         return np.fft.irfft(spectrum, n=2 * n, axis=0)[:n]
+
+
+def floored_levels(levels: Sequence[float], recorded: np.ndarray) -> np.ndarray:
+    """Noise levels floored at 1e-6 of each signal's RMS (for noise-free recordings).
+
+    Parameters
+    ----------
+    levels : sequence of float, length k
+    recorded : ndarray, shape (n, k)
+
+    Returns
+    -------
+    ndarray, shape (k,)
+    """
+    floor = 1e-6 * np.sqrt(np.mean(recorded**2, axis=0)) + 1e-300
+    return np.maximum(np.asarray(levels, dtype=np.float64), floor)
+
+
+@dataclass
+class NoiseModel:
+    """What noise a recording's residual against a right white-box carries
+    (:func:`estimate_noise_model`).
+
+    Attributes
+    ----------
+    input_sigma : ndarray, shape (n_inputs,)
+        Each recorded input's noise level (0: none found).
+    smoother : InputSmoother or None
+        Smooths the noisy inputs (None when no input is noisy).
+    u : ndarray, shape (n, n_inputs)
+        The inputs the white-box was run over (smoothed where noisy).
+    simulated : ndarray, shape (n, n_outputs)
+        The white-box over ``u``.
+    sigma : ndarray, shape (n_outputs,)
+        Each output's sensor-noise level (:func:`floored_levels`).
+    whitening : DriftWhitening or None
+        Against the drift input noise drives (None when no input is noisy).
+    """
+
+    input_sigma: np.ndarray
+    smoother: InputSmoother | None
+    u: np.ndarray
+    simulated: np.ndarray
+    sigma: np.ndarray
+    whitening: DriftWhitening | None
+
+    def judge(self) -> ResidualJudge:
+        """The judge of residuals of these outputs (:class:`ResidualJudge`)."""
+        return ResidualJudge(self.sigma, self.whitening)
+
+
+def estimate_noise_model(
+    u: np.ndarray,
+    recorded: np.ndarray,
+    simulate: Callable[[np.ndarray], np.ndarray | None],
+    dt: float,
+    runs: int = 4,
+    seed: int = 0,
+) -> NoiseModel | None:
+    """Estimate the noise of a recording against its white-box (see the module docstring).
+
+    Each recorded input's noise is estimated and noisy inputs are smoothed against it; then,
+    against the white-box over those inputs, each output's sensor noise, and the whitening
+    against the drift that ``runs`` simulations with the inputs' remaining error re-drawn show.
+
+    Parameters
+    ----------
+    u : ndarray, shape (n, n_inputs)
+        Recorded inputs.
+    recorded : ndarray, shape (n, n_outputs)
+        Recorded outputs.
+    simulate : callable
+        The white-box over inputs of shape (n, n_inputs): outputs of shape (n, n_outputs), or
+        None if it fails.
+    dt : float
+        Sample time [s].
+    runs : int
+        Simulations with re-drawn input error.
+    seed : int
+        Seed of the re-drawing.
+
+    Returns
+    -------
+    NoiseModel or None
+        None if the white-box fails on the (smoothed) inputs.
+    """
+    input_sigma = input_noise_levels(u, recorded)
+    smoother = InputSmoother(u, input_sigma) if np.any(input_sigma > 0) else None
+    if smoother is not None:
+        u = smoother(u)
+    simulated = simulate(u)
+    if simulated is None:
+        return None
+    levels = [sensor_noise_level(r, s) for r, s in zip(recorded.T, simulated.T, strict=True)]
+    sigma = floored_levels(levels, recorded)
+    whitening = None
+    if smoother is not None and runs >= 1:
+        rng = np.random.default_rng(seed)
+        runs_ = (simulate(u + smoother.noise(rng, input_sigma)) for _ in range(runs))
+        deviations = [run - simulated for run in runs_ if run is not None]
+        if deviations:
+            whitening = DriftWhitening(np.array(deviations), sigma, dt)
+    return NoiseModel(input_sigma, smoother, u, simulated, sigma, whitening)
+
+
+@dataclass(frozen=True)
+class ResidualJudge:
+    """Residuals as a part is judged on them: in units of each signal's sensor noise, and
+    whitened against the drift that input noise drives (:class:`DriftWhitening`).
+
+    A drift is one realisation of noise: the next recording has another, and no model predicts
+    it. Judged raw, a corrector that learns where the drift of its own recording happens to
+    wander wins on that recording's later rows and loses on the next one; whitened, the
+    frequencies where drift dominates count in proportion to what noise alone explains.
+
+    Attributes
+    ----------
+    sigma : ndarray, shape (k,)
+        Each signal's sensor-noise level.
+    whitening : DriftWhitening or None
+        Over the same ``k`` signals (None: no input noise, nothing to whiten).
+    """
+
+    sigma: np.ndarray
+    whitening: DriftWhitening | None = None
+
+    def __call__(self, residual: np.ndarray) -> np.ndarray:
+        """The judged residual, shape (m, k), of a residual of shape (m, k) (a new array)."""
+        normalised = np.asarray(residual, dtype=np.float64) / self.sigma
+        return normalised if self.whitening is None else self.whitening(normalised)
 
 
 def _mirrored(x: np.ndarray, axis: int) -> np.ndarray:

@@ -1,0 +1,74 @@
+"""The parts are judged as the diagnosis judges a residual: in noise units, whitened against the
+drift that input noise drives (issue 40: a corrector that learns the drift of its own recording
+must not win the comparison)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fmu_greybox.data.noise import DriftWhitening, ResidualJudge
+from fmu_greybox.workflow.parts import compare_parts
+
+DT = 1e-3
+
+
+def _random_walks(rng: np.random.Generator, shape: tuple[int, ...], step: float) -> np.ndarray:
+    return np.cumsum(rng.normal(scale=step, size=shape), axis=-2)
+
+
+@pytest.fixture(scope="module")
+def drift_case() -> dict:
+    """A position-like stage (``RAM``) whose residual after the terms is sensor noise plus a
+    random-walk drift that input noise drives, five times the noise, and a stage (``ITFV``)
+    whose residual after the terms holds a systematic error besides its noise."""
+    rng = np.random.default_rng(11)
+    n, sigma = 6000, np.array([1.0, 1.0])
+    deviations = _random_walks(rng, (4, n, 2), 0.08)  # four re-noised runs of the white-box
+    deviations[..., 1] *= 0.0  # the pressure does not integrate its inputs' noise
+    whitening = DriftWhitening(deviations, sigma, DT)
+    recorded = np.zeros((n, 2))
+    noise = rng.normal(size=(n, 2))
+    drift = _random_walks(rng, (n, 1), 0.08)[:, 0]
+    t = np.arange(n) * DT
+    systematic = 2.0 * np.sin(2 * np.pi * 7.0 * t)
+    terms = recorded - (noise + np.column_stack([drift, systematic]))
+    # correctors that learned this recording's drift (RAM) and the systematic error (ITFV)
+    both = recorded - noise
+    return {
+        "recorded": recorded,
+        "predictions": {"terms": terms, "terms+correctors": both, "correctors": terms - 3.0},
+        "judge": ResidualJudge(sigma, whitening),
+        "drift_rms": float(np.sqrt(np.mean(drift**2))),
+    }
+
+
+def test_a_judged_residual_of_noise_and_input_noise_drift_is_at_noise_level(drift_case) -> None:
+    """The judge brings a residual of sensor noise plus input-noise drift to about unit RMS,
+    and leaves a residual of white sensor noise at about unit RMS."""
+    terms = drift_case["recorded"] - drift_case["predictions"]["terms"]
+    raw = np.sqrt(np.mean(terms[:, 0] ** 2))
+    judged = drift_case["judge"](terms)
+    assert raw > 3.0  # the drift dominates the raw residual
+    assert np.sqrt(np.mean(judged[:, 0] ** 2)) == pytest.approx(1.0, abs=0.25)
+    noise = drift_case["recorded"] - drift_case["predictions"]["terms+correctors"]
+    assert np.sqrt(np.mean(drift_case["judge"](noise) ** 2, axis=0)) == pytest.approx(
+        [1.0, 1.0], abs=0.1
+    )
+
+
+def test_a_corrector_that_learned_the_drift_does_not_beat_the_terms(drift_case) -> None:
+    """By raw RMSE the corrector that learned this recording's drift beats the terms on the RAM
+    stage; judged, it does not beat them clearly, and the stage ships the terms. On the ITFV
+    stage the corrector removes a systematic error and wins both ways."""
+    args = (["RAM", "ITFV"], drift_case["recorded"], drift_case["predictions"])
+    scale = {"RAM": 1.0, "ITFV": 1.0}
+    raw = compare_parts(*args, scale, first_row=100)
+    judged = compare_parts(*args, scale, first_row=100, judge=drift_case["judge"])
+    assert raw.shipped == {"RAM": "terms+correctors", "ITFV": "terms+correctors"}
+    assert judged.shipped == {"RAM": "terms", "ITFV": "terms+correctors"}
+    ram = judged.stages["RAM"]
+    # the raw figures stay in the evidence beside the judged ones
+    assert ram["terms+correctors_rmse"] < 0.5 * ram["terms_rmse"]
+    assert ram["judged"]["terms+correctors"] > 0.8 * ram["judged"]["terms"]
+    assert len(ram["judged_blocks"]["terms"]) == 4
