@@ -32,6 +32,7 @@ from fmu_greybox.export.fmu import export_greybox
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.gp import SparseGPR
 from fmu_greybox.model.simulate import simulate_with_terms
+from fmu_greybox.model.stage_data import estimate_noise, prepare
 from fmu_greybox.model.store import load_model, save_model
 from fmu_greybox.model.terms import CoulombForce, InputDelay, InputGain, SensorDelay
 from fmu_greybox.model.whitebox import NamedModel, check_terms, read_terms
@@ -297,13 +298,19 @@ def test_train_with_terms_compares_its_parts_forward_in_time(termed, tmp_path) -
         named_run = simulate_with_terms(
             archive, INPUTS, input_rows(recording), DT, STAGE_OUTPUTS, terms(), stages=[0, 1, 2]
         )
+        data = prepare(config, model.chain, archive, recording, terms=terms())
+        noise = estimate_noise(config, model.chain, archive, data, terms())
+    # the parts are judged in noise units, whitened against the drift of the inputs' noise
+    judged = noise.judge()(data.outputs[first:] - named_run[first:])
     for q, stage in enumerate(model.chain.stage_names):
         column = model.config.signals[model.chain.target_signals[q]].column
         error = np.sqrt(np.mean((named_run[first:, q] - recording[column][first:]) ** 2))
-        assert parts["stages"][stage]["terms_rmse"] == pytest.approx(error, rel=1e-9)
         row = parts["stages"][stage]
-        assert row["best"] == min(STAGE_PARTS, key=lambda part: row[f"{part}_rmse"])
-        assert len(row["blocks"]["terms"]) == BLOCKS
+        assert row["terms_rmse"] == pytest.approx(error, rel=1e-9)
+        judged_rms = np.sqrt(np.mean(judged[:, q] ** 2))
+        assert row["judged"]["terms"] == pytest.approx(judged_rms, rel=1e-6)
+        assert row["best"] == min(STAGE_PARTS, key=lambda part: row["judged"][part])
+        assert len(row["blocks"]["terms"]) == len(row["judged_blocks"]["terms"]) == BLOCKS
     alone = train_model(termed["config"], recording, terms=terms(), ship="terms")
     assert not alone.chain.active_.any() and alone.terms == terms()
     # no corrector is fitted for what never runs; the folder and the exported FMU do without
