@@ -696,7 +696,7 @@ def _print_validation(ctx: click.Context, model: GreyBoxModel, result: Validatio
     from fmu_greybox.workflow.parts import passed_through_text
 
     _info(ctx, f"held out: {result.held_out}")
-    click.echo(format_table(result.table, model.training.target_unit))
+    click.echo(format_table(result.table, model.training.target_unit, model.contents()))
     passed = model.chain.passed_through
     if passed:
         _info(ctx, f"passed through: {passed_through_text(model.training.parts or {}, passed)}")

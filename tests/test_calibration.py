@@ -241,8 +241,13 @@ def test_the_residual_panels_shade_the_rows_outside_the_domain_and_only_those() 
     assert [(round(a, 3), round(b, 3)) for a, b in shaded_spans(fig)] == [(0.4, 0.599)]
     texts = [t.get_text() for t in fig.legends[0].get_texts()]
     assert "correctors outside their domain" in texts
-    plain = trace_figure(time, recorded, mean, mean, std, names, units)
+    assert "grey-box ±1.96σ" in texts
+    plain = trace_figure(time, recorded, mean, mean, std, names, units, model_label="white-box")
     assert shaded_spans(plain) == []
+    # a model without a corrector is drawn under its own name, never "grey-box"
+    named = [t.get_text() for t in plain.legends[0].get_texts()]
+    titles = " ".join(ax.get_title(loc="left") for ax in plain.axes)
+    assert "white-box ±1.96σ" in named and "grey-box" not in " ".join(named) + titles
     assert "correctors outside their domain" not in [
         t.get_text() for t in plain.legends[0].get_texts()
     ]

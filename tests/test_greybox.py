@@ -268,7 +268,7 @@ def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
     )
     assert result.exit_code == 0, result.output
     assert "EHV" in result.output and "improvement" in result.output
-    assert "GB RMSE / calibration" in result.output  # how this recording's errors compare
+    assert "model RMSE / calibration" in result.output  # how this recording's errors compare
     metrics = json.loads((tmp_path / "val" / "metrics.json").read_text())
     # what each stage's calibration rows vouch for, in the terminal's table too
     assert "calibration vouches (rows)" in result.output

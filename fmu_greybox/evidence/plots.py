@@ -54,8 +54,9 @@ def trace_figure(
     units: Sequence[str],
     zoom_seconds: float = 0.2,
     outside: np.ndarray | None = None,
+    model_label: str = "grey-box",
 ) -> plt.Figure:
-    """Per stage, the residual with the grey-box's ±1.96σ band, and a zoom on its worst window.
+    """Per stage, the residual with the model's ±1.96σ band, and a zoom on its worst window.
 
     Left: recording minus grey-box inside the band, titled with both models' RMSE (the
     white-box's residual is often orders of magnitude larger and would hide the band). Right:
@@ -73,6 +74,9 @@ def trace_figure(
     outside : ndarray of bool, shape (m,), optional
         The rows where the correctors were outside their domain: shaded grey behind each
         residual (no calibration vouches for the band there).
+    model_label : str
+        What the model is, in words (``"grey-box"``; ``"white-box + named terms"`` for a model
+        without an active corrector: :attr:`~fmu_greybox.model.store.GreyBoxModel.kind`).
 
     Returns
     -------
@@ -102,8 +106,8 @@ def trace_figure(
         inside = coverage(residual, std[:, q], Z95)
         rmse = [np.sqrt(np.mean((recorded[:, q] - m) ** 2)) for m in (whitebox[:, q], mean[:, q])]
         left.set_title(
-            f"{names[q]}: recording − grey-box [{units[q]}]\nRMSE white-box {rmse[0]:.3g}, "
-            f"grey-box {rmse[1]:.3g}; {100 * inside:.1f} % inside ±1.96σ",
+            f"{names[q]}: recording − model [{units[q]}]\nRMSE white-box {rmse[0]:.3g}, "
+            f"{model_label} {rmse[1]:.3g}; {100 * inside:.1f} % inside ±1.96σ",
             fontsize="medium",
             loc="left",
         )
@@ -140,7 +144,12 @@ def trace_figure(
         plt.Line2D([], [], **ZOOM_STYLES["white-box"]),
         plt.Line2D([], [], **ZOOM_STYLES["recording"]),
     ]
-    labels = ["grey-box ±1.96σ", "grey-box (left: recording − grey-box)", "white-box", "recording"]
+    labels = [
+        f"{model_label} ±1.96σ",
+        f"{model_label} (left: recording − model)",
+        "white-box",
+        "recording",
+    ]
     if shaded:
         handles.append(plt.Rectangle((0, 0), 1, 1, **OUTSIDE_STYLE))
         labels.append("correctors outside their domain")
@@ -257,7 +266,9 @@ def calibration_figure(
 
 
 def frequency_figure(
-    responses: Sequence[FrequencyResponse], bands: Sequence[tuple[float, float]]
+    responses: Sequence[FrequencyResponse],
+    bands: Sequence[tuple[float, float]],
+    model_label: str = "grey-box",
 ) -> plt.Figure:
     """Per stage (one titled row): gain and phase of recording, white-box and grey-box, and
     coherences, over the frequencies where the recording's estimate is trusted.
@@ -273,8 +284,14 @@ def frequency_figure(
     responses : sequence of FrequencyResponse
     bands : sequence of (float, float)
         Each stage's band [Hz].
+    model_label : str
+        What the model is, in words (:func:`trace_figure`).
     """
-    styles = {"recording": REC_STYLE, "white-box": WB_STYLE, "grey-box": GB_STYLE}
+    styles = {
+        "recording": REC_STYLE,
+        "white-box": WB_STYLE,
+        "grey-box": {**GB_STYLE, "label": model_label},
+    }
     rows = len(responses)
     fig, axes = plt.subplots(rows, 3, figsize=(12, 2.9 * rows + 0.6), squeeze=False)
     for (gain, phase, match), r, band in zip(axes, responses, bands, strict=True):

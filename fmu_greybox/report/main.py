@@ -437,7 +437,11 @@ def stage_titles(config: ProjectConfig) -> tuple[list[str], list[str]]:
 
 
 def validation_sections(
-    validation: Validation, units: list[str], labels: list[str], model_text: str = ""
+    validation: Validation,
+    units: list[str],
+    labels: list[str],
+    model_text: str = "",
+    kind: str = "grey-box",
 ) -> list[str]:
     """The sections on a validation (the demo's independent recording, or ``validate``'s): its
     table, the residuals with their band, the calibration plot, the frequency responses and
@@ -452,21 +456,24 @@ def validation_sections(
         Each stage's panel title (``"RAM: ram_position"``).
     model_text : str
         A sentence on the model validated, or ``""``.
+    kind : str
+        What the model is, in words (:attr:`~fmu_greybox.model.store.GreyBoxModel.kind`):
+        ``"grey-box"`` only when some corrector is used.
     """
     run = validation.run
     recorded = validation.data.outputs[run.rows]
     named = all("named_rmse" in row for row in validation.table.values())
     return [
-        "<h2>Grey-box on an independent recording</h2>",
+        f"<h2>The {escape(kind)} on an independent recording</h2>",
         table(
             (
                 "stage",
                 "unit",
                 "white-box RMSE",
                 *([Html(f"+ {term('named-terms')} RMSE")] if named else []),
-                "grey-box RMSE",
+                f"{kind} RMSE",
                 "change",
-                Html(f"grey-box {term('nrmse', 'nRMSE')}"),
+                Html(f"{escape(kind)} {term('nrmse', 'nRMSE')}"),
                 Html(f"median {term('sigma', 'σ')}"),
                 "inside ±1σ",
                 "inside ±1.96σ",
@@ -476,12 +483,12 @@ def validation_sections(
         ),
         f"<p>{escape(validation.held_out)}; a {term('free-run')}."
         + escape(model_text)
-        + f" {term('sigma', 'σ')}: the grey-box's calibrated standard deviation, the exported "
-        "FMU's _std. In brackets: the share's 95 % interval."
+        + f" {term('sigma', 'σ')}: the {escape(kind)}'s calibrated standard deviation, the "
+        "exported FMU's _std. In brackets: the share's 95 % interval."
         + (f" {escape(RATIO_NOTE)}" if calibration_ratios(validation) else "")
         + "</p>",
         figure(
-            "Residuals with the grey-box's ±1.96σ band",
+            f"Residuals with the {kind}'s ±1.96σ band",
             trace_figure(
                 run.time,
                 recorded,
@@ -491,11 +498,12 @@ def validation_sections(
                 labels,
                 units,
                 outside=run.outside,
+                model_label=kind,
             ),
-            "Left: recording minus grey-box inside its ±1.96σ band (the white-box's residual, "
-            "often far larger, would hide it: its RMSE is in each title), grey where the "
-            "correctors were outside their domain. Right: the recording, both models and the "
-            "band over the 0.2 s where the grey-box's residual is largest.",
+            f"Left: recording minus the {kind} inside its ±1.96σ band (the white-box's "
+            "residual, often far larger, would hide it: its RMSE is in each title), grey where "
+            "the correctors were outside their domain. Right: the recording, both models and "
+            f"the band over the 0.2 s where the {kind}'s residual is largest.",
         ),
         figure(
             "Calibration of the uncertainty",
@@ -511,6 +519,7 @@ def validation_sections(
             frequency_figure(
                 validation.responses,
                 [validation.criteria.for_stage(r.stage).band for r in validation.responses],
+                model_label=kind,
             ),
             "Welch estimates from the acceptance input to each stage output, drawn where the "
             "recording's input-output coherence reaches 0.6 (the trusted frequencies); phase "
@@ -594,6 +603,7 @@ def report_html(result: DemoResult) -> str:
             f" The exported model: {shipped_model(result.parts, result.model)}."
             if result.parts
             else "",
+            result.model.kind if result.model is not None else "grey-box",
         ),
         *diagnosis,
         "<h2>The exported FMU on the SSP bench</h2>",

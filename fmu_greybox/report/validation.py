@@ -113,7 +113,7 @@ def validation_report_html(
         )
     sections += [
         verdict(lines),
-        *validation_sections(validation, units, labels, f" The model: {shipped}."),
+        *validation_sections(validation, units, labels, f" The model: {shipped}.", model.kind),
         glossary_section(),
         *_traceability(config, model_dir, [validation.data.recording], command),
     ]

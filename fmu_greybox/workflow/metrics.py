@@ -178,12 +178,17 @@ def error_ratio(row: Mapping[str, float]) -> float | None:
     return scored / calibrated if scored is not None and calibrated else None
 
 
-def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, str]) -> str:
+def format_table(
+    table: Mapping[str, Mapping[str, float]],
+    units: Mapping[str, str],
+    contents: Mapping[str, str] | None = None,
+) -> str:
     """The table as fixed-width text, one stage a line (for the terminal); a column for the
-    white-box with named terms, the coverage of ±1.96σ, the grey-box's RMSE as a multiple
-    of the one its σ was calibrated on (``calibration_rmse``), and the share of ±1.96σ its
+    white-box with named terms, the coverage of ±1.96σ, the model's RMSE as a multiple of the
+    one its σ was calibrated on (``calibration_rmse``), and the share of ±1.96σ its
     calibration rows vouch for (:func:`spread_text` of ``calibration_independent_rows``), when
-    the table has them."""
+    the table has them; last, what the model computes on each stage when ``contents`` gives it
+    (:meth:`~fmu_greybox.model.store.GreyBoxModel.contents`: "white-box + named terms")."""
     named = all("named_rmse" in row for row in table.values())
     covered = all("coverage95" in row for row in table.values())
     ratio = all(error_ratio(row) is not None for row in table.values())
@@ -191,20 +196,22 @@ def format_table(table: Mapping[str, Mapping[str, float]], units: Mapping[str, s
     lines = [
         f"{'stage':8s} {'unit':6s} {'WB RMSE':>11s} "
         + (f"{'+terms RMSE':>11s} " if named else "")
-        + f"{'GB RMSE':>11s} {'WB nRMSE':>9s} {'GB nRMSE':>9s} {'improvement':>11s}"
+        + f"{'model RMSE':>11s} {'WB nRMSE':>9s} {'model nRMSE':>11s} {'improvement':>11s}"
         + (f" {'in ±1.96σ (95 % interval)':>27s}" if covered else "")
-        + (f" {'GB RMSE / calibration':>21s}" if ratio else "")
+        + (f" {'model RMSE / calibration':>24s}" if ratio else "")
         + (f" {'calibration vouches (rows)':>26s}" if vouched else "")
+        + ("  model" if contents else "")
     ]
     for name, row in table.items():
         lines.append(
             f"{name:8s} {units.get(name, ''):6s} {row['wb_rmse']:11.3e} "
             + (f"{row['named_rmse']:11.3e} " if named else "")
-            + f"{row['gb_rmse']:11.3e} {row['wb_nrmse']:9.3g} {row['gb_nrmse']:9.3g} "
+            + f"{row['gb_rmse']:11.3e} {row['wb_nrmse']:9.3g} {row['gb_nrmse']:11.3g} "
             f"{100 * row['improvement']:10.1f}%"
             + (f" {coverage_text(row, 'coverage95'):>27s}" if covered else "")
-            + (f" {error_ratio(row):20.3g}×" if ratio else "")
+            + (f" {error_ratio(row):23.3g}×" if ratio else "")
             + (f" {_vouched_text(row['calibration_independent_rows']):>26s}" if vouched else "")
+            + (f"  {contents.get(name, '')}" if contents else "")
         )
     return "\n".join(lines)
 

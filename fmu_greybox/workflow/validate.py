@@ -425,6 +425,7 @@ def write_plots(validation: Validation, model: GreyBoxModel, out_dir: Path) -> l
             names,
             units,
             outside=run.outside,
+            model_label=model.kind,
         ),
         "calibration.png": calibration_figure(
             recorded[keep], run.mean[keep], run.std[keep], run.latent_std[keep], names
@@ -432,7 +433,7 @@ def write_plots(validation: Validation, model: GreyBoxModel, out_dir: Path) -> l
     }
     if validation.responses:
         bands = [validation.criteria.for_stage(r.stage).band for r in validation.responses]
-        figures["frequency.png"] = frequency_figure(validation.responses, bands)
+        figures["frequency.png"] = frequency_figure(validation.responses, bands, model.kind)
     for name, fig in figures.items():
         save_png(fig, out_dir / name)
     return list(figures)
