@@ -163,6 +163,8 @@ def test_demo_reports_acceptance_and_calibrated_coverage(demo: tuple[Path, dict]
     out, summary = demo
     metrics = json.loads((out / "metrics.json").read_text())
     assert summary["acceptance"] == metrics["acceptance"]
+    model = load_model(out / "model")  # metrics.json says what each stage computes
+    assert metrics["model"] == {"kind": model.kind, "stages": model.contents()}
     assert summary["acceptance"]["verdict"] in ("PASS", "FAIL", "UNDECIDED")
     checks = summary["acceptance"]["checks"]
     assert {c["stage"] for c in checks} == {"EHV", "RAM", "ITFV"}

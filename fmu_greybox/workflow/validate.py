@@ -389,9 +389,11 @@ def frequency_table(validation: Validation) -> dict[str, dict]:
 
 def write_metrics(validation: Validation, model: GreyBoxModel, path: Path) -> dict:
     """Write ``metrics.json`` atomically (``scored_rows``: the scored rows as ``[first, last]``
-    ranges, both included; ``parts``: for a model trained with named terms, the comparison of
-    its parts made at training, :mod:`fmu_greybox.workflow.parts`); returns its content."""
+    ranges, both included; ``model``: what the model is and computes on each stage, in words;
+    ``parts``: for a model trained with named terms, the comparison of its parts made at
+    training, :mod:`fmu_greybox.workflow.parts`); returns its content."""
     payload = {
+        "model": {"kind": model.kind, "stages": model.contents()},
         "held_out": validation.held_out,
         "n_rows": int(validation.scored.size),
         "rows_out_of_domain": validation.rows_out_of_domain,
