@@ -15,7 +15,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from fmu_greybox.evidence.plots import GB_STYLE, REC_STYLE, WB_STYLE
+from fmu_greybox.evidence.plots import GB_STYLE, REC_STYLE, WB_STYLE, envelope
 
 NAMED_STYLE = {"color": "tab:purple", "lw": 1.0, "label": "white-box + named terms"}
 
@@ -36,8 +36,8 @@ def residual_figure(diagnosis) -> plt.Figure:
         for regime in stage.signals[0].regimes if stage.signals else []:
             if regime.span is not None:
                 ax.axvspan(*regime.span, color="orange", alpha=0.15, lw=0)
-        ax.plot(time, wb[:, j], color="tab:red", lw=0.8, label="white-box")
-        ax.plot(time, named[:, j], color="tab:purple", lw=0.8, label="with named terms")
+        ax.plot(*envelope(time, wb[:, j]), color="tab:red", lw=0.8, label="white-box")
+        ax.plot(*envelope(time, named[:, j]), color="tab:purple", lw=0.8, label="with named terms")
         ax.axvline(time[exp.train_rows], color="k", ls="--", lw=0.8)
         ax.set_ylabel(f"{stage.name}\n{sig.name} / noise")
         ax.grid(alpha=0.3)
@@ -98,11 +98,11 @@ def trace_figure(diagnosis) -> plt.Figure:
     fig, axes = plt.subplots(len(targets), 1, figsize=(10, 2.4 * len(targets)), squeeze=False)
     for q, (ax, j) in enumerate(zip(axes[:, 0], targets, strict=True)):
         sig = observed[j]
-        ax.plot(time, diagnosis.simulated_["whitebox"][rows, j], **WB_STYLE)
-        ax.plot(time, exp.recorded[rows, j], **REC_STYLE)
-        ax.plot(time, diagnosis.simulated_["named"][rows, j], **NAMED_STYLE)
+        ax.plot(*envelope(time, diagnosis.simulated_["whitebox"][rows, j]), **WB_STYLE)
+        ax.plot(*envelope(time, exp.recorded[rows, j]), **REC_STYLE)
+        ax.plot(*envelope(time, diagnosis.simulated_["named"][rows, j]), **NAMED_STYLE)
         if q < gb.shape[1]:
-            ax.plot(time, gb[:, q], **GB_STYLE)
+            ax.plot(*envelope(time, gb[:, q]), **GB_STYLE)
         ax.set_ylabel(f"{diagnosis.signals_.stage_names[sig.stage]}\n{sig.name} [{sig.unit}]")
         ax.grid(alpha=0.3)
     axes[0, 0].legend(loc="upper right", fontsize="small", ncol=4)
