@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from operator import attrgetter
 from typing import ClassVar
 
@@ -123,6 +123,24 @@ class Proposal:
     signs: tuple[str, str] = ("", "")
 
 
+#: How the native FMU computes a delay (its line's whole steps and fraction, as bound).
+DELAY_LINE = Native("kind_delay", ("_line.whole", "_line.frac"), line=True)
+
+
+def _delay(at: str, phrase: str) -> Proposal:
+    """A delay proposed at ``at``: typically two samples, at most fifty."""
+    return Proposal(
+        at=at,
+        field="delay",
+        magnitude="delay",
+        unit="s",
+        scale=2.0,
+        phrase=phrase,
+        upper=50.0,
+        lower=0.0,
+    )
+
+
 class DelayLine:
     """A fractional delay of a vector signal sampled every step (linear interpolation).
 
@@ -143,6 +161,12 @@ class DelayLine:
         self.buffer = np.zeros((self.size, width))
         self.count = 0
         self.head = -1
+
+    @classmethod
+    def late(cls, delay: float, dt: float, width: int = 1) -> DelayLine:
+        """A line for signals sampled every ``dt`` [s] that makes them ``delay`` [s] late (no
+        delay for a negative one)."""
+        return cls(max(delay, 0.0) / dt, width)
 
     def memory(self) -> np.ndarray:
         """Everything the line remembers, as one float64 vector (for FMU state)."""
@@ -372,22 +396,12 @@ class InputDelay(_InputTerm):
 
     delay: float = 0.0
     effect = "time_delay"
-    native = Native("kind_delay", ("_line.whole", "_line.frac"), line=True)
-    proposal = Proposal(
-        at="command",
-        field="delay",
-        magnitude="delay",
-        unit="s",
-        scale=2.0,
-        phrase="{signal} acts about {ms} ms later than the white-box assumes",
-        lower=0.0,
-        upper=50.0,
-    )
+    native = DELAY_LINE
+    proposal = _delay("command", "{signal} acts about {ms} ms later than the white-box assumes")
 
     def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
         super().bind(inputs, outputs, dt)
-        self._line = DelayLine(max(self.delay, 0.0) / dt, 1)
-        self._x = np.empty(1)
+        self._line, self._x = DelayLine.late(self.delay, dt), np.empty(1)
 
     def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
         self._x[0] = u[self._i]
@@ -577,12 +591,12 @@ class SensorDelay(Term):
     outputs: tuple[str, ...] = ()
     delay: float = 0.0
     effect = "time_delay"
-    native = Native("kind_delay", ("_line.whole", "_line.frac"), line=True, channels=True)
+    native = replace(DELAY_LINE, channels=True)
     acts_on_outputs = True
 
     def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
         self._j = np.array([j for j, n in enumerate(outputs) if n in self.outputs], dtype=int)
-        self._line = DelayLine(max(self.delay, 0.0) / dt, self._j.size)
+        self._line = DelayLine.late(self.delay, dt, self._j.size)
 
     def on_output(self, y: np.ndarray) -> None:
         y[self._j] = self._line(y[self._j])
@@ -659,22 +673,12 @@ class SensorChannelDelay(_SensorChannel):
 
     delay: float = 0.0
     effect = "sensor_delay"
-    native = Native("kind_delay", ("_line.whole", "_line.frac"), line=True)
-    proposal = Proposal(
-        at="sensor",
-        field="delay",
-        magnitude="delay",
-        unit="s",
-        scale=2.0,
-        phrase="The sensor of {signal} reports about {ms} ms late",
-        lower=0.0,
-        upper=50.0,
-    )
+    native = DELAY_LINE
+    proposal = _delay("sensor", "The sensor of {signal} reports about {ms} ms late")
 
     def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
         super().bind(inputs, outputs, dt)
-        self._line = DelayLine(max(self.delay, 0.0) / dt, 1)
-        self._x = np.empty(1)
+        self._line, self._x = DelayLine.late(self.delay, dt), np.empty(1)
 
     def sensed(self, x: float) -> float:
         self._x[0] = x
