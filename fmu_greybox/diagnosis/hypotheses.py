@@ -4,7 +4,12 @@ Each hypothesis is a small strategy object with one or two magnitudes ``theta``:
 into correction terms (:mod:`.terms`) that enter where the physics enters (an FMU parameter, an
 FMU input, the sensors), so the white-box's own dynamics carry their effect to the outputs. It
 knows its magnitudes' typical size (``scale``), their admissible range and how to say what it
-found in a sentence.
+found in a sentence. A hypothesis of one magnitude whose term kind declares how the diagnosis
+proposes it (:class:`~fmu_greybox.model.terms.Proposal`: a command's gain error, offset,
+deadband, delay and play, a constant force, a sensor's gain error, offset and delay) is an
+:class:`InputError` or a :class:`SensorFault` made from that declaration; the others (a
+parameter, a saturation, forces fed back from the outputs, a supply droop, a delay of every
+sensor) have logic of their own and classes of their own.
 
 :func:`generate_hypotheses` builds the vocabulary for a project from signal roles and the FMU's
 declarations only: every tunable Real parameter; at command inputs (current or voltage) a gain
