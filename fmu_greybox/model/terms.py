@@ -409,7 +409,22 @@ class InputDelay(_InputTerm):
 
 
 @dataclass
-class InputHysteresis(_InputTerm):
+class _ActingInput(_InputTerm):
+    """An input term that remembers the value acting (NaN before the first input)."""
+
+    def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
+        super().bind(inputs, outputs, dt)
+        self._acting = math.nan
+
+    def memory(self) -> np.ndarray:
+        return np.array([self._acting])
+
+    def restore(self, memory: np.ndarray) -> None:
+        self._acting = float(memory[0])
+
+
+@dataclass
+class InputHysteresis(_ActingInput):
     """A play of total ``width`` between the recorded input and what acts: the acting value
     moves only when the input pulls it beyond ``width / 2`` (backlash in a command path,
     hysteresis of a valve). The acting value starts at the first input."""
@@ -428,25 +443,15 @@ class InputHysteresis(_InputTerm):
         upper=2.0,
     )
 
-    def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
-        super().bind(inputs, outputs, dt)
-        self._acting = math.nan
-
     def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
         x, half = float(u[self._i]), 0.5 * abs(self.width)
         acting = x if math.isnan(self._acting) else self._acting
         self._acting = min(max(acting, x - half), x + half)
         u[self._i] = self._acting
 
-    def memory(self) -> np.ndarray:
-        return np.array([self._acting])
-
-    def restore(self, memory: np.ndarray) -> None:
-        self._acting = float(memory[0])
-
 
 @dataclass
-class InputLag(_InputTerm):
+class InputLag(_ActingInput):
     """The input acts through a first-order lag of time constant ``tau`` [s] (exact for an
     input held over the step); the lag starts settled at the first input."""
 
@@ -457,19 +462,12 @@ class InputLag(_InputTerm):
     def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
         super().bind(inputs, outputs, dt)
         self._alpha = 1.0 - math.exp(-dt / self.tau) if self.tau > 0.0 else 1.0
-        self._acting = math.nan
 
     def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
         x = float(u[self._i])
         acting = x if math.isnan(self._acting) else self._acting
         self._acting = acting + self._alpha * (x - acting)
         u[self._i] = self._acting
-
-    def memory(self) -> np.ndarray:
-        return np.array([self._acting])
-
-    def restore(self, memory: np.ndarray) -> None:
-        self._acting = float(memory[0])
 
 
 @dataclass
