@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from dataclasses import fields
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -31,6 +34,7 @@ from fmu_greybox.model.terms import (
     term_from_dict,
 )
 
+ROOT = Path(__file__).resolve().parents[1]
 INPUTS = ["valve_current", "supply_pressure", "load_force", "engage"]
 OUTPUTS = ["spool_position", "ram_position", "itfv_pressure", "ram_velocity"]
 DT = 1e-3
@@ -266,3 +270,22 @@ def test_asymmetric_coulomb_differs_by_direction() -> None:
 def test_unknown_term_kind_is_refused() -> None:
     with pytest.raises(ValueError, match="unknown term kind"):
         term_from_dict({"kind": "Magic"})
+
+
+def test_every_proposal_sets_a_field_of_its_kind_at_a_known_place() -> None:
+    """A kind's ``proposal`` (the diagnosis' hypothesis built from it) names one of the kind's
+    own fields and one of the places ``generate_hypotheses`` proposes at."""
+    for name, kind in TERM_KINDS.items():
+        if kind.proposal is not None:
+            assert kind.proposal.at in ("command", "force", "sensor"), name
+            assert kind.proposal.field in {f.name for f in fields(kind)}, name
+
+
+def test_the_architecture_page_shows_a_kind_as_the_code_has_it() -> None:
+    """docs/architecture.md, "Adding a term kind": its excerpts are the code's, verbatim."""
+    page = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
+    section = page.split("## Adding a term kind")[1].split("\n## ")[0]
+    python = section.split("```python\n")[1].split("```")[0]
+    c = section.split("```text\n")[1].split("```")[0]
+    assert python in (ROOT / "fmu_greybox" / "model" / "terms.py").read_text(encoding="utf-8")
+    assert c in (ROOT / "fmu_greybox" / "native" / "terms.c").read_text(encoding="utf-8")

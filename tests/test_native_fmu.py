@@ -54,7 +54,7 @@ NAMES = [f"{o}{s}" for o in STAGE_OUTPUTS for s in ("", "_std", "_wb")]
 
 #: One term of every kind, on the reference actuator, entering at the stages given: each runs
 #: with its own numbers in the native FMU and in Python (a kind missing here fails
-#: test_every_term_kind_has_a_native_implementation: add an example and its C in terms.c).
+#: test_every_term_kind_has_a_native_implementation: add an example and its C function).
 EXAMPLES: dict[str, term_kinds.Term] = {
     "ParameterChange": term_kinds.ParameterChange(name="bulk_modulus", value=1.1e9),
     "InputGain": term_kinds.InputGain(input="valve_current", gain=0.04),
@@ -128,9 +128,13 @@ def simulate(fmu: Path, recording, **kwargs) -> dict[str, np.ndarray]:
 # ---------------------------------------------------------------------------- term kinds
 def test_every_term_kind_has_a_native_implementation() -> None:
     source = (NATIVE_DIR / "terms.c").read_text(encoding="utf-8")
-    for kind in term_kinds.TERM_KINDS:
-        assert kind in NATIVE_KINDS, f"{kind}: no native code (native_terms.py)"
-        assert f"case TERM_{kind}" in source, f"{kind}: no case in native/terms.c"
+    for kind, cls in term_kinds.TERM_KINDS.items():
+        assert kind in NATIVE_KINDS, f"{kind}: no native declaration (terms.py, Native)"
+        function = cls.native.function
+        if function is not None:
+            assert f"static void {function}(Term *t, double *x)" in source, (
+                f"{kind}: no function {function} in native/terms.c"
+            )
         assert kind in EXAMPLES, f"{kind}: no example in this test"
 
 

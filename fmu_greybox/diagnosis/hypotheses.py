@@ -4,7 +4,12 @@ Each hypothesis is a small strategy object with one or two magnitudes ``theta``:
 into correction terms (:mod:`.terms`) that enter where the physics enters (an FMU parameter, an
 FMU input, the sensors), so the white-box's own dynamics carry their effect to the outputs. It
 knows its magnitudes' typical size (``scale``), their admissible range and how to say what it
-found in a sentence.
+found in a sentence. A hypothesis of one magnitude whose term kind declares how the diagnosis
+proposes it (:class:`~fmu_greybox.model.terms.Proposal`: a command's gain error, offset,
+deadband, delay and play, a constant force, a sensor's gain error, offset and delay) is an
+:class:`InputError` or a :class:`SensorFault` made from that declaration; the others (a
+parameter, a saturation, forces fed back from the outputs, a supply droop, a delay of every
+sensor) have logic of their own and classes of their own.
 
 :func:`generate_hypotheses` builds the vocabulary for a project from signal roles and the FMU's
 declarations only: every tunable Real parameter; at command inputs (current or voltage) a gain
@@ -30,20 +35,13 @@ import numpy as np
 from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.model.terms import (
+    TERM_KINDS,
     CoulombForce,
     FlowDroop,
-    ForceOffset,
-    InputDeadband,
-    InputDelay,
-    InputGain,
-    InputHysteresis,
-    InputOffset,
     InputSaturation,
     ParameterChange,
-    SensorChannelDelay,
+    Proposal,
     SensorDelay,
-    SensorGain,
-    SensorOffset,
     SpringForce,
     StribeckForce,
     Term,
@@ -241,110 +239,62 @@ class _CommandHypothesis(Hypothesis):
         return ""
 
 
-@dataclass
-class GainError(_CommandHypothesis):
-    """The command acts ``1 + g`` times as strongly as the white-box assumes."""
+class _Declared:
+    """A hypothesis of one magnitude that its term kind declares (its
+    :class:`~fmu_greybox.model.terms.Proposal`): the kind's effect, the magnitude's name, unit
+    and phrase, the term it makes."""
 
-    effect = "gain_error"
-    names = ("gain_error",)
+    kind: type[Term]
+    unit: str
+    entry: int
+
+    @property
+    def proposal(self) -> Proposal:
+        """The kind's declaration."""
+        return self.kind.proposal
+
+    @property
+    def effect(self) -> str:
+        return self.kind.effect
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return (self.proposal.magnitude,)
 
     @property
     def units(self) -> tuple[str, ...]:
-        return ("1",)
+        return (self.proposal.unit or self.unit,)
 
-    def terms(self, theta: np.ndarray) -> list[Term]:
-        return [InputGain(input=self.input, gain=float(theta[0]), entry=self.entry)]
+    def _term(self, theta: np.ndarray, **where: str) -> Term:
+        """The kind's term at ``where`` with the magnitude ``theta[0]``."""
+        return self.kind(**where, **{self.proposal.field: float(theta[0])}, entry=self.entry)
 
-    def phrase(self, theta: np.ndarray) -> str:
-        g = float(theta[0])
-        more = "stronger" if g > 0 else "weaker"
-        return f"The response to {self.input} is about {abs(100 * g):.3g} % {more}{self._path()}"
-
-
-@dataclass
-class Offset(_CommandHypothesis):
-    """A constant bias adds to the command."""
-
-    effect = "offset"
-    names = ("offset",)
-
-    @property
-    def units(self) -> tuple[str, ...]:
-        return (self.unit,)
-
-    def terms(self, theta: np.ndarray) -> list[Term]:
-        return [InputOffset(input=self.input, offset=float(theta[0]), entry=self.entry)]
-
-    def phrase(self, theta: np.ndarray) -> str:
-        return (
-            f"An offset (null bias) of about {quantity(float(theta[0]), self.unit)} acts on "
-            f"{self.input}{self._path()}"
+    def _said(self, theta: np.ndarray, signal: str) -> str:
+        """The kind's phrase for the magnitude ``theta[0]`` of ``signal``."""
+        value = float(theta[0])
+        positive, other = self.proposal.signs
+        return self.proposal.phrase.format(
+            signal=signal,
+            quantity=quantity(value, self.units[0]),
+            percent=f"{abs(100 * value):.3g}",
+            ms=f"{1e3 * value:.3g}",
+            sign=positive if value > 0 else other,
         )
 
 
 @dataclass
-class Deadband(_CommandHypothesis):
-    """Commands within ``+/- width`` of zero have no effect."""
+class InputError(_Declared, _CommandHypothesis):
+    """An error of one magnitude at a command or force input, of a term kind proposed there
+    (``kind.proposal.at``: ``"command"`` or ``"force"``), e.g. a gain error, an offset, a
+    deadband, a delay, a play of a command, a constant force."""
 
-    effect = "deadband"
-    names = ("half_width",)
-
-    @property
-    def units(self) -> tuple[str, ...]:
-        return (self.unit,)
+    kind: type[Term] = field(kw_only=True)
 
     def terms(self, theta: np.ndarray) -> list[Term]:
-        return [InputDeadband(input=self.input, width=float(theta[0]), entry=self.entry)]
+        return [self._term(theta, input=self.input)]
 
     def phrase(self, theta: np.ndarray) -> str:
-        return (
-            f"A deadband of about +/-{quantity(float(theta[0]), self.unit)} of {self.input} is "
-            f"missing{self._path()}"
-        )
-
-
-@dataclass
-class CommandDelay(_CommandHypothesis):
-    """The command acts late."""
-
-    effect = "time_delay"
-    names = ("delay",)
-
-    @property
-    def units(self) -> tuple[str, ...]:
-        return ("s",)
-
-    def terms(self, theta: np.ndarray) -> list[Term]:
-        return [InputDelay(input=self.input, delay=float(theta[0]), entry=self.entry)]
-
-    def phrase(self, theta: np.ndarray) -> str:
-        return (
-            f"{self.input} acts about {1e3 * float(theta[0]):.3g} ms later than the white-box "
-            f"assumes{self._path()}"
-        )
-
-
-@dataclass
-class Hysteresis(_CommandHypothesis):
-    """A play of total width ``w`` between the command and what acts (hysteresis of a valve,
-    backlash in a command path): the acting value follows only once the command has moved
-    ``w / 2`` past it."""
-
-    effect = "hysteresis"
-    names = ("width",)
-
-    @property
-    def units(self) -> tuple[str, ...]:
-        return (self.unit,)
-
-    def terms(self, theta: np.ndarray) -> list[Term]:
-        return [InputHysteresis(input=self.input, width=float(theta[0]), entry=self.entry)]
-
-    def phrase(self, theta: np.ndarray) -> str:
-        return (
-            f"A play (hysteresis or backlash) of about {quantity(float(theta[0]), self.unit)} in "
-            f"total acts on {self.input}{self._path()}"
-        )
+        return self._said(theta, self.input) + self._path()
 
 
 @dataclass
@@ -556,37 +506,6 @@ class StribeckFriction(_ForceHypothesis):
 
 
 @dataclass
-class ConstantForce(Hypothesis):
-    """A constant force on a force input that the recording does not show (a load offset)."""
-
-    input: str = ""
-    force_unit: str = ""
-    effect = "force_offset"
-    names = ("force",)
-
-    @property
-    def key(self) -> str:
-        return f"{self.effect}@{self.input}"
-
-    @property
-    def location(self) -> str:
-        return f"input {self.input}"
-
-    @property
-    def units(self) -> tuple[str, ...]:
-        return (self.force_unit,)
-
-    def terms(self, theta: np.ndarray) -> list[Term]:
-        return [ForceOffset(input=self.input, offset=float(theta[0]), entry=self.entry)]
-
-    def phrase(self, theta: np.ndarray) -> str:
-        return (
-            f"A constant force of about {quantity(float(theta[0]), self.force_unit)} on "
-            f"{self.input} is missing"
-        )
-
-
-@dataclass
 class Stiffness(Hypothesis):
     """A force proportional to a position output, on a force input (a spring the white-box
     leaves out), relaxed at the position's initial value ``rest``."""
@@ -700,11 +619,13 @@ class SensorLag(Hypothesis):
 
 
 @dataclass
-class _SensorHypothesis(Hypothesis):
-    """A fault of the sensor of one observed output alone."""
+class SensorFault(_Declared, Hypothesis):
+    """A fault of one magnitude of the sensor of one observed output alone, of a term kind
+    proposed there (``kind.proposal.at == "sensor"``): a gain error, an offset, a delay."""
 
     output: str = ""
     unit: str = ""
+    kind: type[Term] = field(kw_only=True)
 
     @property
     def key(self) -> str:
@@ -714,63 +635,11 @@ class _SensorHypothesis(Hypothesis):
     def location(self) -> str:
         return f"sensor of {self.output}"
 
-
-@dataclass
-class SensorGainError(_SensorHypothesis):
-    """The sensor reads ``1 + g`` times the output."""
-
-    effect = "sensor_gain"
-    names = ("gain_error",)
-
-    @property
-    def units(self) -> tuple[str, ...]:
-        return ("1",)
-
     def terms(self, theta: np.ndarray) -> list[Term]:
-        return [SensorGain(output=self.output, gain=float(theta[0]), entry=self.entry)]
+        return [self._term(theta, output=self.output)]
 
     def phrase(self, theta: np.ndarray) -> str:
-        g = float(theta[0])
-        high = "high" if g > 0 else "low"
-        return f"The sensor of {self.output} reads about {abs(100 * g):.3g} % {high}"
-
-
-@dataclass
-class SensorBias(_SensorHypothesis):
-    """The sensor reads the output plus a constant."""
-
-    effect = "sensor_offset"
-    names = ("offset",)
-
-    @property
-    def units(self) -> tuple[str, ...]:
-        return (self.unit,)
-
-    def terms(self, theta: np.ndarray) -> list[Term]:
-        return [SensorOffset(output=self.output, offset=float(theta[0]), entry=self.entry)]
-
-    def phrase(self, theta: np.ndarray) -> str:
-        return (
-            f"The sensor of {self.output} is offset by about {quantity(float(theta[0]), self.unit)}"
-        )
-
-
-@dataclass
-class SensorChannelLag(_SensorHypothesis):
-    """The sensor of one output reports late (the others on time)."""
-
-    effect = "sensor_delay"
-    names = ("delay",)
-
-    @property
-    def units(self) -> tuple[str, ...]:
-        return ("s",)
-
-    def terms(self, theta: np.ndarray) -> list[Term]:
-        return [SensorChannelDelay(output=self.output, delay=float(theta[0]), entry=self.entry)]
-
-    def phrase(self, theta: np.ndarray) -> str:
-        return f"The sensor of {self.output} reports about {1e3 * float(theta[0]):.3g} ms late"
+        return self._said(theta, self.output)
 
 
 # ---------------------------------------------------------------------------- vocabulary
@@ -894,11 +763,8 @@ def _command_hypotheses(signals: SignalMap, scales: DataScales) -> list[Hypothes
         for entry, after in entries:
             common = {"input": name, "unit": unit, "downstream_of": after, "entry": entry}
             found += [
-                GainError(**common, scale=(0.05,), lower=(-0.9,), upper=(9.0,)),
-                Offset(**common, scale=(0.02 * rms,)),
-                Deadband(**common, scale=(0.02 * rms,), lower=(0.0,), upper=(10 * rms,)),
-                CommandDelay(**common, scale=(2 * dt,), lower=(0.0,), upper=(50 * dt,)),
-                Hysteresis(**common, scale=(0.02 * rms,), lower=(0.0,), upper=(2 * rms,)),
+                InputError(**common, kind=kind, **_range(kind.proposal, rms, dt))
+                for kind in proposed("command")
             ]
         found += _saturations(name, unit, stage, scales.input_span.get(name, (0.0, 0.0)))
     return found
@@ -941,7 +807,10 @@ def _force_hypotheses(signals: SignalMap, scales: DataScales) -> list[Hypothesis
             continue
         force = max(scales.input_rms.get(name, 0.0), 1e-12)
         unit = signals.units.get(name, "")
-        found.append(ConstantForce(input=name, force_unit=unit, scale=(0.05 * force,)))
+        found += [
+            InputError(input=name, unit=unit, kind=kind, **_range(kind.proposal, force, scales.dt))
+            for kind in proposed("force")
+        ]
         for position in positions:
             x_rms = scales.output_rms[position]
             if x_rms <= 0:
@@ -1026,10 +895,28 @@ def _sensor_hypotheses(signals: SignalMap, scales: DataScales) -> list[Hypothesi
     found: list[Hypothesis] = [SensorLag(outputs=tuple(signals.observed_variables), **delay)]
     for sig in signals.observed:
         size = scales.output_rms.get(sig.variable, 0.0) or 1.0
-        common = {"output": sig.variable, "unit": sig.unit}
         found += [
-            SensorGainError(**common, scale=(0.01,), lower=(-0.5,), upper=(1.0,)),
-            SensorBias(**common, scale=(0.01 * size,)),
-            SensorChannelLag(**common, **delay),
+            SensorFault(
+                output=sig.variable, unit=sig.unit, kind=kind, **_range(kind.proposal, size, dt)
+            )
+            for kind in proposed("sensor")
         ]
     return found
+
+
+def proposed(at: str) -> list[type[Term]]:
+    """The term kinds the diagnosis proposes alone at ``at`` (``"command"``, ``"force"``,
+    ``"sensor"``), in the order of :data:`~fmu_greybox.model.terms.TERM_KINDS`."""
+    return [k for k in TERM_KINDS.values() if k.proposal is not None and k.proposal.at == at]
+
+
+def _range(proposal: Proposal, size: float, dt: float) -> dict[str, tuple[float]]:
+    """A proposed magnitude's scale and admissible range: the proposal's, in units of its
+    reference (1 for a unit ``"1"``, the sample time ``dt`` for ``"s"``, the signal's typical
+    ``size`` for the signal's own unit)."""
+    reference = {"1": 1.0, "s": dt}.get(proposal.unit, size)
+    return {
+        "scale": (proposal.scale * reference,),
+        "lower": (proposal.lower * reference,),
+        "upper": (proposal.upper * reference,),
+    }

@@ -19,7 +19,7 @@ import os
 import threading
 import weakref
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import ClassVar
 
@@ -228,11 +228,15 @@ class FmuInstance:
 
     # ------------------------------------------------------------------ set-up
     def _bind_calls(self, functions: Mapping[str, object]) -> None:
-        """Keep the C functions of the per-step path: ``_set_real(component, refs, n, values)``,
-        ``_get_real`` alike and ``_do_step(component, time, h, no_set_prior)``."""
-        self._set_real = functions["fmi2SetReal"]
-        self._get_real = functions["fmi2GetReal"]
+        """Keep the C functions of the per-step path: those of :meth:`_bind_values` and
+        ``_do_step(component, time, h, no_set_prior)``."""
+        self._bind_values(functions)
         self._do_step = functions["fmi2DoStep"]
+
+    def _bind_values(self, functions: Mapping[str, object]) -> None:
+        """Keep ``_set_real(component, refs, n, values)`` and ``_get_real`` alike."""
+        self._set_real = functions[self.CALLS["set"]]
+        self._get_real = functions[self.CALLS["get"]]
 
     def _instantiate(self) -> None:
         self._callbacks = _callbacks(self._log)
@@ -438,17 +442,21 @@ class Fmu3Instance(FmuInstance):
 
     def _bind_calls(self, functions: Mapping[str, object]) -> None:
         """The FMI 3.0 functions behind the FMI 2.0 signatures of the per-step path (FMI 3.0
-        adds the number of values, and the step's event, termination and early-return
-        outputs, which this co-simulation master does not use)."""
-        set_float, get_float = functions["fmi3SetFloat64"], functions["fmi3GetFloat64"]
+        adds the step's event, termination and early-return outputs, which this co-simulation
+        master does not use)."""
+        self._bind_values(functions)
         do_step = functions["fmi3DoStep"]
         flags = [fmi3Boolean() for _ in range(3)]
         last = fmi3Float64()
         outputs = (*(ctypes.byref(f) for f in flags), ctypes.byref(last))
+        self._do_step = lambda c, t, h, no_prior: do_step(c, t, h, bool(no_prior), *outputs)
 
+    def _bind_values(self, functions: Mapping[str, object]) -> None:
+        """``fmi3SetFloat64`` / ``fmi3GetFloat64`` with the FMI 2.0 signatures (FMI 3.0 adds
+        the number of values)."""
+        set_float, get_float = functions[self.CALLS["set"]], functions[self.CALLS["get"]]
         self._set_real = lambda c, refs, n, values: set_float(c, refs, n, values, n)
         self._get_real = lambda c, refs, n, values: get_float(c, refs, n, values, n)
-        self._do_step = lambda c, t, h, no_prior: do_step(c, t, h, bool(no_prior), *outputs)
 
     def _instantiate(self) -> None:
         log = self._log
@@ -469,6 +477,11 @@ class Fmu3Instance(FmuInstance):
         self._guarded(
             self.CALLS["enter"], self._slave.enterInitializationMode, startTime=start_time
         )
+
+
+#: ``_discrete(component) -> (status, needed, terminate, values changed, next event time
+#: defined)`` of a model-exchange instance.
+DiscreteCall = Callable[[object], tuple[int, bool, bool, bool, bool]]
 
 
 class FmuMeInstance(FmuInstance):
@@ -493,6 +506,8 @@ class FmuMeInstance(FmuInstance):
     """
 
     SLAVE = FMU2Model
+    #: ctypes type of the flags ``fmi2CompletedIntegratorStep`` returns.
+    BOOLEAN: ClassVar[type] = fmi2Boolean
     CALLS: ClassVar[dict[str, str]] = {
         **FmuInstance.CALLS,
         "instantiate": "fmi2Instantiate",
@@ -534,19 +549,28 @@ class FmuMeInstance(FmuInstance):
         ``_set_states(c, x, n)``, ``_get_states``, ``_derivatives``, ``_nominals`` alike,
         ``_completed(c, no_prior, enter, terminate)``, ``_event_mode(c)``,
         ``_discrete(c) -> (status, needed, terminate, values changed)`` and
-        ``_continuous_mode(c)``."""
-        self._set_real = functions["fmi2SetReal"]
-        self._get_real = functions["fmi2GetReal"]
-        self._raw = {key: functions[self.CALLS[key]] for key in NATIVE_CALLS[:8]}
-        self._set_time = functions["fmi2SetTime"]
-        self._set_states = functions["fmi2SetContinuousStates"]
-        self._get_states = functions["fmi2GetContinuousStates"]
-        self._derivatives = functions["fmi2GetDerivatives"]
-        self._nominals = functions["fmi2GetNominalsOfContinuousStates"]
-        self._completed = functions["fmi2CompletedIntegratorStep"]
-        self._event_mode = functions["fmi2EnterEventMode"]
-        self._continuous_mode = functions["fmi2EnterContinuousTimeMode"]
-        new_discrete = functions["fmi2NewDiscreteStates"]
+        ``_continuous_mode(c)``; each found under its FMI name in :attr:`CALLS` (one table
+        per FMI version)."""
+
+        def call(key: str):
+            return functions[self.CALLS[key]]
+
+        self._bind_values(functions)
+        self._raw = {key: call(key) for key in NATIVE_CALLS[:8]}
+        self._set_time = call("set_time")
+        self._set_states = call("set_states")
+        self._get_states = call("get_states")
+        self._derivatives = call("derivatives")
+        self._nominals = call("nominals")
+        self._completed = call("completed")
+        self._event_mode = call("event_mode")
+        self._continuous_mode = call("continuous_mode")
+        self._discrete = self._discrete_call(call("discrete"))
+        self._flags = (self.BOOLEAN(), self.BOOLEAN())
+
+    def _discrete_call(self, new_discrete) -> DiscreteCall:
+        """``fmi2NewDiscreteStates`` as ``_discrete(c) -> (status, needed, terminate, values
+        changed, next event time defined)``."""
         info = fmi2EventInfo()
 
         def discrete(c) -> tuple[int, bool, bool, bool, bool]:
@@ -559,8 +583,7 @@ class FmuMeInstance(FmuInstance):
                 bool(info.nextEventTimeDefined),
             )
 
-        self._discrete = discrete
-        self._flags = (fmi2Boolean(), fmi2Boolean())
+        return discrete
 
     def _initialise(self, start_time: float, values: Mapping[str, float]) -> None:
         """Initialise as :class:`FmuInstance`, settle the initial event, enter continuous-time
@@ -727,21 +750,11 @@ class Fmu3MeInstance(FmuMeInstance):
     _setup = Fmu3Instance._setup
     _enter = Fmu3Instance._enter
 
-    def _bind_calls(self, functions: Mapping[str, object]) -> None:
-        """The FMI 3.0 functions behind the FMI 2.0 signatures of :class:`FmuMeInstance`."""
-        set_float, get_float = functions["fmi3SetFloat64"], functions["fmi3GetFloat64"]
-        self._set_real = lambda c, refs, n, values: set_float(c, refs, n, values, n)
-        self._get_real = lambda c, refs, n, values: get_float(c, refs, n, values, n)
-        self._raw = {key: functions[self.CALLS[key]] for key in NATIVE_CALLS[:8]}
-        self._set_time = functions["fmi3SetTime"]
-        self._set_states = functions["fmi3SetContinuousStates"]
-        self._get_states = functions["fmi3GetContinuousStates"]
-        self._derivatives = functions["fmi3GetContinuousStateDerivatives"]
-        self._nominals = functions["fmi3GetNominalsOfContinuousStates"]
-        self._completed = functions["fmi3CompletedIntegratorStep"]
-        self._event_mode = functions["fmi3EnterEventMode"]
-        self._continuous_mode = functions["fmi3EnterContinuousTimeMode"]
-        update = functions["fmi3UpdateDiscreteStates"]
+    _bind_values = Fmu3Instance._bind_values
+    BOOLEAN = fmi3Boolean
+
+    def _discrete_call(self, update) -> DiscreteCall:
+        """``fmi3UpdateDiscreteStates`` as the ``_discrete`` of :class:`FmuMeInstance`."""
         flags = [fmi3Boolean() for _ in range(5)]
         next_time = fmi3Float64()
         pointers = (*(ctypes.byref(f) for f in flags), ctypes.byref(next_time))
@@ -751,8 +764,7 @@ class Fmu3MeInstance(FmuMeInstance):
             needed, terminate, _, values, timed = (bool(f.value) for f in flags)
             return status, needed, terminate, values, timed
 
-        self._discrete = discrete
-        self._flags = (fmi3Boolean(), fmi3Boolean())
+        return discrete
 
 
 class WineInstance(FmuInstance):

@@ -174,22 +174,10 @@ class _FgbMe(ctypes.Structure):
         ("cvode", ctypes.c_void_p),
         ("max_steps", ctypes.c_long),
         ("x", ctypes.c_void_p),
+        # the FMU's functions (the first eight calls), then CVode's
         *(
             (name, ctypes.c_void_p)
-            for name in (
-                "set_time",
-                "set_states",
-                "get_states",
-                "derivatives",
-                "completed",
-                "event_mode",
-                "discrete",
-                "continuous_mode",
-                "cv_step",
-                "cv_reinit",
-                "cv_stop_time",
-                "array",
-            )
+            for name in (*NATIVE_CALLS[:8], "cv_step", "cv_reinit", "cv_stop_time", "array")
         ),
         ("failed_call", ctypes.c_int),
         ("failed_status", ctypes.c_int),

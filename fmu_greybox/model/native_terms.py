@@ -1,67 +1,57 @@
 """The named correction terms as the native grey-box FMU reads them (``native/terms.c``).
 
-Every kind of :data:`~fmu_greybox.model.terms.TERM_KINDS` has a code here and a ``case`` in
-``terms.c``; the codes reach the C code through the FMU's generated ``greybox_config.h``
-(``TERM_<Kind>``). A term is stored as :data:`TERM_INTS` integers (kind, positions, flags) and
-:data:`TERM_REALS` reals (its numbers), both taken from a copy of the Python term after its own
-``bind()``: the lag coefficient, the delay in whole and fractional steps and the sub-step of a
-rate are the numbers the Python runtime computes, not recomputed in C.
+Everything here is made from the kinds' declarations (:class:`~fmu_greybox.model.terms.Native`
+in :mod:`fmu_greybox.model.terms`): every kind with one has a code (its place in
+:data:`~fmu_greybox.model.terms.TERM_KINDS`, from 1), and the FMU's generated
+``greybox_config.h`` carries the table ``terms.c`` dispatches on (:func:`kind_defines`: per
+code, the kind's C function, where it acts, whether it keeps a delay line). A term is stored as
+:data:`TERM_INTS` integers (kind, positions, flags) and :data:`TERM_REALS` reals (its numbers,
+in the order its declaration names them), both taken from a copy of the Python term after its
+own ``bind()``: the lag coefficient, the delay in whole and fractional steps and the sub-step of
+a rate are the numbers the Python runtime computes, not recomputed in C.
 """
 
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 from fmu_greybox.errors import ExportError
-from fmu_greybox.model.terms import Term
+from fmu_greybox.model.terms import TERM_KINDS, Term
 
 #: Integers and reals per term (``TERM_INTS``, ``TERM_REALS`` in terms.h).
 TERM_INTS = 6
 TERM_REALS = 6
 
-
-def _line(term: Term) -> list[float]:
-    """A delay line's length in whole steps and the fraction of a step beyond them."""
-    line = term._line
-    return [float(line.whole), line.frac]
-
-
-def _feedback(*names: str) -> Callable[[Term], list[float]]:
-    """A feedback term's numbers; its sub-step goes last (the rate's divisor)."""
-
-    def numbers(term: Term) -> list[float]:
-        values = [float(getattr(term, name)) for name in names]
-        return values + [0.0] * (TERM_REALS - 1 - len(values)) + [term._h]
-
-    return numbers
-
-
-#: Per kind: its reals, from the bound copy of the term (terms.c reads them in this order).
-_REALS: dict[str, Callable[[Term], list[float]]] = {
-    "ParameterChange": lambda t: [],  # its value is set as an FMU parameter
-    "InputGain": lambda t: [t.gain],
-    "InputOffset": lambda t: [t.offset],
-    "ForceOffset": lambda t: [t.offset],
-    "InputSaturation": lambda t: [t.lower, t.upper],
-    "InputHysteresis": lambda t: [t.width],
-    "InputLag": lambda t: [t._alpha],
-    "InputDeadband": lambda t: [t.width],
-    "InputDelay": _line,
-    "CoulombForce": _feedback("force", "smoothing", "asymmetry"),
-    "ViscousForce": _feedback("coefficient"),
-    "StribeckForce": _feedback("force", "velocity", "smoothing"),
-    "SpringForce": _feedback("coefficient", "rest"),
-    "FlowDroop": _feedback("resistance"),
-    "SensorDelay": _line,
-    "SensorGain": lambda t: [t.gain],
-    "SensorOffset": lambda t: [t.offset],
-    "SensorChannelDelay": _line,
+#: Kind code of every term kind the native FMU implements (its row of the C kind table).
+NATIVE_KINDS: dict[str, int] = {
+    name: code
+    for code, name in enumerate(
+        (name for name, kind in TERM_KINDS.items() if kind.native is not None), start=1
+    )
 }
-#: Kind code of every term kind the native FMU implements (``TERM_<Kind>`` in C).
-NATIVE_KINDS: dict[str, int] = {name: code for code, name in enumerate(_REALS, start=1)}
+
+
+def _reals(term: Term) -> list[float]:
+    """A bound term's reals, as its declaration names them; a feedback term's sub-step (the
+    rate's divisor) goes last."""
+    values = term.native.numbers(term)
+    if term.feedback:
+        values += [0.0] * (TERM_REALS - 1 - len(values)) + [term._h]
+    return values
+
+
+def _place(kind: type[Term]) -> str:
+    """Where a kind acts, as the C enum of terms.h names it."""
+    if kind.feedback:
+        return "TERM_FEEDBACK"
+    if kind.acts_on_inputs:
+        return "TERM_INPUT"
+    if kind.acts_on_outputs:
+        return "TERM_CHANNELS" if kind.native.channels else "TERM_OUTPUT"
+    return "TERM_PARAMETER"
 
 
 def kind_code(term: Term) -> int:
@@ -127,10 +117,18 @@ def encode_term(
         int(bool(getattr(term, "rate", False))),
         len(channels),
     ]
-    reals = [float(v) for v in _REALS[type(term).__name__](bound)]
+    reals = _reals(bound)
     return ints, reals + [0.0] * (TERM_REALS - len(reals)), channels
 
 
 def kind_defines() -> str:
-    """The ``#define TERM_<Kind> <code>`` lines of ``greybox_config.h``."""
-    return "".join(f"#define TERM_{name} {code}\n" for name, code in NATIVE_KINDS.items())
+    """The kind table of ``greybox_config.h``: ``TERM_KIND_TABLE(X)`` calls
+    ``X(function, place, line)`` once per kind, in the order of the codes (from 1)."""
+    rows = []
+    for name, code in NATIVE_KINDS.items():
+        kind = TERM_KINDS[name]
+        function = kind.native.function or "NULL"
+        rows.append(
+            f"    X({function}, {_place(kind)}, {int(kind.native.line)}) /* {code} {name} */"
+        )
+    return "#define TERM_KIND_TABLE(X) \\\n" + " \\\n".join(rows) + "\n"

@@ -30,15 +30,115 @@ Terms are small dataclasses, picklable, and round-trip through :meth:`Term.to_di
 FMU) can rebuild them from ``diagnosis.json`` or a model folder. The native grey-box FMU
 implements every kind in :data:`TERM_KINDS` in C with the same arithmetic; a term's memory
 (:meth:`Term.memory`) is part of the FMU state.
+
+A kind is declared once, here: its class (a dataclass deriving from :class:`Term`, which
+registers it in :data:`TERM_KINDS`) computes it in Python, names the C function that computes
+it in the native FMU and the numbers that function reads (:class:`Native`; the native data
+layout and the C kind table are made from it, :mod:`fmu_greybox.model.native_terms`) and, for a
+hypothesis of one magnitude, how the diagnosis proposes it (:class:`Proposal`).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
+from operator import attrgetter
+from typing import ClassVar
 
 import numpy as np
+
+#: Every term kind by class name, in the order of definition (a class whose name starts with
+#: ``_`` is a family, not a kind); :class:`Term` fills it.
+TERM_KINDS: dict[str, type[Term]] = {}
+
+
+@dataclass(frozen=True)
+class Native:
+    """How the native grey-box FMU computes a kind (``native/terms.c``): one C function and the
+    numbers it reads.
+
+    Attributes
+    ----------
+    function : str or None
+        The C function of ``terms.c`` that computes the kind, ``(Term *t, double *x)``: what
+        the kind makes of the value ``x`` (the input, the source of a feedback term, the
+        sensed output; every sensed output of a multi-channel kind), in place. Kinds may share
+        one. ``None`` for a kind acting through FMU parameters only.
+    reals : tuple of str
+        Attributes of the term after :meth:`Term.bind` (dotted paths allowed), in the order
+        the C function reads them as ``t->p[0]``, ``t->p[1]``...; a feedback term's sub-step
+        is added last (``native_terms.TERM_REALS`` reals in all).
+    line : bool
+        The kind keeps a delay line; its reals are then the line's whole steps and fraction.
+    channels : bool
+        The kind acts on several outputs at once (its ``x`` holds them all).
+    """
+
+    function: str | None
+    reals: tuple[str, ...] = ()
+    line: bool = False
+    channels: bool = False
+
+    def numbers(self, bound: Term) -> list[float]:
+        """The reals of a bound term, in the C function's order."""
+        return [float(attrgetter(name)(bound)) for name in self.reals]
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """How the diagnosis proposes a kind as a hypothesis of one magnitude
+    (:mod:`fmu_greybox.diagnosis.hypotheses`).
+
+    Attributes
+    ----------
+    at : str
+        Where: ``"command"`` (each current or voltage input, at the input and downstream of the
+        stage it drives), ``"force"`` (each force input) or ``"sensor"`` (each observed
+        output's sensor alone).
+    field : str
+        The term's field the magnitude sets.
+    magnitude : str
+        The magnitude's name in the findings.
+    unit : str
+        The magnitude's unit: ``"1"``, ``"s"``, or ``""`` for the signal's own unit.
+    scale, lower, upper : float
+        Typical size and admissible range of the magnitude, in units of its reference: 1 (unit
+        ``"1"``), the sample time (``"s"``), the signal's RMS (the signal's unit).
+    phrase : str
+        What was found, with ``{signal}``, ``{quantity}`` (the magnitude and its unit),
+        ``{percent}`` (100 times its size), ``{ms}`` (the magnitude in ms) and ``{sign}``.
+    signs : tuple of str
+        ``{sign}`` for a positive magnitude, and for another.
+    """
+
+    at: str
+    field: str
+    magnitude: str
+    unit: str
+    scale: float
+    phrase: str
+    lower: float = -math.inf
+    upper: float = math.inf
+    signs: tuple[str, str] = ("", "")
+
+
+#: How the native FMU computes a delay (its line's whole steps and fraction, as bound).
+DELAY_LINE = Native("kind_delay", ("_line.whole", "_line.frac"), line=True)
+
+
+def _delay(at: str, phrase: str) -> Proposal:
+    """A delay proposed at ``at``: typically two samples, at most fifty."""
+    return Proposal(
+        at=at,
+        field="delay",
+        magnitude="delay",
+        unit="s",
+        scale=2.0,
+        phrase=phrase,
+        upper=50.0,
+        lower=0.0,
+    )
 
 
 class DelayLine:
@@ -61,6 +161,12 @@ class DelayLine:
         self.buffer = np.zeros((self.size, width))
         self.count = 0
         self.head = -1
+
+    @classmethod
+    def late(cls, delay: float, dt: float, width: int = 1) -> DelayLine:
+        """A line for signals sampled every ``dt`` [s] that makes them ``delay`` [s] late (no
+        delay for a negative one)."""
+        return cls(max(delay, 0.0) / dt, width)
 
     def memory(self) -> np.ndarray:
         """Everything the line remembers, as one float64 vector (for FMU state)."""
@@ -107,6 +213,15 @@ class Term:
     acts_on_outputs = False
     #: Whether :meth:`on_input` reads the FMU outputs (then it is applied at every sub-step).
     feedback = False
+    #: How the native FMU computes the kind (``None``: it does not; export refuses it).
+    native: ClassVar[Native | None] = None
+    #: How the diagnosis proposes the kind alone, if it is a hypothesis of one magnitude.
+    proposal: ClassVar[Proposal | None] = None
+
+    def __init_subclass__(cls, **kwargs: object) -> None:
+        super().__init_subclass__(**kwargs)
+        if not cls.__name__.startswith("_"):
+            TERM_KINDS[cls.__name__] = cls
 
     def parameters(self) -> dict[str, float]:
         """FMU parameter values this term sets before initialisation."""
@@ -163,6 +278,7 @@ class ParameterChange(Term):
     name: str = ""
     value: float = 0.0
     effect = "parameter_mismatch"
+    native = Native(None)
 
     def parameters(self) -> dict[str, float]:
         return {self.name: self.value}
@@ -185,6 +301,18 @@ class InputGain(_InputTerm):
 
     gain: float = 0.0
     effect = "gain_error"
+    native = Native("kind_gain", ("gain",))
+    proposal = Proposal(
+        at="command",
+        field="gain",
+        magnitude="gain_error",
+        unit="1",
+        scale=0.05,
+        phrase="The response to {signal} is about {percent} % {sign}",
+        lower=-0.9,
+        upper=9.0,
+        signs=("stronger", "weaker"),
+    )
 
     def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
         u[self._i] *= 1.0 + self.gain
@@ -196,6 +324,15 @@ class InputOffset(_InputTerm):
 
     offset: float = 0.0
     effect = "offset"
+    native = Native("kind_offset", ("offset",))
+    proposal = Proposal(
+        at="command",
+        field="offset",
+        magnitude="offset",
+        unit="",
+        scale=0.02,
+        phrase="An offset (null bias) of about {quantity} acts on {signal}",
+    )
 
     def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
         u[self._i] += self.offset
@@ -206,6 +343,14 @@ class ForceOffset(InputOffset):
     """A constant force ``offset`` on a force input (a load the white-box leaves out)."""
 
     effect = "force_offset"
+    proposal = Proposal(
+        at="force",
+        field="offset",
+        magnitude="force",
+        unit="",
+        scale=0.05,
+        phrase="A constant force of about {quantity} on {signal} is missing",
+    )
 
 
 @dataclass
@@ -216,61 +361,10 @@ class InputSaturation(_InputTerm):
     lower: float = -math.inf
     upper: float = math.inf
     effect = "saturation"
+    native = Native("kind_clamp", ("lower", "upper"))
 
     def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
         u[self._i] = min(max(u[self._i], self.lower), self.upper)
-
-
-@dataclass
-class InputHysteresis(_InputTerm):
-    """A play of total ``width`` between the recorded input and what acts: the acting value
-    moves only when the input pulls it beyond ``width / 2`` (backlash in a command path,
-    hysteresis of a valve). The acting value starts at the first input."""
-
-    width: float = 0.0
-    effect = "hysteresis"
-
-    def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
-        super().bind(inputs, outputs, dt)
-        self._acting = math.nan
-
-    def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
-        x, half = float(u[self._i]), 0.5 * abs(self.width)
-        acting = x if math.isnan(self._acting) else self._acting
-        self._acting = min(max(acting, x - half), x + half)
-        u[self._i] = self._acting
-
-    def memory(self) -> np.ndarray:
-        return np.array([self._acting])
-
-    def restore(self, memory: np.ndarray) -> None:
-        self._acting = float(memory[0])
-
-
-@dataclass
-class InputLag(_InputTerm):
-    """The input acts through a first-order lag of time constant ``tau`` [s] (exact for an
-    input held over the step); the lag starts settled at the first input."""
-
-    tau: float = 0.0
-    effect = "lag"
-
-    def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
-        super().bind(inputs, outputs, dt)
-        self._alpha = 1.0 - math.exp(-dt / self.tau) if self.tau > 0.0 else 1.0
-        self._acting = math.nan
-
-    def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
-        x = float(u[self._i])
-        acting = x if math.isnan(self._acting) else self._acting
-        self._acting = acting + self._alpha * (x - acting)
-        u[self._i] = self._acting
-
-    def memory(self) -> np.ndarray:
-        return np.array([self._acting])
-
-    def restore(self, memory: np.ndarray) -> None:
-        self._acting = float(memory[0])
 
 
 @dataclass
@@ -279,6 +373,17 @@ class InputDeadband(_InputTerm):
 
     width: float = 0.0
     effect = "deadband"
+    native = Native("kind_deadband", ("width",))
+    proposal = Proposal(
+        at="command",
+        field="width",
+        magnitude="half_width",
+        unit="",
+        scale=0.02,
+        phrase="A deadband of about +/-{quantity} of {signal} is missing",
+        lower=0.0,
+        upper=10.0,
+    )
 
     def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
         x = u[self._i]
@@ -291,15 +396,78 @@ class InputDelay(_InputTerm):
 
     delay: float = 0.0
     effect = "time_delay"
+    native = DELAY_LINE
+    proposal = _delay("command", "{signal} acts about {ms} ms later than the white-box assumes")
 
     def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
         super().bind(inputs, outputs, dt)
-        self._line = DelayLine(max(self.delay, 0.0) / dt, 1)
-        self._x = np.empty(1)
+        self._line, self._x = DelayLine.late(self.delay, dt), np.empty(1)
 
     def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
         self._x[0] = u[self._i]
         u[self._i] = self._line(self._x)[0]
+
+
+@dataclass
+class _ActingInput(_InputTerm):
+    """An input term that remembers the value acting (NaN before the first input)."""
+
+    def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
+        super().bind(inputs, outputs, dt)
+        self._acting = math.nan
+
+    def memory(self) -> np.ndarray:
+        return np.array([self._acting])
+
+    def restore(self, memory: np.ndarray) -> None:
+        self._acting = float(memory[0])
+
+
+@dataclass
+class InputHysteresis(_ActingInput):
+    """A play of total ``width`` between the recorded input and what acts: the acting value
+    moves only when the input pulls it beyond ``width / 2`` (backlash in a command path,
+    hysteresis of a valve). The acting value starts at the first input."""
+
+    width: float = 0.0
+    effect = "hysteresis"
+    native = Native("kind_play", ("width",))
+    proposal = Proposal(
+        at="command",
+        field="width",
+        magnitude="width",
+        unit="",
+        scale=0.02,
+        phrase="A play (hysteresis or backlash) of about {quantity} in total acts on {signal}",
+        lower=0.0,
+        upper=2.0,
+    )
+
+    def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
+        x, half = float(u[self._i]), 0.5 * abs(self.width)
+        acting = x if math.isnan(self._acting) else self._acting
+        self._acting = min(max(acting, x - half), x + half)
+        u[self._i] = self._acting
+
+
+@dataclass
+class InputLag(_ActingInput):
+    """The input acts through a first-order lag of time constant ``tau`` [s] (exact for an
+    input held over the step); the lag starts settled at the first input."""
+
+    tau: float = 0.0
+    effect = "lag"
+    native = Native("kind_lag", ("_alpha",))
+
+    def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
+        super().bind(inputs, outputs, dt)
+        self._alpha = 1.0 - math.exp(-dt / self.tau) if self.tau > 0.0 else 1.0
+
+    def on_input(self, u: np.ndarray, y: np.ndarray) -> None:
+        x = float(u[self._i])
+        acting = x if math.isnan(self._acting) else self._acting
+        self._acting = acting + self._alpha * (x - acting)
+        u[self._i] = self._acting
 
 
 @dataclass
@@ -353,6 +521,7 @@ class CoulombForce(_FeedbackInput):
     smoothing: float = 1e-3
     asymmetry: float = 0.0
     effect = "coulomb_friction"
+    native = Native("kind_coulomb", ("force", "smoothing", "asymmetry"))
 
     def value(self, x: float) -> float:
         t = math.tanh(x / self.smoothing)
@@ -365,6 +534,7 @@ class ViscousForce(_FeedbackInput):
 
     coefficient: float = 0.0
     effect = "viscous_friction"
+    native = Native("kind_viscous", ("coefficient",))
 
     def value(self, x: float) -> float:
         return self.coefficient * x
@@ -378,6 +548,7 @@ class StribeckForce(_FeedbackInput):
     velocity: float = 1e-2
     smoothing: float = 1e-3
     effect = "stribeck_friction"
+    native = Native("kind_stribeck", ("force", "velocity", "smoothing"))
 
     def value(self, x: float) -> float:
         r = x / self.velocity  # squared as r * r, which is what C compilers make of pow(r, 2)
@@ -392,6 +563,7 @@ class SpringForce(_FeedbackInput):
     coefficient: float = 0.0
     rest: float = 0.0
     effect = "stiffness"
+    native = Native("kind_spring", ("coefficient", "rest"))
 
     def value(self, x: float) -> float:
         return self.coefficient * (x - self.rest)
@@ -403,6 +575,7 @@ class FlowDroop(_FeedbackInput):
 
     resistance: float = 0.0
     effect = "supply_pressure_droop"
+    native = Native("kind_droop", ("resistance",))
 
     def value(self, x: float) -> float:
         return -self.resistance * x
@@ -416,11 +589,12 @@ class SensorDelay(Term):
     outputs: tuple[str, ...] = ()
     delay: float = 0.0
     effect = "time_delay"
+    native = replace(DELAY_LINE, channels=True)
     acts_on_outputs = True
 
     def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
         self._j = np.array([j for j, n in enumerate(outputs) if n in self.outputs], dtype=int)
-        self._line = DelayLine(max(self.delay, 0.0) / dt, self._j.size)
+        self._line = DelayLine.late(self.delay, dt, self._j.size)
 
     def on_output(self, y: np.ndarray) -> None:
         y[self._j] = self._line(y[self._j])
@@ -454,6 +628,18 @@ class SensorGain(_SensorChannel):
 
     gain: float = 0.0
     effect = "sensor_gain"
+    native = Native("kind_gain", ("gain",))
+    proposal = Proposal(
+        at="sensor",
+        field="gain",
+        magnitude="gain_error",
+        unit="1",
+        scale=0.01,
+        phrase="The sensor of {signal} reads about {percent} % {sign}",
+        lower=-0.5,
+        upper=1.0,
+        signs=("high", "low"),
+    )
 
     def sensed(self, x: float) -> float:
         return x * (1.0 + self.gain)
@@ -465,6 +651,15 @@ class SensorOffset(_SensorChannel):
 
     offset: float = 0.0
     effect = "sensor_offset"
+    native = Native("kind_offset", ("offset",))
+    proposal = Proposal(
+        at="sensor",
+        field="offset",
+        magnitude="offset",
+        unit="",
+        scale=0.01,
+        phrase="The sensor of {signal} is offset by about {quantity}",
+    )
 
     def sensed(self, x: float) -> float:
         return x + self.offset
@@ -476,40 +671,16 @@ class SensorChannelDelay(_SensorChannel):
 
     delay: float = 0.0
     effect = "sensor_delay"
+    native = DELAY_LINE
+    proposal = _delay("sensor", "The sensor of {signal} reports about {ms} ms late")
 
     def bind(self, inputs: Sequence[str], outputs: Sequence[str], dt: float) -> None:
         super().bind(inputs, outputs, dt)
-        self._line = DelayLine(max(self.delay, 0.0) / dt, 1)
-        self._x = np.empty(1)
+        self._line, self._x = DelayLine.late(self.delay, dt), np.empty(1)
 
     def sensed(self, x: float) -> float:
         self._x[0] = x
         return float(self._line(self._x)[0])
-
-
-TERM_KINDS: dict[str, type[Term]] = {
-    cls.__name__: cls
-    for cls in (
-        ParameterChange,
-        InputGain,
-        InputOffset,
-        ForceOffset,
-        InputSaturation,
-        InputHysteresis,
-        InputLag,
-        InputDeadband,
-        InputDelay,
-        CoulombForce,
-        ViscousForce,
-        StribeckForce,
-        SpringForce,
-        FlowDroop,
-        SensorDelay,
-        SensorGain,
-        SensorOffset,
-        SensorChannelDelay,
-    )
-}
 
 
 def term_from_dict(data: Mapping) -> Term:

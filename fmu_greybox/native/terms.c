@@ -49,10 +49,66 @@ static const double *line_push(DelayLine *l, const double *x) {
 }
 
 /* ------------------------------------------------------------------ kinds */
+/* One function per kind, named by its declaration in terms.py (Native): what the kind makes of
+ * the value x in place, reading its numbers t->p in the order the declaration lists them. x is
+ * the input (TERM_INPUT), the source value or its rate, to become what is added to the input
+ * (TERM_FEEDBACK), the sensed output (TERM_OUTPUT), or every sensed output of the term
+ * (TERM_CHANNELS, t->line.width of them). */
 
-static int has_line(int kind) {
-    return kind == TERM_InputDelay || kind == TERM_SensorDelay || kind == TERM_SensorChannelDelay;
+static void kind_gain(Term *t, double *x) { *x *= 1.0 + t->p[0]; }         /* gain */
+static void kind_offset(Term *t, double *x) { *x += t->p[0]; }             /* offset */
+static void kind_clamp(Term *t, double *x) { *x = py_min(py_max(*x, t->p[0]), t->p[1]); }
+
+static void kind_deadband(Term *t, double *x) { /* width */
+    *x = copysign(py_max(fabs(*x) - t->p[0], 0.0), *x);
 }
+
+static void kind_play(Term *t, double *x) { /* width */
+    const double half = 0.5 * fabs(t->p[0]);
+    const double acting = isnan(t->acting) ? *x : t->acting;
+    t->acting = py_min(py_max(acting, *x - half), *x + half);
+    *x = t->acting;
+}
+
+static void kind_lag(Term *t, double *x) { /* alpha */
+    const double acting = isnan(t->acting) ? *x : t->acting;
+    t->acting = acting + t->p[0] * (*x - acting);
+    *x = t->acting;
+}
+
+static void kind_delay(Term *t, double *x) { /* the line's whole steps, fraction */
+    const double *delayed = line_push(&t->line, x);
+    for (ptrdiff_t i = 0; i < t->line.width; i++) x[i] = delayed[i];
+}
+
+static void kind_coulomb(Term *t, double *x) { /* force, smoothing, asymmetry */
+    const double th = tanh(*x / t->p[1]);
+    *x = t->p[0] * th + t->p[2] * fabs(th);
+}
+
+static void kind_viscous(Term *t, double *x) { *x = t->p[0] * *x; } /* coefficient */
+
+static void kind_stribeck(Term *t, double *x) { /* force, velocity, smoothing */
+    const double r = *x / t->p[1]; /* squared as r * r, as terms.py squares */
+    *x = t->p[0] * exp(-(r * r)) * tanh(*x / t->p[2]);
+}
+
+static void kind_spring(Term *t, double *x) { *x = t->p[0] * (*x - t->p[1]); } /* k, rest */
+static void kind_droop(Term *t, double *x) { *x = -t->p[0] * *x; }            /* resistance */
+
+/* The kinds, by code (row 0 unused): the generated table of greybox_config.h. */
+typedef struct {
+    void (*function)(Term *, double *);
+    int place; /* TERM_PARAMETER ... TERM_CHANNELS */
+    int line;  /* keeps a delay line */
+} Kind;
+
+#define KIND_ROW(function, place, line) {function, place, line},
+static const Kind KINDS[] = {{NULL, TERM_PARAMETER, 0}, TERM_KIND_TABLE(KIND_ROW)};
+#define N_KINDS ((int)(sizeof KINDS / sizeof KINDS[0]))
+
+static const Kind *kind_of(const Term *t) { return &KINDS[t->kind]; }
+static int has_line(const Term *t) { return kind_of(t)->line; }
 
 int term_init(Term *t, const int64_t *ints, const double *reals, const int64_t *channels,
               void *(*allocate)(size_t, size_t), char *message, size_t size) {
@@ -65,21 +121,13 @@ int term_init(Term *t, const int64_t *ints, const double *reals, const int64_t *
     t->n_channels = (ptrdiff_t)ints[5];
     t->channels = channels;
     memcpy(t->p, reals, sizeof t->p);
-    switch (t->kind) {
-        case TERM_ParameterChange: case TERM_InputGain: case TERM_InputOffset:
-        case TERM_ForceOffset: case TERM_InputSaturation: case TERM_InputHysteresis:
-        case TERM_InputLag: case TERM_InputDeadband: case TERM_InputDelay:
-        case TERM_CoulombForce: case TERM_ViscousForce: case TERM_StribeckForce:
-        case TERM_SpringForce: case TERM_FlowDroop: case TERM_SensorDelay:
-        case TERM_SensorGain: case TERM_SensorOffset: case TERM_SensorChannelDelay:
-            break;
-        default:
-            snprintf(message, size, "term kind %d is not one this binary implements; export "
-                     "the FMU again with this version of fmu-greybox", t->kind);
-            return -1;
+    if (ints[0] < 1 || ints[0] >= N_KINDS) {
+        snprintf(message, size, "term kind %lld is not one this binary implements; export "
+                 "the FMU again with this version of fmu-greybox", (long long)ints[0]);
+        return -1;
     }
-    if (has_line(t->kind)) {
-        const ptrdiff_t width = t->kind == TERM_SensorDelay ? t->n_channels : 1;
+    if (has_line(t)) {
+        const ptrdiff_t width = kind_of(t)->place == TERM_CHANNELS ? t->n_channels : 1;
         if (line_init(&t->line, t->p[0], t->p[1], width, allocate) != 0) {
             snprintf(message, size, "out of memory for a delay line");
             return -1;
@@ -94,30 +142,14 @@ void term_free(Term *t, void (*release)(void *)) {
     t->line.buffer = NULL;
 }
 
-int term_is_feedback(const Term *t) {
-    switch (t->kind) {
-        case TERM_CoulombForce: case TERM_ViscousForce: case TERM_StribeckForce:
-        case TERM_SpringForce: case TERM_FlowDroop:
-            return 1;
-        default:
-            return 0;
-    }
-}
+int term_is_feedback(const Term *t) { return kind_of(t)->place == TERM_FEEDBACK; }
 
 int term_on_inputs(const Term *t) {
-    switch (t->kind) {
-        case TERM_InputGain: case TERM_InputOffset: case TERM_ForceOffset:
-        case TERM_InputSaturation: case TERM_InputHysteresis: case TERM_InputLag:
-        case TERM_InputDeadband: case TERM_InputDelay:
-            return 1;
-        default:
-            return term_is_feedback(t);
-    }
+    return kind_of(t)->place == TERM_INPUT || kind_of(t)->place == TERM_FEEDBACK;
 }
 
 int term_on_outputs(const Term *t) {
-    return t->kind == TERM_SensorDelay || t->kind == TERM_SensorGain ||
-           t->kind == TERM_SensorOffset || t->kind == TERM_SensorChannelDelay;
+    return kind_of(t)->place == TERM_OUTPUT || kind_of(t)->place == TERM_CHANNELS;
 }
 
 void term_reset(Term *t) {
@@ -127,86 +159,36 @@ void term_reset(Term *t) {
     t->line.head = -1;
 }
 
-/* What a feedback term adds to its input for the source value x (the kinds' value()). */
-static double feedback_value(const Term *t, double x) {
-    const double *p = t->p;
-    switch (t->kind) {
-        case TERM_CoulombForce: { /* force, smoothing, asymmetry */
-            const double th = tanh(x / p[1]);
-            return p[0] * th + p[2] * fabs(th);
-        }
-        case TERM_ViscousForce: /* coefficient */
-            return p[0] * x;
-        case TERM_StribeckForce: { /* force, velocity, smoothing; r * r as terms.py squares */
-            const double r = x / p[1];
-            return p[0] * exp(-(r * r)) * tanh(x / p[2]);
-        }
-        case TERM_SpringForce: /* coefficient, rest */
-            return p[0] * (x - p[1]);
-        default: /* TERM_FlowDroop: resistance */
-            return -p[0] * x;
-    }
-}
-
 void term_input(Term *t, double *u, const double *y) {
-    const double *p = t->p;
-    double *v = u + t->input;
-    switch (t->kind) {
-        case TERM_InputGain: *v *= 1.0 + p[0]; break;
-        case TERM_InputOffset: case TERM_ForceOffset: *v += p[0]; break;
-        case TERM_InputSaturation: *v = py_min(py_max(*v, p[0]), p[1]); break;
-        case TERM_InputHysteresis: { /* width */
-            const double x = *v, half = 0.5 * fabs(p[0]);
-            const double acting = isnan(t->acting) ? x : t->acting;
-            t->acting = py_min(py_max(acting, x - half), x + half);
-            *v = t->acting;
-            break;
+    const Kind *kind = kind_of(t);
+    if (kind->place == TERM_INPUT) {
+        kind->function(t, u + t->input);
+    } else { /* feedback; the sub-step is the last real */
+        double x = y[t->source];
+        if (t->rate) {
+            const double last = t->last;
+            t->last = x;
+            x = isnan(last) ? 0.0 : (x - last) / t->p[TERM_REALS - 1];
         }
-        case TERM_InputLag: { /* alpha */
-            const double x = *v;
-            const double acting = isnan(t->acting) ? x : t->acting;
-            t->acting = acting + p[0] * (x - acting);
-            *v = t->acting;
-            break;
-        }
-        case TERM_InputDeadband: *v = copysign(py_max(fabs(*v) - p[0], 0.0), *v); break;
-        case TERM_InputDelay: *v = line_push(&t->line, v)[0]; break;
-        default: { /* feedback; the sub-step is the last real */
-            double x = y[t->source];
-            if (t->rate) {
-                const double last = t->last;
-                t->last = x;
-                x = isnan(last) ? 0.0 : (x - last) / p[TERM_REALS - 1];
-            }
-            *v += feedback_value(t, x);
-            break;
-        }
+        kind->function(t, &x);
+        u[t->input] += x;
     }
 }
 
 void term_output(Term *t, double *y) {
-    switch (t->kind) {
-        case TERM_SensorDelay: {
-            const double *delayed;
-            for (ptrdiff_t i = 0; i < t->n_channels; i++) t->line.out[i] = y[t->channels[i]];
-            delayed = line_push(&t->line, t->line.out);
-            for (ptrdiff_t i = 0; i < t->n_channels; i++) y[t->channels[i]] = delayed[i];
-            break;
-        }
-        case TERM_SensorGain:
-            if (t->output >= 0) y[t->output] = y[t->output] * (1.0 + t->p[0]);
-            break;
-        case TERM_SensorOffset:
-            if (t->output >= 0) y[t->output] = y[t->output] + t->p[0];
-            break;
-        default: /* TERM_SensorChannelDelay */
-            if (t->output >= 0) y[t->output] = line_push(&t->line, y + t->output)[0];
-            break;
+    const Kind *kind = kind_of(t);
+    if (kind->place == TERM_CHANNELS) { /* gathered into the line's output row */
+        double *x = t->line.out;
+        for (ptrdiff_t i = 0; i < t->n_channels; i++) x[i] = y[t->channels[i]];
+        kind->function(t, x);
+        for (ptrdiff_t i = 0; i < t->n_channels; i++) y[t->channels[i]] = x[i];
+    } else if (t->output >= 0) {
+        kind->function(t, y + t->output);
     }
 }
 
 ptrdiff_t term_memory_size(const Term *t) {
-    return 4 + (has_line(t->kind) ? t->line.size * t->line.width : 0);
+    return 4 + (has_line(t) ? t->line.size * t->line.width : 0);
 }
 
 void term_save(const Term *t, double *memory) {
@@ -214,7 +196,7 @@ void term_save(const Term *t, double *memory) {
     memory[1] = t->last;
     memory[2] = (double)t->line.count;
     memory[3] = (double)t->line.head;
-    if (has_line(t->kind)) {
+    if (has_line(t)) {
         memcpy(memory + 4, t->line.buffer, (size_t)(t->line.size * t->line.width) * 8);
     }
 }
@@ -224,14 +206,14 @@ void term_load(Term *t, const double *memory) {
     t->last = memory[1];
     t->line.count = (ptrdiff_t)memory[2];
     t->line.head = (ptrdiff_t)memory[3];
-    if (has_line(t->kind)) {
+    if (has_line(t)) {
         memcpy(t->line.buffer, memory + 4, (size_t)(t->line.size * t->line.width) * 8);
     }
 }
 
 const char *term_memory_fault(const Term *t, const double *memory) {
     const double count = memory[2], head = memory[3];
-    const ptrdiff_t rows = has_line(t->kind) ? t->line.size : 0;
+    const ptrdiff_t rows = has_line(t) ? t->line.size : 0;
     if (isinf(memory[0]) || isinf(memory[1])) return "a play, lag or rate memory is infinite";
     if (!(count >= 0.0 && count <= 9007199254740992.0 && count == floor(count))) {
         return "its delay line's sample count is not a whole number of samples";

@@ -3,10 +3,12 @@
  * fmu_greybox/model/terms.py, with the same arithmetic in the same order.
  *
  * A term acts on the white-box's inputs before a (sub-)step (term_input) or on the outputs its
- * sensors report after a step (term_output). The kind codes TERM_<Kind> come from the FMU's
- * generated greybox_config.h (fmu_greybox/model/native_terms.py, NATIVE_KINDS); what a term
- * needs that depends on names or on the step (positions, delay lengths, lag coefficients) was
- * computed at export by the Python term's own bind().
+ * sensors report after a step (term_output). Each kind is one function of terms.c, named by
+ * the kind's declaration in terms.py (Native); the FMU's generated greybox_config.h holds the
+ * table of kinds, TERM_KIND_TABLE (fmu_greybox/model/native_terms.py: per kind code, from 1,
+ * its function, where it acts and whether it keeps a delay line). What a term needs that
+ * depends on names or on the step (positions, delay lengths, lag coefficients) was computed
+ * at export by the Python term's own bind().
  */
 #ifndef GREYBOX_TERMS_H
 #define GREYBOX_TERMS_H
@@ -17,6 +19,11 @@
 /* Integers and reals per term in the data file (sections term_int and term_real). */
 #define TERM_INTS 6
 #define TERM_REALS 6
+
+/* Where a kind acts (the place of its row in TERM_KIND_TABLE): through FMU parameters only, on
+ * one input, on one input from an output (feedback, at every sub-step), on one sensed output,
+ * on several sensed outputs at once. */
+enum { TERM_PARAMETER, TERM_INPUT, TERM_FEEDBACK, TERM_OUTPUT, TERM_CHANNELS };
 
 /* A delay line of `width` signals sampled every step: `whole` + `frac` steps late, linear
  * interpolation, the first value held before the delay has elapsed (terms.py, DelayLine). */
@@ -35,7 +42,7 @@ typedef struct {
     int rate;             /* feedback from the rate of the source */
     ptrdiff_t n_channels; /* outputs a sensor delay acts on */
     const int64_t *channels;
-    double p[TERM_REALS]; /* the kind's numbers (native_terms.py) */
+    double p[TERM_REALS]; /* the kind's numbers (terms.py: Native.reals) */
     double acting, last;  /* memory of a play or lag, of a rate */
     DelayLine line;
 } Term;
