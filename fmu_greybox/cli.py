@@ -798,6 +798,14 @@ def demo(
     show_default=True,
     help="native: a C binary, no Python in the bench's process; python: a pythonfmu FMU.",
 )
+@click.option(
+    "--fmi",
+    "fmi_version",
+    type=click.Choice(["2", "3"]),
+    default="2",
+    show_default=True,
+    help="FMI 2.0 or FMI 3.0 co-simulation (3: native runtime only; SSP benches take 2).",
+)
 @click.option("--author", default=None, help="Author in the model description (default: you).")
 @click.option(
     "--fmu-version", default="1.0", show_default=True, help="Version in the model description."
@@ -833,6 +841,7 @@ def export(
     model_dir: Path,
     out: Path,
     runtime: str,
+    fmi_version: str,
     author: str | None,
     fmu_version: str,
     ood_threshold: float,
@@ -840,20 +849,21 @@ def export(
     recording_path: Path | None,
     greybox_only: bool,
 ) -> None:
-    """Export a trained grey-box as an FMI 2.0 co-simulation FMU (and an SSP bench).
+    """Export a trained grey-box as an FMI 2.0 (or 3.0) co-simulation FMU (and an SSP bench).
 
     The FMU replaces the white-box on a bench: same inputs, corrected outputs, and per corrected
     output NAME_std and NAME_wb, plus domain_score, out_of_domain and the parameters
     correction_enabled and ood_threshold. See docs/bench.md.
 
     The FMU is native by default: a C binary compiled here with gcc, which runs in any FMI
-    2.0 master (no Python needed in the bench's process); --runtime python writes a pythonfmu
-    FMU instead.
+    2.0 master (no Python needed in the bench's process); --fmi 3 makes it an FMI 3.0 FMU
+    with the same variables and numbers; --runtime python writes a pythonfmu FMU instead.
 
     \b
     Examples:
       fmu-greybox export model/ --out greybox.fmu
       fmu-greybox export model/ --out greybox.fmu --ssp bench.ssp --recording rec.csv
+      fmu-greybox export model/ --out greybox.fmu --fmi 3
       fmu-greybox export model/ --out greybox.fmu --runtime python
     """
     from fmu_greybox.atomic import prepare_output
@@ -864,6 +874,11 @@ def export(
 
     if ssp is not None and recording_path is None:
         raise click.UsageError("--ssp needs --recording (the recording the bench plays back)")
+    if ssp is not None and fmi_version != "2":
+        raise click.UsageError(
+            "--ssp makes a bench of FMI 2.0 FMUs (its fmpy and libcosim runs take no FMI 3.0): "
+            "export with --fmi 2 for a bench"
+        )
     prepare_output(out, "--out")
     if ssp is not None:
         prepare_output(ssp, "--ssp")
@@ -871,6 +886,7 @@ def export(
         model_dir,
         out,
         runtime=runtime,
+        fmi_version=fmi_version,
         author=author,
         version=fmu_version,
         ood_threshold=ood_threshold,
@@ -879,8 +895,8 @@ def export(
     counts = {k: sum(p.causality == k for p in ports) for k in ("input", "output", "parameter")}
     _info(
         ctx,
-        f"wrote {out} ({runtime} FMU, {counts['input']} inputs, {counts['output']} outputs, "
-        f"{counts['parameter']} parameters; model {result.model_sha256[:12]}, GUID {result.guid})",
+        f"wrote {out} ({runtime} FMU, FMI {fmi_version}.0, {counts['input']} inputs, "
+        f"{counts['output']} outputs, {counts['parameter']} parameters; model {result.model_sha256[:12]}, GUID {result.guid})",
     )
     if ssp is not None:
         recording = load_project_recording(load_model(model_dir).config, recording_path)

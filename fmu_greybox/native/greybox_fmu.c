@@ -226,22 +226,26 @@ static void load_start_values(Instance *inst) {
     inst->phase = INSTANTIATED;
 }
 
-/* The folder of a file: URI (percent-escapes decoded), into path. */
+/* The resources folder, into path: from a file: URI (FMI 2.0, percent-escapes decoded) or a
+ * path (FMI 3.0's resourcePath, through the FMI 3.0 face, taken as it is). */
 static int uri_folder(const char *uri, char *path, size_t size) {
     const char *at = uri;
     size_t n = 0;
+    int escaped = 1;
     if (strncmp(at, "file://localhost/", 17) == 0) {
         at += 16;
     } else if (strncmp(at, "file://", 7) == 0) {
         at += 7;
     } else if (strncmp(at, "file:", 5) == 0) {
         at += 5;
+    } else if (*at != '\0') {
+        escaped = 0;
     } else {
         return -1;
     }
     for (; *at != '\0' && n + 1 < size; at++) {
         unsigned code;
-        if (at[0] == '%' && sscanf(at + 1, "%2x", &code) == 1) {
+        if (escaped && at[0] == '%' && sscanf(at + 1, "%2x", &code) == 1) {
             path[n++] = (char)code;
             at += 2;
         } else {
@@ -275,8 +279,8 @@ static int load(Instance *inst, const char *location, char *message) {
     GreyboxData data;
     int status;
     if (location == NULL || uri_folder(location, resources, sizeof resources) != 0) {
-        snprintf(message, MESSAGE_SIZE, "fmuResourceLocation \"%s\" is not a file: URI of the "
-                 "FMU's resources folder", location != NULL ? location : "(null)");
+        snprintf(message, MESSAGE_SIZE, "fmuResourceLocation \"%s\" is neither a file: URI nor "
+                 "a path of the FMU's resources folder", location != NULL ? location : "(null)");
         return -1;
     }
     snprintf(path, sizeof path, "%s/" GREYBOX_DATA_FILE, resources);

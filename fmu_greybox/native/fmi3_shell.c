@@ -1,15 +1,19 @@
 /*
- * fmi3_cosimulation.c -- the FMI 3.0 co-simulation API as a shell around the FMI 2.0 one.
+ * fmi3_shell.c -- the FMI 3.0 co-simulation face of an FMI 2.0 co-simulation core.
  *
- * The framework's state machine, variables, FMU state and integrator are those of
- * fmi2_cosimulation.c, compiled into the same library: every FMI 3.0 call here translates its
- * arguments and calls the FMI 2.0 function that does the work, so both kinds of FMU built from
- * one model step the same numbers. Types: Float64 is the table's Real, Int32 its Integer,
- * Boolean and String as in FMI 2.0; the other FMI 3.0 types, clocks, event mode, model
- * exchange and scheduled execution are refused with a message (modelDescription.xml declares
- * none of them). Built with FW_MODEL_EXCHANGE, the FMI 3.0 model-exchange functions of
- * me/fmi3_model_exchange.c (a shell over the FMI 2.0 ones of me/fmi2_model_exchange.c) replace
- * the refusals of model exchange and event mode at the end of this file.
+ * One file serves every FMU the project builds: the reference FMUs (the framework,
+ * fmu_sources/framework/fmi2_cosimulation.c) and the native grey-box (greybox_fmu.c). The core
+ * owns the state machine, the variables, the FMU state and the stepping; every FMI 3.0 call
+ * here translates its arguments and calls the FMI 2.0 function that does the work, so both
+ * faces of one core step the same numbers. Types: Float64 is the core's Real, Int32 its
+ * Integer, Boolean and String as in FMI 2.0; the other FMI 3.0 types, clocks, event mode,
+ * model exchange and scheduled execution are refused with a message (modelDescription.xml
+ * declares none of them). The core's identity comes from fmi_shell_config.h, generated at
+ * build: FMI_SHELL_IDENTIFIER (a string) and FMI_SHELL_TIME_VR (the value reference of the
+ * independent variable time, one past the core's own). Built with FW_MODEL_EXCHANGE, the FMI
+ * 3.0 model-exchange functions of the framework's me/fmi3_model_exchange.c (a face over the
+ * FMI 2.0 ones of me/fmi2_model_exchange.c) replace the refusals of model exchange and event
+ * mode at the end of this file.
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -17,7 +21,10 @@
 
 #include "fmi2Functions.h"
 #include "fmi3Functions.h"
+#include "fmi_shell_config.h"
+#ifdef FW_MODEL_EXCHANGE
 #include "fmu_framework.h"
+#endif
 
 /* One FMI 3.0 instance: the FMI 2.0 instance doing the work and the master's logger. */
 typedef struct {
@@ -56,7 +63,7 @@ static fmi3Status unsupported(fmi3Instance instance, const char *call) {
         char message[256];
         snprintf(message, sizeof message, "%s is not supported by %s (FMI 3.0 %s "
                  "with Float64, Int32, Boolean and String variables only).", call,
-                 MODEL_IDENTIFIER_STRING, FW_FMI3_INTERFACE);
+                 FMI_SHELL_IDENTIFIER, FW_FMI3_INTERFACE);
         shell->log(shell->environment, fmi3Error, "logStatusError", message);
     }
     return fmi3Error;
@@ -154,8 +161,8 @@ static int scalars(fmi3Instance instance, const char *call, size_t nvr, size_t n
     return 0;
 }
 
-/* The independent variable time: one value reference past the table's (modelDescription.xml). */
-#define VR_TIME N_VALUE_REFERENCES
+/* The independent variable time (modelDescription.xml). */
+#define VR_TIME FMI_SHELL_TIME_VR
 
 fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
                           fmi3Float64 values[], size_t nValues) {
