@@ -896,7 +896,8 @@ def export(
     _info(
         ctx,
         f"wrote {out} ({runtime} FMU, FMI {fmi_version}.0, {counts['input']} inputs, "
-        f"{counts['output']} outputs, {counts['parameter']} parameters; model {result.model_sha256[:12]}, GUID {result.guid})",
+        f"{counts['output']} outputs, {counts['parameter']} parameters; "
+        f"model {result.model_sha256[:12]}, GUID {result.guid})",
     )
     if ssp is not None:
         recording = load_project_recording(load_model(model_dir).config, recording_path)
