@@ -12,7 +12,10 @@ compilers) are :mod:`fmu_greybox.fmi.platforms`.
 
 from __future__ import annotations
 
+import dataclasses
+import os
 import subprocess
+import tempfile
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,6 +75,9 @@ class CBuild:
         ``NAME`` or ``NAME=VALUE``.
     libraries : tuple of str
         Linked as ``-l<name>``; :data:`POSIX_LIBRARIES` are left out on Windows.
+    shared : bool
+        A shared library (else a program: on Windows linked statically, so that it needs
+        none of mingw-w64's DLLs).
     """
 
     what: str
@@ -80,9 +86,11 @@ class CBuild:
     include_dirs: tuple[Path, ...] = ()
     defines: tuple[str, ...] = ()
     libraries: tuple[str, ...] = field(default=("m",))
+    shared: bool = True
 
     def command(self, library: Path, target: BinaryPlatform | None = None) -> list[str]:
-        """The compiler's command line for ``target`` (this machine's when ``None``).
+        """The compiler's command line for ``target`` (this machine's when ``None``), writing
+        ``library`` (or the program).
 
         Raises
         ------
@@ -91,7 +99,11 @@ class CBuild:
         """
         target = target or host_platform()
         libraries = [x for x in self.libraries if not (target.windows and x in POSIX_LIBRARIES)]
-        command = [compiler_of(target), *self.flags, "-shared", *target.flags]
+        if self.shared:
+            linking = ["-shared", *target.flags]
+        else:
+            linking = ["-static"] if target.windows else []
+        command = [compiler_of(target), *self.flags, *linking]
         command += [f"-I{folder}" for folder in self.include_dirs]
         command += [f"-D{define}" for define in self.defines]
         command += [str(source) for source in self.sources]
@@ -104,7 +116,8 @@ def library_name(identifier: str, target: BinaryPlatform | None = None) -> str:
 
 
 def compile_library(build: CBuild, library: Path, target: BinaryPlatform | None = None) -> None:
-    """Compile ``build`` into the shared library ``library`` (its folder made if missing).
+    """Compile ``build`` into the shared library (or program) ``library``, its folder made if
+    missing.
 
     Compiler messages of a successful build are passed on as a warning.
 
@@ -124,6 +137,33 @@ def compile_library(build: CBuild, library: Path, target: BinaryPlatform | None 
         )
     if output:
         warnings.warn(f"compiler messages for {build.what}:\n{output}", stacklevel=3)
+
+
+def compile_cached(build: CBuild, library: Path, generated: dict[str, str] | None = None) -> None:
+    """Compile ``build`` into ``library`` of a cache, atomically (concurrent builders do not
+    clash): in a temporary folder beside it, renamed into place once complete.
+
+    Parameters
+    ----------
+    build : CBuild
+    library : Path
+    generated : dict of str to str, optional
+        Headers written into the temporary folder first (name to text), which is searched
+        for includes before ``build.include_dirs``.
+
+    Raises
+    ------
+    FmuBuildError
+        As :func:`compile_library`.
+    """
+    library.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=library.parent) as tmp:
+        for name, text in (generated or {}).items():
+            (Path(tmp) / name).write_text(text, encoding="ascii")
+        built = Path(tmp) / library.name
+        folders = (Path(tmp), *build.include_dirs)
+        compile_library(dataclasses.replace(build, include_dirs=folders), built)
+        os.replace(built, library)
 
 
 def shell_config(identifier: str, time_reference: int) -> str:
