@@ -15,6 +15,7 @@
  * FMI 2.0 ones of me/fmi2_model_exchange.c) replace the refusals of model exchange and event
  * mode at the end of this file.
  */
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -34,16 +35,22 @@ typedef struct {
     int logging;
 } Shell;
 
-/* The FMI 2.0 logger of the inner instance: hands its (already formatted) message on, without
- * the name of the FMI 2.0 function it starts with (the master knows which FMI 3.0 call failed). */
+/* The FMI 2.0 logger of the inner instance: formats its message (a printf format and its
+ * arguments, as FMI 2.0 has it) and hands it on, without the name of the FMI 2.0 function it
+ * starts with (the master knows which FMI 3.0 call failed). */
 static void relay(fmi2ComponentEnvironment environment, fmi2String instanceName,
                   fmi2Status status, fmi2String category, fmi2String message, ...) {
     const Shell *shell = (const Shell *)environment;
-    const char *call_end =
-        message && strncmp(message, "fmi2", 4) == 0 ? strstr(message, ": ") : NULL;
+    char text[2048];
+    const char *call_end;
+    va_list args;
     (void)instanceName;
-    if (!shell || !shell->log) return;
-    shell->log(shell->environment, (fmi3Status)status, category, call_end ? call_end + 2 : message);
+    if (!shell || !shell->log || !message) return;
+    va_start(args, message);
+    vsnprintf(text, sizeof text, message, args);
+    va_end(args);
+    call_end = strncmp(text, "fmi2", 4) == 0 ? strstr(text, ": ") : NULL;
+    shell->log(shell->environment, (fmi3Status)status, category, call_end ? call_end + 2 : text);
 }
 
 static fmi3Status status3(fmi2Status status) {
