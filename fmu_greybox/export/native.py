@@ -45,7 +45,7 @@ from fmu_greybox.errors import ExportError, FmuBuildError
 from fmu_greybox.export.description3 import fmi3_description
 from fmu_greybox.export.slave import MODEL_FOLDER, STEP_RTOL
 from fmu_greybox.fmi.archive import FmuArchive
-from fmu_greybox.fmi.build import fmi2_headers
+from fmu_greybox.fmi.build import LOG_CATEGORIES, fmi2_headers
 from fmu_greybox.fmi.compiler import (
     NATIVE_DIR,
     SHELL_CONFIG,
@@ -69,6 +69,8 @@ if TYPE_CHECKING:
 #: The package's C sources of the native FMU (both FMI versions).
 SOURCES = (
     "greybox_fmu.c",
+    "fmi2_shell.c",
+    "fmi2_shell.h",
     "whitebox.c",
     "whitebox.h",
     "dynlib.h",
@@ -315,13 +317,7 @@ def model_description(plan: ExportPlan, kind: FmuKind = FMI2_CS) -> bytes:
     )
     etree.SubElement(root, "CoSimulation", modelIdentifier=settings["model_identifier"])
     categories = etree.SubElement(root, "LogCategories")
-    for name, text in (
-        ("logStatusWarning", "Warnings (sent while debug logging is on)."),
-        ("logStatusDiscard", "Discards (none: a refused step answers fmi2Error)."),
-        ("logStatusError", "Errors: sent at any logging level."),
-        ("logStatusFatal", "Fatal errors (none)."),
-        ("logAll", "Every message of the grey-box and its white-box."),
-    ):
+    for name, text in LOG_CATEGORIES:
         etree.SubElement(categories, "Category", name=name, description=text)
     etree.SubElement(root, "DefaultExperiment", stepSize=repr(plan.model.dt))
     variables = etree.SubElement(root, "ModelVariables")

@@ -62,8 +62,21 @@ the native grey-box's at export)."""
 ME_SHELL_DIR = FRAMEWORK_DIR / "me"
 """The model-exchange functions (FMI 2.0, and the FMI 3.0 shell over them), which the
 framework's files include when compiled with ``-DFW_MODEL_EXCHANGE``."""
-SHA256_SOURCES = tuple(NATIVE_DIR / n for n in ("sha256.c", "sha256.h"))
-"""SHA-256 of the native grey-box FMU, which the framework's serialised states carry too."""
+SHARED_SOURCES = tuple(
+    NATIVE_DIR / n for n in ("fmi2_shell.c", "fmi2_shell.h", "sha256.c", "sha256.h")
+)
+"""What the framework shares with the native grey-box FMU: the FMI 2.0 shell (phases, logging,
+serialised states, the unsupported calls) and the SHA-256 its serialised states carry."""
+
+#: The log categories of every FMU built here (``native/fmi2_shell.c``, ``SHELL_CATEGORIES``,
+#: accepts these in fmi2SetDebugLogging) and what each carries.
+LOG_CATEGORIES = (
+    ("logStatusWarning", "Warnings (sent while debug logging is on)."),
+    ("logStatusDiscard", "Discards (none: a refused call answers an error)."),
+    ("logStatusError", "Errors, what failed and how to mend it: sent at any logging level."),
+    ("logStatusFatal", "Fatal errors (none)."),
+    ("logAll", "Every message of the FMU (and of an FMU it embeds)."),
+)
 
 REFERENCE_MODEL_DIR = SOURCES_DIR / "HydraulicActuator"
 """The reference actuator: white-box ``HydraulicActuator`` and ``HydraulicActuatorTruth``."""
@@ -588,11 +601,8 @@ def _units_logging_experiment(root: ET.Element, table: VariableTable, variables:
             attributes["offset"] = _number(offset)
         ET.SubElement(element, "BaseUnit", attributes)
     categories = ET.SubElement(root, "LogCategories")
-    ET.SubElement(
-        categories,
-        "Category",
-        {"name": "logStatusError", "description": "Errors: what failed and how to mend it"},
-    )
+    for name, text in LOG_CATEGORIES:
+        ET.SubElement(categories, "Category", {"name": name, "description": text})
     experiment = {"start_time": "startTime", "stop_time": "stopTime", "step_size": "stepSize"}
     ET.SubElement(
         root,
@@ -1041,7 +1051,7 @@ def _compile(
 ) -> None:
     sources = [
         *_framework_sources(kind),
-        SHA256_SOURCES[0],
+        *(f for f in SHARED_SOURCES if f.suffix == ".c"),
         *sorted(model_dir.glob("*.c")),
         generated / "fmu_variables.c",
     ]
@@ -1137,7 +1147,7 @@ def build_fmu(
             *FRAMEWORK_DIR.glob("*.h"),
             *_framework_sources(kind),
             *(ME_SHELL_DIR.glob("*.c") if me else ()),
-            *SHA256_SOURCES,
+            *SHARED_SOURCES,
             *model_dir.glob("*.[ch]"),
         ]
     )
