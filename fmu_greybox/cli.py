@@ -114,6 +114,18 @@ def out_option(default: str, what: str, folder: bool, name: str = "out_dir") -> 
     )
 
 
+def fmi_option(what: str) -> Decorator:
+    """``--fmi 2|3`` (default 2), the FMI version of what the command writes."""
+    return click.option(
+        "--fmi",
+        "fmi_version",
+        type=click.Choice(["2", "3"]),
+        default="2",
+        show_default=True,
+        help=f"{what}.",
+    )
+
+
 def inducing_option(default: int | None) -> Decorator:
     """``--inducing``, with the project file's range (``[gp] inducing``: at least 1)."""
     return click.option(
@@ -199,14 +211,7 @@ def fmu() -> None:
 
 @fmu.command("build")
 @out_option("fmus", "Folder receiving the reference FMUs", folder=True)
-@click.option(
-    "--fmi",
-    "fmi_version",
-    type=click.Choice(["2", "3"]),
-    default="2",
-    show_default=True,
-    help="FMI version of the FMUs (3: the framework with its FMI 3.0 shell).",
-)
+@fmi_option("FMI version of the FMUs (3: the framework with its FMI 3.0 face)")
 @click.option(
     "--interface",
     type=click.Choice(["cs", "me"]),
@@ -798,14 +803,7 @@ def demo(
     show_default=True,
     help="native: a C binary, no Python in the bench's process; python: a pythonfmu FMU.",
 )
-@click.option(
-    "--fmi",
-    "fmi_version",
-    type=click.Choice(["2", "3"]),
-    default="2",
-    show_default=True,
-    help="FMI 2.0 or FMI 3.0 co-simulation (3: native runtime only; SSP benches take 2).",
-)
+@fmi_option("FMI 2.0 or FMI 3.0 co-simulation (3: native runtime only; SSP benches take 2)")
 @click.option("--author", default=None, help="Author in the model description (default: you).")
 @click.option(
     "--fmu-version", default="1.0", show_default=True, help="Version in the model description."

@@ -33,24 +33,24 @@ typedef struct {
     fmi3InstanceEnvironment environment;
     fmi3LogMessageCallback log;
     int logging;
-} Shell;
+} Face;
 
 /* The FMI 2.0 logger of the inner instance: formats its message (a printf format and its
  * arguments, as FMI 2.0 has it) and hands it on, without the name of the FMI 2.0 function it
  * starts with (the master knows which FMI 3.0 call failed). */
 static void relay(fmi2ComponentEnvironment environment, fmi2String instanceName,
                   fmi2Status status, fmi2String category, fmi2String message, ...) {
-    const Shell *shell = (const Shell *)environment;
+    const Face *face = (const Face *)environment;
     char text[2048];
     const char *call_end;
     va_list args;
     (void)instanceName;
-    if (!shell || !shell->log || !message) return;
+    if (!face || !face->log || !message) return;
     va_start(args, message);
     vsnprintf(text, sizeof text, message, args);
     va_end(args);
     call_end = strncmp(text, "fmi2", 4) == 0 ? strstr(text, ": ") : NULL;
-    shell->log(shell->environment, (fmi3Status)status, category, call_end ? call_end + 2 : text);
+    face->log(face->environment, (fmi3Status)status, category, call_end ? call_end + 2 : text);
 }
 
 static fmi3Status status3(fmi2Status status) {
@@ -65,18 +65,18 @@ static fmi3Status status3(fmi2Status status) {
 
 /* Log a call this FMU does not support and refuse it. */
 static fmi3Status unsupported(fmi3Instance instance, const char *call) {
-    const Shell *shell = (const Shell *)instance;
-    if (shell && shell->log && shell->logging) {
+    const Face *face = (const Face *)instance;
+    if (face && face->log && face->logging) {
         char message[256];
         snprintf(message, sizeof message, "%s is not supported by %s (FMI 3.0 %s "
                  "with Float64, Int32, Boolean and String variables only).", call,
                  FMI_SHELL_IDENTIFIER, FW_FMI3_INTERFACE);
-        shell->log(shell->environment, fmi3Error, "logStatusError", message);
+        face->log(face->environment, fmi3Error, "logStatusError", message);
     }
     return fmi3Error;
 }
 
-#define INNER(instance) (((Shell *)(instance))->inner)
+#define INNER(instance) (((Face *)(instance))->inner)
 
 /* ------------------------------------------------------------------------------------------ */
 /* Version, logging, creation and destruction                                                  */
@@ -87,8 +87,32 @@ const char *fmi3GetVersion(void) { return fmi3Version; }
 fmi3Status fmi3SetDebugLogging(fmi3Instance instance, fmi3Boolean loggingOn, size_t nCategories,
                                const fmi3String categories[]) {
     if (!instance) return fmi3Error;
-    ((Shell *)instance)->logging = loggingOn ? 1 : 0;
+    ((Face *)instance)->logging = loggingOn ? 1 : 0;
     return status3(fmi2SetDebugLogging(INNER(instance), loggingOn, nCategories, categories));
+}
+
+/* A new FMI 3.0 instance over an instance of the core of the given type; NULL when out of
+ * memory or when the core refuses (its reason logged through relay). */
+static Face *face_new(fmi3String instanceName, fmi2Type type, fmi3String instantiationToken,
+                      fmi3String resourcePath, fmi3Boolean visible, fmi3Boolean loggingOn,
+                      fmi3InstanceEnvironment instanceEnvironment,
+                      fmi3LogMessageCallback logMessage) {
+    fmi2CallbackFunctions callbacks;
+    Face *face = (Face *)calloc(1, sizeof *face);
+    if (!face) return NULL;
+    face->environment = instanceEnvironment;
+    face->log = logMessage;
+    face->logging = 1;
+    memset(&callbacks, 0, sizeof callbacks);
+    callbacks.logger = relay;
+    callbacks.componentEnvironment = face;
+    face->inner = fmi2Instantiate(instanceName, type, instantiationToken, resourcePath,
+                                  &callbacks, visible, loggingOn);
+    if (!face->inner) {
+        free(face);
+        return NULL;
+    }
+    return face;
 }
 
 fmi3Instance fmi3InstantiateCoSimulation(
@@ -97,31 +121,17 @@ fmi3Instance fmi3InstantiateCoSimulation(
     fmi3Boolean earlyReturnAllowed, const fmi3ValueReference requiredIntermediateVariables[],
     size_t nRequiredIntermediateVariables, fmi3InstanceEnvironment instanceEnvironment,
     fmi3LogMessageCallback logMessage, fmi3IntermediateUpdateCallback intermediateUpdate) {
-    fmi2CallbackFunctions callbacks;
-    Shell *shell = (Shell *)calloc(1, sizeof *shell);
+    Face refusal = {NULL, instanceEnvironment, logMessage, 1};
     (void)earlyReturnAllowed; /* steps never return early */
     (void)requiredIntermediateVariables;
     (void)nRequiredIntermediateVariables;
     (void)intermediateUpdate;
-    if (!shell) return NULL;
-    shell->environment = instanceEnvironment;
-    shell->log = logMessage;
-    shell->logging = 1;
     if (eventModeUsed) {
-        unsupported(shell, "fmi3InstantiateCoSimulation with eventModeUsed (no event mode)");
-        free(shell);
+        unsupported(&refusal, "fmi3InstantiateCoSimulation with eventModeUsed (no event mode)");
         return NULL;
     }
-    memset(&callbacks, 0, sizeof callbacks);
-    callbacks.logger = relay;
-    callbacks.componentEnvironment = shell;
-    shell->inner = fmi2Instantiate(instanceName, fmi2CoSimulation, instantiationToken,
-                                   resourcePath, &callbacks, visible, loggingOn);
-    if (!shell->inner) {
-        free(shell);
-        return NULL;
-    }
-    return shell;
+    return face_new(instanceName, fmi2CoSimulation, instantiationToken, resourcePath, visible,
+                    loggingOn, instanceEnvironment, logMessage);
 }
 
 void fmi3FreeInstance(fmi3Instance instance) {
