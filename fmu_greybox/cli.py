@@ -866,17 +866,14 @@ def export(
     """
     from fmu_greybox.atomic import prepare_output
     from fmu_greybox.export.fmu import export_greybox
-    from fmu_greybox.export.ssp import make_bench
+    from fmu_greybox.export.ssp import make_bench, require_bench_fmi
     from fmu_greybox.model.store import load_model
     from fmu_greybox.project.data import load_project_recording
 
     if ssp is not None and recording_path is None:
         raise click.UsageError("--ssp needs --recording (the recording the bench plays back)")
-    if ssp is not None and fmi_version != "2":
-        raise click.UsageError(
-            "--ssp makes a bench of FMI 2.0 FMUs (its fmpy and libcosim runs take no FMI 3.0): "
-            "export with --fmi 2 for a bench"
-        )
+    if ssp is not None:
+        require_bench_fmi(fmi_version, "--ssp with --fmi 3")
     prepare_output(out, "--out")
     if ssp is not None:
         prepare_output(ssp, "--ssp")

@@ -32,10 +32,11 @@ from lxml import etree
 
 from fmu_greybox.cli import main
 from fmu_greybox.data.recording import Recording
-from fmu_greybox.errors import FmuArchiveError, FmuError
+from fmu_greybox.errors import BenchError, FmuArchiveError, FmuError
 from fmu_greybox.export.fmu import RUNTIMES, export_greybox
 from fmu_greybox.export.runtime import LOGGER, runtime_message
 from fmu_greybox.export.slave import MODEL_FOLDER, check_python
+from fmu_greybox.export.ssp import make_bench
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.instance import fmu_instance
 from fmu_greybox.model.calibration import VarianceCalibration
@@ -698,7 +699,7 @@ def test_export_command_writes_the_fmu(
     ("options", "named"),
     [
         (["--runtime", "python"], "--runtime native"),
-        (["--ssp", "bench.ssp", "--recording", "r.csv"], "export with --fmi 2 for a bench"),
+        (["--ssp", "bench.ssp", "--recording", "r.csv"], "export the bench's FMU with --fmi 2"),
     ],
 )
 def test_what_cannot_be_fmi3_is_refused_naming_the_mend(
@@ -710,6 +711,15 @@ def test_what_cannot_be_fmi3_is_refused_naming_the_mend(
     result = CliRunner().invoke(main, [*arguments, *options])
     assert result.exit_code != 0 and named in result.output
     assert not out.exists()
+
+
+def test_an_ssp_bench_refuses_an_fmi3_fmu(
+    tmp_path_factory: pytest.TempPathFactory, validation: Recording, tmp_path: Path
+) -> None:
+    fmu = trained(tmp_path_factory)["fmus"]["native-fmi3"]
+    with pytest.raises(BenchError, match="export the bench's FMU with --fmi 2"):
+        make_bench(fmu, validation, tmp_path / "bench.ssp")
+    assert not (tmp_path / "bench.ssp").exists()
 
 
 def test_loaded_model_matches_its_fmu_copy(model_dir: Path, greybox_fmu: Path) -> None:

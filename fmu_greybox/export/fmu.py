@@ -1,4 +1,4 @@
-"""Export a trained grey-box as an FMI 2.0 co-simulation FMU (the ``export`` command).
+"""Export a trained grey-box as an FMI 2.0 (or 3.0) co-simulation FMU (the ``export`` command).
 
 Two runtimes, the same variables and the same numbers:
 

@@ -640,7 +640,7 @@ def model_description_fmi3(table: VariableTable, identifier: str, token: str) ->
     """Generate an FMI 3.0 co-simulation ``modelDescription.xml`` for one model of a table.
 
     The same variables, value references, units and dependencies as
-    :func:`model_description`, for the FMI 3.0 shell (``framework/fmi3``): Real variables as
+    :func:`model_description`, for the FMI 3.0 face (``native/fmi3_shell.c``): Real variables as
     ``Float64``, Integer as ``Int32``.
 
     Parameters
