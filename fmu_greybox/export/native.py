@@ -19,11 +19,11 @@ Layout of the FMU::
 The C sources live in ``fmu_greybox/native/``: ``chain_core.c`` (the chain step, the very file
 the Python package's extension compiles), ``whitebox.c`` (the white-box and its named terms,
 as :class:`~fmu_greybox.model.whitebox.NamedModel`), ``terms.c`` (every term kind),
-``greybox_fmu.c`` (the FMI 2.0 functions), ``greybox_data.c`` and ``sha256.c``; an FMI 3.0
-export adds ``fmi3_shell.c``, the FMI 3.0 face the reference FMUs use too, over the same FMI 2.0
-functions. Only ``greybox_config.h`` (the FMU's identifier and GUID, the data file's hash and
-the term kind codes, :mod:`fmu_greybox.model.native_terms`) and ``fmi_shell_config.h`` are
-generated.
+``greybox_fmu.c`` (the FMI 2.0 core) on ``fmi2_shell.c`` (the FMI 2.0 shell the reference
+FMUs share), ``greybox_data.c`` and ``sha256.c``; an FMI 3.0 export adds ``fmi3_shell.c``, the
+FMI 3.0 face the reference FMUs use too, over the same FMI 2.0 functions. Only
+``greybox_config.h`` (the FMU's identifier and GUID, the data file's hash and the term kind
+codes, :mod:`fmu_greybox.model.native_terms`) and ``fmi_shell_config.h`` are generated.
 """
 
 from __future__ import annotations
