@@ -27,12 +27,12 @@
 #include "fmu_framework.h"
 #endif
 
-/* One FMI 3.0 instance: the FMI 2.0 instance doing the work and the master's logger. */
+/* One FMI 3.0 instance: the FMI 2.0 instance doing the work and the master's logger (errors
+ * go to it at any logging level: the shell's policy, fmi2_shell.h). */
 typedef struct {
     fmi2Component inner;
     fmi3InstanceEnvironment environment;
     fmi3LogMessageCallback log;
-    int logging;
 } Face;
 
 /* The FMI 2.0 logger of the inner instance: formats its message (a printf format and its
@@ -63,13 +63,13 @@ static fmi3Status status3(fmi2Status status) {
 #define FW_FMI3_INTERFACE "co-simulation"
 #endif
 
-/* Log a call this FMU does not support and refuse it. */
+/* Log a call this FMU does not support and refuse it (as the shell words a refusal). */
 static fmi3Status unsupported(fmi3Instance instance, const char *call) {
     const Face *face = (const Face *)instance;
-    if (face && face->log && face->logging) {
+    if (face && face->log) {
         char message[256];
-        snprintf(message, sizeof message, "%s is not supported by %s (FMI 3.0 %s "
-                 "with Float64, Int32, Boolean and String variables only).", call,
+        snprintf(message, sizeof message, "%s failed: not supported by %s (FMI 3.0 %s with "
+                 "Float64, Int32, Boolean and String variables only)", call,
                  FMI_SHELL_IDENTIFIER, FW_FMI3_INTERFACE);
         face->log(face->environment, fmi3Error, "logStatusError", message);
     }
@@ -87,7 +87,6 @@ const char *fmi3GetVersion(void) { return fmi3Version; }
 fmi3Status fmi3SetDebugLogging(fmi3Instance instance, fmi3Boolean loggingOn, size_t nCategories,
                                const fmi3String categories[]) {
     if (!instance) return fmi3Error;
-    ((Face *)instance)->logging = loggingOn ? 1 : 0;
     return status3(fmi2SetDebugLogging(INNER(instance), loggingOn, nCategories, categories));
 }
 
@@ -102,7 +101,6 @@ static Face *face_new(fmi3String instanceName, fmi2Type type, fmi3String instant
     if (!face) return NULL;
     face->environment = instanceEnvironment;
     face->log = logMessage;
-    face->logging = 1;
     memset(&callbacks, 0, sizeof callbacks);
     callbacks.logger = relay;
     callbacks.componentEnvironment = face;
@@ -121,7 +119,7 @@ fmi3Instance fmi3InstantiateCoSimulation(
     fmi3Boolean earlyReturnAllowed, const fmi3ValueReference requiredIntermediateVariables[],
     size_t nRequiredIntermediateVariables, fmi3InstanceEnvironment instanceEnvironment,
     fmi3LogMessageCallback logMessage, fmi3IntermediateUpdateCallback intermediateUpdate) {
-    Face refusal = {NULL, instanceEnvironment, logMessage, 1};
+    Face refusal = {NULL, instanceEnvironment, logMessage};
     (void)earlyReturnAllowed; /* steps never return early */
     (void)requiredIntermediateVariables;
     (void)nRequiredIntermediateVariables;
