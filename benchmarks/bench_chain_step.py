@@ -40,7 +40,6 @@ import argparse
 import ctypes
 import dataclasses
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -54,9 +53,8 @@ from bench_export import ROOT, chain_step, recording
 from spread import conditions, conditions_line
 
 from fmu_greybox import _chainstep
-from fmu_greybox.export.native import NATIVE_DIR, core_cflags
 from fmu_greybox.fmi.archive import open_fmu
-from fmu_greybox.fmi.platforms import c_compiler
+from fmu_greybox.fmi.compiler import NATIVE_DIR, CBuild, compile_library, core_flags
 from fmu_greybox.gp.linalg import aligned_zeros
 from fmu_greybox.gp.predictive import packed_factor, point_factor
 from fmu_greybox.model.stage_data import prepare
@@ -179,9 +177,9 @@ def packed(factor: np.ndarray) -> np.ndarray:
 def floor_library(folder: Path) -> ctypes.CDLL:
     """``chain_floor.c`` and the chain core, compiled into ``folder`` with the core's options."""
     library = folder / "libchainfloor.so"
-    command = [c_compiler(), *core_cflags(), "-shared", "-fPIC", "-I", str(NATIVE_DIR)]
-    command += [str(Path(__file__).with_name("chain_floor.c")), str(NATIVE_DIR / "chain_core.c")]
-    subprocess.run([*command, "-o", str(library), "-lm"], check=True)
+    sources = (Path(__file__).with_name("chain_floor.c"), NATIVE_DIR / "chain_core.c")
+    build = CBuild("the chain floor benchmark", sources, core_flags(), include_dirs=(NATIVE_DIR,))
+    compile_library(build, library)
     lib = ctypes.CDLL(str(library))
     pointer, size = ctypes.c_void_p, ctypes.c_ssize_t
     checksum = ctypes.POINTER(ctypes.c_double)

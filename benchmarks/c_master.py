@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 from fmpy import extract, read_model_description
 
-from fmu_greybox.export.native import NATIVE_DIR
 from fmu_greybox.fmi.build import fmi2_headers
-from fmu_greybox.fmi.platforms import BinaryPlatform, compiler_of, host_platform
+from fmu_greybox.fmi.compiler import NATIVE_DIR, CBuild, compile_library, core_flags
+from fmu_greybox.fmi.platforms import BinaryPlatform, host_platform
 from fmu_greybox.fmi.wine import wine_program
 
 SOURCE = Path(__file__).resolve().parent / "c_master.c"
@@ -29,12 +29,15 @@ def build(folder: Path, target: BinaryPlatform | None = None) -> Path:
     a static ``c_master.exe``, run under Wine by :func:`run`); returns the program."""
     target = target or host_platform()
     program = folder / ("c_master.exe" if target.windows else "c_master")
-    command = [compiler_of(target), "-O2", "-std=c11", f"-I{fmi2_headers()}", f"-I{NATIVE_DIR}"]
-    command += ["-static"] if target.windows else []
-    libraries = [] if target.windows else ["-ldl"]
-    subprocess.run(
-        [*command, str(SOURCE), "-o", str(program), *libraries], check=True, capture_output=True
+    build = CBuild(
+        what="the bare C master",
+        sources=(SOURCE,),
+        flags=core_flags(),
+        include_dirs=(fmi2_headers(), NATIVE_DIR),
+        libraries=("dl",),
+        shared=False,
     )
+    compile_library(build, program, target)
     return program
 
 

@@ -114,6 +114,18 @@ def out_option(default: str, what: str, folder: bool, name: str = "out_dir") -> 
     )
 
 
+def fmi_option(what: str) -> Decorator:
+    """``--fmi 2|3`` (default 2), the FMI version of what the command writes."""
+    return click.option(
+        "--fmi",
+        "fmi_version",
+        type=click.Choice(["2", "3"]),
+        default="2",
+        show_default=True,
+        help=f"{what}.",
+    )
+
+
 def inducing_option(default: int | None) -> Decorator:
     """``--inducing``, with the project file's range (``[gp] inducing``: at least 1)."""
     return click.option(
@@ -199,14 +211,7 @@ def fmu() -> None:
 
 @fmu.command("build")
 @out_option("fmus", "Folder receiving the reference FMUs", folder=True)
-@click.option(
-    "--fmi",
-    "fmi_version",
-    type=click.Choice(["2", "3"]),
-    default="2",
-    show_default=True,
-    help="FMI version of the FMUs (3: the framework with its FMI 3.0 shell).",
-)
+@fmi_option("FMI version of the FMUs (3: the framework with its FMI 3.0 face)")
 @click.option(
     "--interface",
     type=click.Choice(["cs", "me"]),
@@ -798,6 +803,7 @@ def demo(
     show_default=True,
     help="native: a C binary, no Python in the bench's process; python: a pythonfmu FMU.",
 )
+@fmi_option("FMI 2.0 or FMI 3.0 co-simulation (3: native runtime only; SSP benches take 2)")
 @click.option("--author", default=None, help="Author in the model description (default: you).")
 @click.option(
     "--fmu-version", default="1.0", show_default=True, help="Version in the model description."
@@ -833,6 +839,7 @@ def export(
     model_dir: Path,
     out: Path,
     runtime: str,
+    fmi_version: str,
     author: str | None,
     fmu_version: str,
     ood_threshold: float,
@@ -840,30 +847,33 @@ def export(
     recording_path: Path | None,
     greybox_only: bool,
 ) -> None:
-    """Export a trained grey-box as an FMI 2.0 co-simulation FMU (and an SSP bench).
+    """Export a trained grey-box as an FMI 2.0 (or 3.0) co-simulation FMU (and an SSP bench).
 
     The FMU replaces the white-box on a bench: same inputs, corrected outputs, and per corrected
     output NAME_std and NAME_wb, plus domain_score, out_of_domain and the parameters
     correction_enabled and ood_threshold. See docs/bench.md.
 
     The FMU is native by default: a C binary compiled here with gcc, which runs in any FMI
-    2.0 master (no Python needed in the bench's process); --runtime python writes a pythonfmu
-    FMU instead.
+    2.0 master (no Python needed in the bench's process); --fmi 3 makes it an FMI 3.0 FMU
+    with the same variables and numbers; --runtime python writes a pythonfmu FMU instead.
 
     \b
     Examples:
       fmu-greybox export model/ --out greybox.fmu
       fmu-greybox export model/ --out greybox.fmu --ssp bench.ssp --recording rec.csv
+      fmu-greybox export model/ --out greybox.fmu --fmi 3
       fmu-greybox export model/ --out greybox.fmu --runtime python
     """
     from fmu_greybox.atomic import prepare_output
     from fmu_greybox.export.fmu import export_greybox
-    from fmu_greybox.export.ssp import make_bench
+    from fmu_greybox.export.ssp import make_bench, require_bench_fmi
     from fmu_greybox.model.store import load_model
     from fmu_greybox.project.data import load_project_recording
 
     if ssp is not None and recording_path is None:
         raise click.UsageError("--ssp needs --recording (the recording the bench plays back)")
+    if ssp is not None:
+        require_bench_fmi(fmi_version, "--ssp with --fmi 3")
     prepare_output(out, "--out")
     if ssp is not None:
         prepare_output(ssp, "--ssp")
@@ -871,6 +881,7 @@ def export(
         model_dir,
         out,
         runtime=runtime,
+        fmi_version=fmi_version,
         author=author,
         version=fmu_version,
         ood_threshold=ood_threshold,
@@ -879,8 +890,9 @@ def export(
     counts = {k: sum(p.causality == k for p in ports) for k in ("input", "output", "parameter")}
     _info(
         ctx,
-        f"wrote {out} ({runtime} FMU, {counts['input']} inputs, {counts['output']} outputs, "
-        f"{counts['parameter']} parameters; model {result.model_sha256[:12]}, GUID {result.guid})",
+        f"wrote {out} ({runtime} FMU, FMI {fmi_version}.0, {counts['input']} inputs, "
+        f"{counts['output']} outputs, {counts['parameter']} parameters; "
+        f"model {result.model_sha256[:12]}, GUID {result.guid})",
     )
     if ssp is not None:
         recording = load_project_recording(load_model(model_dir).config, recording_path)

@@ -7,7 +7,8 @@ Run as a program in its own process (a segfault then ends this process, not pyte
 The FMU runs the first half of the rows of ``INPUTS.npy`` (columns: the inputs NAME ...), its
 state is saved and serialised, and the second half is run as the reference. Then every bit of
 the first HEADER_BYTES bytes, and BODY_SAMPLE bits drawn (seeded) from the rest, is flipped in
-turn; each damaged copy goes through ``fmi2DeSerializeFMUstate`` and ``fmi2SetFMUstate``. A
+turn; each damaged copy goes through ``fmi2DeSerializeFMUstate`` and ``fmi2SetFMUstate`` (their
+FMI 3.0 counterparts for an FMI 3.0 FMU, :mod:`fmi_versions`). A
 refusal at either counts as refused; an accepted copy must then run the second half to the very
 same outputs (an identical state), else it counts as ``accepted_different``. Prints one JSON
 line: ``{"tried", "refused", "identical", "accepted_different", "examples"}``.
@@ -21,9 +22,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from fmi_versions import slave_class
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import FMU2Slave
 
 
 class Run:
@@ -40,7 +41,7 @@ class Run:
         ]
         self.dt = float(description.defaultExperiment.stepSize or 1e-3)
         self.rows = rows
-        self.slave = FMU2Slave(
+        self.slave = slave_class(fmu)(
             guid=description.guid,
             unzipDirectory=extract(fmu),
             modelIdentifier=description.coSimulation.modelIdentifier,

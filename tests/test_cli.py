@@ -326,7 +326,7 @@ def test_top_level_help_lists_each_command_with_its_whole_sentence() -> None:
         "Locate where the white-box departs from a recording, name the physics it left out, "
         "model it and show the fit improve.",
         "Co-simulate an SSP bench in fmpy or libcosim; write every FMU output.",
-        "Export a trained grey-box as an FMI 2.0 co-simulation FMU (and an SSP bench).",
+        "Export a trained grey-box as an FMI 2.0 (or 3.0) co-simulation FMU (and an SSP bench).",
     ):
         assert sentence in text
     # every exit code a command can end with is listed, the acceptance one included

@@ -2,9 +2,10 @@
 instances, errors, the input domain.
 
 One small model is trained once per session (5 s synthetic recording, 40 inducing points, 30
-optimiser iterations) and exported as a native and as a Python FMU; tests taking ``greybox_fmu``
-run for each. The equivalence runs use a separate 1.5 s validation recording. "Equal to 1e-9"
-means ``max |a - b| <= 1e-9 * max(ptp(b), max |b|)`` per signal.
+optimiser iterations) and exported as a native FMI 2.0, a native FMI 3.0 and a Python FMU; tests
+taking ``greybox_fmu`` run for each (:data:`FLAVOURS`). The equivalence runs use a separate
+1.5 s validation recording. "Equal to 1e-9" means ``max |a - b| <= 1e-9 * max(ptp(b), max |b|)``
+per signal.
 """
 
 from __future__ import annotations
@@ -23,20 +24,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from fmi_versions import call_name, fmi_prefix, slave_class
 from fmpy import extract, read_model_description, simulate_fmu
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 from lxml import etree
 
 from fmu_greybox.cli import main
 from fmu_greybox.data.recording import Recording
-from fmu_greybox.errors import FmuArchiveError, FmuError
+from fmu_greybox.errors import BenchError, FmuArchiveError, FmuError
 from fmu_greybox.export.fmu import RUNTIMES, export_greybox
 from fmu_greybox.export.runtime import LOGGER, runtime_message
 from fmu_greybox.export.slave import MODEL_FOLDER, check_python
+from fmu_greybox.export.ssp import make_bench
 from fmu_greybox.fmi.archive import open_fmu
-from fmu_greybox.fmi.instance import FmuInstance
+from fmu_greybox.fmi.instance import fmu_instance
 from fmu_greybox.model.calibration import VarianceCalibration
 from fmu_greybox.model.simulate import simulate_recording
 from fmu_greybox.model.stage_data import prepare
@@ -48,6 +50,8 @@ from fmu_greybox.workflow.train import train_model, with_inducing
 ROOT = Path(__file__).resolve().parents[1]
 RTOL = 1e-9
 STAGE_OUTPUTS = ("spool_position", "ram_position", "itfv_pressure")
+#: The session's exported FMUs: each runtime's FMI 2.0 FMU, and the native FMI 3.0 one.
+FLAVOURS = (*RUNTIMES, "native-fmi3")
 INPUTS = ("valve_current", "supply_pressure", "load_force", "engage")
 
 _CACHE: dict[str, object] = {}
@@ -93,6 +97,9 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
             ).path
             for runtime in RUNTIMES
         }
+        fmus["native-fmi3"] = export_greybox(
+            folder / "model", folder / "greybox_native_fmi3.fmu", fmi_version="3", author="tests"
+        ).path
         _CACHE.update(
             model_dir=folder / "model",
             fmus=fmus,
@@ -107,9 +114,9 @@ def model_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return trained(tmp_path_factory)["model_dir"]
 
 
-@pytest.fixture(scope="session", params=RUNTIMES)
+@pytest.fixture(scope="session", params=FLAVOURS)
 def greybox_fmu(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The grey-box FMU of each runtime in turn."""
+    """The grey-box FMU of each runtime (and FMI version) in turn."""
     return trained(tmp_path_factory)["fmus"][request.param]
 
 
@@ -177,13 +184,14 @@ def input_signal(recording: Recording) -> np.ndarray:
 
 
 class Slave:
-    """An initialised fmpy FMU2Slave of an FMU, stepped through a list of input rows."""
+    """An initialised fmpy slave of an FMU (FMI 2.0, or FMI 3.0 under the FMI 2.0 names),
+    stepped through a list of input rows."""
 
     def __init__(self, fmu: Path, name: str, inputs: np.ndarray, logging_on: bool = False):
         description = read_model_description(str(fmu))
         self.refs = {v.name: v.valueReference for v in description.modelVariables}
         self.dt = description.defaultExperiment.stepSize
-        self.slave = FMU2Slave(
+        self.slave = slave_class(fmu)(
             guid=description.guid,
             unzipDirectory=unpacked(fmu),
             modelIdentifier=description.coSimulation.modelIdentifier,
@@ -274,7 +282,11 @@ def test_interface_is_a_drop_in_replacement(greybox_fmu: Path, model_dir: Path) 
         assert cosim.canGetAndSetFMUstate and cosim.canSerializeFMUstate
         assert greybox.model_description.author == "tests"
     root = etree.fromstring(zipfile.ZipFile(greybox_fmu).read("modelDescription.xml"))
-    annotation = root.find("VendorAnnotations/Tool[@name='fmu-greybox']/GreyBox")
+    annotation = root.find(
+        "VendorAnnotations/Tool[@name='fmu-greybox']/GreyBox"  # FMI 2.0
+        if fmi_prefix(greybox_fmu) == "fmi2"
+        else "Annotations/Annotation[@type='fmu-greybox']/GreyBox"
+    )
     assert annotation.get("model_sha256") == file_sha256(model_dir / MANIFEST)
     assert annotation.get("whitebox_sha256") == file_sha256(model_dir / "whitebox.fmu")
     assert [s.get("name") for s in annotation.iter("Stage")] == ["EHV", "RAM", "ITFV"]
@@ -501,11 +513,13 @@ def test_wrong_step_is_refused_with_a_logged_reason_and_no_crash(
 
 def step_refusal(fmu: Path, u0: np.ndarray, u: np.ndarray, time: float, step: float) -> FmuError:
     """The FmuError of a step with inputs ``u`` from ``time``, refused by the FMU initialised
-    with ``u0`` at 0 s and driven with debug logging off (FmuInstance): its message quotes what
+    with ``u0`` at 0 s and driven with debug logging off (fmu_instance): its message quotes what
     the FMU sent to the FMI logger."""
     with open_fmu(fmu) as archive:
         start = dict(zip(INPUTS, u0, strict=True))
-        instance = FmuInstance(archive, inputs=INPUTS, outputs=["ram_position"], start_values=start)
+        instance = fmu_instance(
+            archive, inputs=INPUTS, outputs=["ram_position"], start_values=start
+        )
         try:
             instance.time = time
             with pytest.raises(FmuError) as caught:
@@ -520,7 +534,7 @@ def test_refusals_reach_the_fmi_logger_with_logging_off(
 ) -> None:
     u, dt = input_rows(validation)[0], float(validation.dt)
     wrong_step = step_refusal(greybox_fmu, u, u, 0.0, 2 * dt)
-    assert wrong_step.status == f"fmi2{refused_status(greybox_fmu).capitalize()}"
+    assert wrong_step.status == fmi_prefix(greybox_fmu) + refused_status(greybox_fmu).capitalize()
     assert "trained at 0.001 s" in str(wrong_step)
     jump = step_refusal(greybox_fmu, u, u, 0.5, dt)  # the FMU is at 0 s
     assert "cannot jump in time" in str(jump) and "0.5" in str(jump)
@@ -566,13 +580,15 @@ def test_absurd_inputs_at_initialisation_are_refused(
     u[INPUTS.index("load_force")] = 1e30
     start = dict(zip(INPUTS, u, strict=True))
     with open_fmu(greybox_fmu) as archive, pytest.raises(FmuError) as caught:
-        instance = FmuInstance(archive, inputs=INPUTS, outputs=["ram_position"], start_values=start)
+        instance = fmu_instance(
+            archive, inputs=INPUTS, outputs=["ram_position"], start_values=start
+        )
         try:
             instance.step(u, float(validation.dt))
         finally:
             instance.close()
     call = {"native": "fmi2ExitInitializationMode", "python": "fmi2DoStep"}
-    assert caught.value.call == call[runtime_of(greybox_fmu)]
+    assert caught.value.call == call_name(greybox_fmu, call[runtime_of(greybox_fmu)])
     assert "load_force = 1e+30" in str(caught.value) and "input domain" in str(caught.value)
 
 
@@ -663,16 +679,47 @@ def test_export_refuses_a_modified_model(model_dir: Path, tmp_path: Path) -> Non
     assert "stage_EHV.json" in result.output and not (tmp_path / "x.fmu").exists()
 
 
-@pytest.mark.parametrize("runtime", RUNTIMES)
-def test_export_command_writes_the_fmu(model_dir: Path, tmp_path: Path, runtime: str) -> None:
+@pytest.mark.parametrize(("runtime", "fmi"), [("native", "2"), ("python", "2"), ("native", "3")])
+def test_export_command_writes_the_fmu(
+    model_dir: Path, tmp_path: Path, runtime: str, fmi: str
+) -> None:
     out = tmp_path / "cli.fmu"
     arguments = ["export", str(model_dir), "--out", str(out), "--ood-threshold", "0.2"]
-    result = CliRunner().invoke(main, [*arguments, "--runtime", runtime])
+    result = CliRunner().invoke(main, [*arguments, "--runtime", runtime, "--fmi", fmi])
     assert result.exit_code == 0, result.output
-    assert f"wrote {out} ({runtime} FMU" in result.output and validate_fmu(str(out)) == []
+    assert f"wrote {out} ({runtime} FMU, FMI {fmi}.0" in result.output
+    assert validate_fmu(str(out)) == []
     assert runtime_of(out) == runtime
+    assert read_model_description(str(out)).fmiVersion == f"{fmi}.0"
     with open_fmu(out) as archive:
         assert archive.variable("ood_threshold").start == 0.2
+
+
+@pytest.mark.parametrize(
+    ("options", "named"),
+    [
+        (["--runtime", "python"], "--runtime native"),
+        (["--ssp", "bench.ssp", "--recording", "r.csv"], "export the bench's FMU with --fmi 2"),
+    ],
+)
+def test_what_cannot_be_fmi3_is_refused_naming_the_mend(
+    model_dir: Path, tmp_path: Path, options: list[str], named: str
+) -> None:
+    """pythonfmu writes FMI 2.0 only; the SSP benches run FMI 2.0 FMUs only."""
+    out = tmp_path / "x.fmu"
+    arguments = ["export", str(model_dir), "--out", str(out), "--fmi", "3"]
+    result = CliRunner().invoke(main, [*arguments, *options])
+    assert result.exit_code != 0 and named in result.output
+    assert not out.exists()
+
+
+def test_an_ssp_bench_refuses_an_fmi3_fmu(
+    tmp_path_factory: pytest.TempPathFactory, validation: Recording, tmp_path: Path
+) -> None:
+    fmu = trained(tmp_path_factory)["fmus"]["native-fmi3"]
+    with pytest.raises(BenchError, match="export the bench's FMU with --fmi 2"):
+        make_bench(fmu, validation, tmp_path / "bench.ssp")
+    assert not (tmp_path / "bench.ssp").exists()
 
 
 def test_loaded_model_matches_its_fmu_copy(model_dir: Path, greybox_fmu: Path) -> None:

@@ -309,4 +309,4 @@ except Exception:
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=False
     )
     assert result.returncode == 0, result.stderr
-    assert "fmi2DoStep is not allowed" in result.stdout and "refused" in result.stdout
+    assert "fmi2DoStep failed: not allowed" in result.stdout and "refused" in result.stdout

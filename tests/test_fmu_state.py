@@ -67,23 +67,24 @@ def test_get_set_state_reproduces_bitwise(
 def test_single_bit_flips_of_a_saved_state_are_refused_never_crash(
     whitebox_fmu: Path, truth_fmu: Path, actuator_inputs: np.ndarray, tmp_path: Path, model: str
 ) -> None:
-    """Every bit of the header, phase, flags and time (88 bytes) and 400 bits drawn from the
+    """Every bit of the header, phase, flags and time (96 bytes) and 400 bits drawn from the
     rest, flipped one at a time, in a process of its own: none crashes it, none is accepted."""
     fmu = whitebox_fmu if model == "whitebox" else truth_fmu
-    counts = state_flips.sweep(fmu, list(INPUTS), actuator_inputs[:40], tmp_path, 88, 400)
-    assert counts["tried"] == 88 * 8 + 400
+    counts = state_flips.sweep(fmu, list(INPUTS), actuator_inputs[:40], tmp_path, 96, 400)
+    assert counts["tried"] == 96 * 8 + 400
     assert counts["refused"] == counts["tried"], counts
 
 
 @pytest.mark.parametrize(
     ("offset", "packed", "named"),
-    [(64, struct.pack("<i", 7), "phase 7"), (80, struct.pack("<d", np.nan), "time = nan")],
+    [(72, struct.pack("<i", 7), "phase 7"), (88, struct.pack("<d", np.nan), "time = nan")],
 )
 def test_forged_state_with_a_valid_checksum_is_refused(
     whitebox_fmu: Path, offset: int, packed: bytes, named: str
 ) -> None:
     """A state edited at its phase or time with its SHA-256 recomputed, as a forger would
-    (layout: fmi2_cosimulation.c, StateHeader then SimData), is refused naming the field."""
+    (layout: the shell's 72-byte header, fmi2_shell.h, then SimData), is refused naming the
+    field."""
     with open_fmu(whitebox_fmu) as archive, FmuInstance(archive, ["valve_current"]) as instance:
         instance.step([1.0], H)
         saved = instance.serialize_state()

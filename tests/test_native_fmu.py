@@ -2,7 +2,9 @@
 ``sources/``, its integrity checks and its state.
 
 Uses the session's model and FMUs of ``test_export``. "Equal to 1e-9" as there: per signal,
-``max |a - b| <= 1e-9 * max(ptp(b), max |b|)``.
+``max |a - b| <= 1e-9 * max(ptp(b), max |b|)``. Tests taking ``native_face`` run for the FMI
+2.0 FMU and the FMI 3.0 one (the same core behind ``native/fmi3_shell.c``); the bare C master,
+libcosim and the sanitizer build run the FMI 2.0 functions.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import c_master as master
 import numpy as np
 import pytest
 import state_flips
+from fmi_versions import call_name, fmi_prefix
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.model_description import read_build_description
@@ -32,6 +35,7 @@ from test_export import (
     INPUTS,
     STAGE_OUTPUTS,
     Slave,
+    assert_close,
     assert_matches_master,
     input_rows,
     master_run,
@@ -44,7 +48,7 @@ from fmu_greybox.errors import ExportError, FmuError
 from fmu_greybox.export.fmu import RUNTIMES, export_greybox
 from fmu_greybox.export.native import BUILD_DESCRIPTION, NATIVE_DIR
 from fmu_greybox.fmi.archive import open_fmu
-from fmu_greybox.fmi.instance import FmuInstance
+from fmu_greybox.fmi.instance import fmu_instance
 from fmu_greybox.model import terms as term_kinds
 from fmu_greybox.model.native_terms import NATIVE_KINDS
 from fmu_greybox.model.store import load_model, save_model
@@ -95,6 +99,12 @@ def model_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="session")
 def native_fmu(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return trained(tmp_path_factory)["fmus"]["native"]
+
+
+@pytest.fixture(scope="session", params=["native", "native-fmi3"])
+def native_face(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The native FMU's FMI 2.0 and FMI 3.0 exports in turn."""
+    return trained(tmp_path_factory)["fmus"][request.param]
 
 
 @pytest.fixture(scope="session")
@@ -185,34 +195,34 @@ def test_state_with_terms_memory_continues_identically(
 
 
 def test_single_bit_flips_of_a_saved_state_are_refused_never_crash(
-    native_fmu: Path, validation, tmp_path: Path
+    native_face: Path, validation, tmp_path: Path
 ) -> None:
     """Every bit of the first 200 bytes (header, white-box state sizes, time, phase and flags,
     the first interface values) and 600 bits drawn from the rest (the white-box's own state
     bytes included), flipped one at a time, in a process of its own: none crashes it, none is
     accepted (the state's SHA-256 trailer no longer matches)."""
     rows = input_rows(validation)[:40]
-    counts = state_flips.sweep(native_fmu, list(INPUTS), rows, tmp_path, header=200, sample=600)
+    counts = state_flips.sweep(native_face, list(INPUTS), rows, tmp_path, header=200, sample=600)
     assert counts["tried"] == 200 * 8 + 600
     assert counts["refused"] == counts["tried"], counts
 
 
 @pytest.mark.parametrize("value", [float("nan"), float("inf"), -0.1, 1.5])
 def test_an_ood_threshold_that_is_no_score_is_refused_at_fmi2_set_real(
-    native_fmu: Path, validation, value: float
+    native_face: Path, validation, value: float
 ) -> None:
     """Issue 42, item 10: ``ood_threshold = NaN`` was taken, and switched the domain flag off
     (``score < NaN`` is never true). Now fmi2SetReal answers fmi2Error and sets nothing: the
     run goes on with the threshold it had."""
     rows = input_rows(validation)[:20]
-    run = state_flips.Run(str(native_fmu), list(INPUTS), rows)
-    reference = state_flips.Run(str(native_fmu), list(INPUTS), rows)
+    run = state_flips.Run(str(native_face), list(INPUTS), rows)
+    reference = state_flips.Run(str(native_face), list(INPUTS), rows)
     threshold = next(
         v.valueReference
-        for v in read_model_description(str(native_fmu)).modelVariables
+        for v in read_model_description(str(native_face)).modelVariables
         if v.name == "ood_threshold"
     )
-    with pytest.raises(FMICallException, match="fmi2SetReal"):
+    with pytest.raises(FMICallException, match=call_name(native_face, "fmi2SetReal")):
         run.slave.setReal([threshold], [value])
     assert run.slave.getReal([threshold]) == reference.slave.getReal([threshold])
     np.testing.assert_array_equal(run.steps(0, 20), reference.steps(0, 20))
@@ -244,19 +254,20 @@ def forged(state: bytes, index: int, value: float) -> bytes:
     ],
 )
 def test_forged_state_with_a_valid_checksum_is_refused_field_by_field(
-    native_fmu: Path, validation, index: int, value: float, named: str
+    native_face: Path, validation, index: int, value: float, named: str
 ) -> None:
     u, dt = input_rows(validation)[:60], float(validation.dt)
-    with open_fmu(native_fmu) as archive:
+    refused_at = call_name(native_face, "fmi2DeSerializeFMUstate")
+    with open_fmu(native_face) as archive:
         start = dict(zip(INPUTS, u[0], strict=True))
-        instance = FmuInstance(archive, INPUTS, STAGE_OUTPUTS, start_values=start)
+        instance = fmu_instance(archive, INPUTS, STAGE_OUTPUTS, start_values=start)
         try:
             for row in u[:30]:
                 instance.step(row, dt)
             saved, at = instance.serialize_state(), instance.time
             reference = np.array([instance.step(row, dt).copy() for row in u[30:]])
             n_values = struct.unpack_from("<Q", saved, 64)[0]
-            with pytest.raises(FmuError, match="fmi2DeSerializeFMUstate") as caught:
+            with pytest.raises(FmuError, match=refused_at) as caught:
                 instance.deserialize_state(forged(saved, index % n_values, value), at)
             assert named in str(caught.value)
             instance.deserialize_state(saved, at)  # the undamaged state still restores
@@ -352,7 +363,8 @@ def rebuilt(native_fmu: Path, folder: Path, extra: tuple[str, ...] = ()) -> tupl
     libraries = re.findall(r'<Library name="([^"]+)"', description)
     sources = unpacked / "sources"
     sources_c = [str(sources / f) for s in configuration.sourceFileSets for f in s.sourceFiles]
-    binary = unpacked / "binaries" / "linux64" / f"{identifier}.so"
+    folder = {"fmi2": "linux64", "fmi3": "x86_64-linux"}[fmi_prefix(native_fmu)]
+    binary = unpacked / "binaries" / folder / f"{identifier}.so"
     binary.unlink()
     command = ["gcc", *options, *extra, "-shared", f"-I{sources}", *sources_c, "-o", str(binary)]
     subprocess.run([*command, *(f"-l{lib}" for lib in libraries)], check=True)
@@ -408,13 +420,13 @@ def test_state_flips_and_steps_under_address_and_undefined_behaviour_sanitizers(
 
 
 def test_rebuild_from_the_shipped_sources_runs_identically(
-    native_fmu: Path, validation, tmp_path: Path
+    native_face: Path, validation, tmp_path: Path
 ) -> None:
     """A bench rebuilds the binary as buildDescription.xml says, with nothing but gcc."""
-    unpacked, _ = rebuilt(native_fmu, tmp_path / "fmu")
+    unpacked, _ = rebuilt(native_face, tmp_path / "fmu")
     short = validation.slice_time(0.0, 0.3)
     again = simulate(unpacked, short)
-    shipped = simulate(native_fmu, short)
+    shipped = simulate(native_face, short)
     for name in NAMES:
         np.testing.assert_array_equal(again[name], shipped[name], err_msg=name)
 
@@ -427,22 +439,66 @@ def test_rebuild_from_the_shipped_sources_runs_identically(
     ],
 )
 def test_modified_resources_refuse_instantiation(
-    native_fmu: Path, tmp_path: Path, member: str, named: str
+    native_face: Path, tmp_path: Path, member: str, named: str
 ) -> None:
     def flip(data: bytes) -> bytes:
         return data[:100] + bytes([data[100] ^ 1]) + data[101:]
 
-    flipped = tampered(native_fmu, member, flip, tmp_path)
-    with open_fmu(flipped) as archive, pytest.raises(FmuError, match="fmi2Instantiate") as caught:
-        FmuInstance(archive)
+    flipped = tampered(native_face, member, flip, tmp_path)
+    refused_at = call_name(native_face, "fmi2Instantiate")
+    with open_fmu(flipped) as archive, pytest.raises(FmuError, match=refused_at) as caught:
+        fmu_instance(archive)
     assert named in str(caught.value) and "SHA-256" in str(caught.value)
     assert "Export the FMU again" in str(caught.value)
 
 
-def test_native_fmu_declares_no_python(native_fmu: Path) -> None:
-    description = read_model_description(str(native_fmu))
+def test_native_fmu_declares_no_python(native_face: Path) -> None:
+    description = read_model_description(str(native_face))
     assert not description.coSimulation.needsExecutionTool
-    with zipfile.ZipFile(native_fmu) as archive:
+    with zipfile.ZipFile(native_face) as archive:
         names = archive.namelist()
     assert not any("pythonfmu" in n or n.endswith(".py") for n in names)
     assert {"sources/buildDescription.xml", "resources/greybox.dat"} <= set(names)
+
+
+# ---------------------------------------------------------------------------- FMI 3.0
+def test_the_fmi3_export_equals_the_fmi2_export_in_fmpy(
+    tmp_path_factory: pytest.TempPathFactory, validation
+) -> None:
+    """Issue 43, item 3: ``export --fmi 3`` run in fmpy gives what the FMI 2.0 export gives,
+    to 1e-9 of each signal's range (in fact bit for bit: one core behind both faces)."""
+    fmus = trained(tmp_path_factory)["fmus"]
+    names = [*NAMES, "domain_score"]
+    fmi3 = simulate_over(fmus["native-fmi3"], validation, names)
+    fmi2 = simulate_over(fmus["native"], validation, names)
+    for name in names:
+        assert_close(fmi3[name], fmi2[name], name)
+        np.testing.assert_array_equal(fmi3[name], fmi2[name], err_msg=name)
+
+
+def test_the_fmi3_export_carries_the_fmi2_exports_variables(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> None:
+    """The same names, value references, causalities, variabilities, units, descriptions and
+    start values (the inputs', ood_threshold's, correction_enabled's); FMI 3.0 adds the
+    independent variable time past them, and the binary sits in its platform tuple's folder."""
+    fmus = trained(tmp_path_factory)["fmus"]
+    fmi2 = read_model_description(str(fmus["native"]))
+    fmi3 = read_model_description(str(fmus["native-fmi3"]))
+    assert (fmi2.fmiVersion, fmi3.fmiVersion) == ("2.0", "3.0")
+
+    declared = ("name", "valueReference", "causality", "variability", "initial", "unit")
+    declared += ("description", "start")
+
+    def table(description) -> list[tuple]:
+        variables = [v for v in description.modelVariables if v.causality != "independent"]
+        return [tuple(getattr(v, name) for name in declared) for v in variables]
+
+    assert table(fmi3) == table(fmi2)
+    time = [(v.name, v.valueReference) for v in fmi3.modelVariables if v.causality == "independent"]
+    assert time == [("time", len(fmi2.modelVariables))]
+    assert [v.variable.name for v in fmi3.outputs] == [v.variable.name for v in fmi2.outputs]
+    with zipfile.ZipFile(fmus["native-fmi3"]) as archive:
+        assert "binaries/x86_64-linux/" + fmi3.coSimulation.modelIdentifier + ".so" in (
+            archive.namelist()
+        )

@@ -30,6 +30,7 @@ from test_fmu_kinds import INPUTS, OUTPUTS, assert_close, input_rows, recording,
 
 from fmu_greybox.cli import main
 from fmu_greybox.errors import FmuArchiveError, FmuBuildError
+from fmu_greybox.export.fmu import export_greybox
 from fmu_greybox.fmi import wine
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import model_fmus, reference_project
@@ -188,6 +189,19 @@ def test_the_native_greybox_carries_win64_when_the_whitebox_does(native_greybox)
     assert "resources/whitebox/binaries/win64/HydraulicActuator.dll" in names
     assert "sources/dynlib.h" in names
     assert library[:2] == b"MZ"
+
+
+def test_the_fmi3_greybox_carries_its_windows_binary_too(native_greybox, tmp_path) -> None:
+    """``export --fmi 3`` of the same model: the same sources cross-compiled with mingw-w64
+    into ``binaries/x86_64-windows`` (the FMI 3.0 face compiled in) beside ``x86_64-linux``.
+    Not run under Wine here: fmpy's remoting serves FMI 2.0 binaries."""
+    model = native_greybox.parent / "model"
+    fmu = export_greybox(model, tmp_path / "greybox3.fmu", fmi_version="3").path
+    with zipfile.ZipFile(fmu) as archive:
+        names = archive.namelist()
+        library = archive.read("binaries/x86_64-windows/hydraulic_actuator_greybox.dll")
+    assert "binaries/x86_64-linux/hydraulic_actuator_greybox.so" in names
+    assert library[:2] == b"MZ" and b"fmi3InstantiateCoSimulation" in library
 
 
 def test_the_win64_greybox_under_wine_gives_the_linux64_numbers_and_refusals(

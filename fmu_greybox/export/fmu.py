@@ -1,4 +1,4 @@
-"""Export a trained grey-box as an FMI 2.0 co-simulation FMU (the ``export`` command).
+"""Export a trained grey-box as an FMI 2.0 (or 3.0) co-simulation FMU (the ``export`` command).
 
 Two runtimes, the same variables and the same numbers:
 
@@ -63,6 +63,8 @@ REQUIRES_PYTHON = (3, 11)
 GREYBOX_ENTRY = "greybox_fmu"
 #: The runtimes an FMU can be exported for; the first is the default.
 RUNTIMES = ("native", "python")
+#: The FMI versions an FMU can be exported for; the first is the default.
+FMI_VERSIONS = ("2", "3")
 
 
 @dataclass(frozen=True)
@@ -158,6 +160,7 @@ def export_greybox(
     out: str | Path,
     *,
     runtime: str = RUNTIMES[0],
+    fmi_version: str = FMI_VERSIONS[0],
     author: str | None = None,
     version: str = "1.0",
     ood_threshold: float = DEFAULT_OOD_THRESHOLD,
@@ -172,6 +175,9 @@ def export_greybox(
         The ``.fmu`` file to write (atomically).
     runtime : {"native", "python"}
         A C binary with no Python in the bench's process, or a pythonfmu FMU.
+    fmi_version : {"2", "3"}
+        FMI 2.0 or FMI 3.0 co-simulation (FMI 3.0: native runtime only; pythonfmu writes FMI
+        2.0).
     author : str, optional
         Author in the model description (default: the login name).
     version : str
@@ -199,9 +205,12 @@ def export_greybox(
         raise ExportError(f"ood_threshold = {ood_threshold} must lie strictly between 0 and 1")
     if runtime not in RUNTIMES:
         raise ExportError(f"runtime {runtime!r} is not one of {', '.join(RUNTIMES)}")
+    _check_fmi_version(fmi_version, runtime)
     model = load_model(model_dir)
     with open_fmu(model.whitebox_fmu) as archive:
-        plan = _plan(model, model_dir, archive, runtime, author, version, ood_threshold)
+        plan = _plan(
+            model, model_dir, archive, (runtime, fmi_version), author, version, ood_threshold
+        )
         if runtime == "native":
             from fmu_greybox.export.native import package_native
 
@@ -213,16 +222,34 @@ def export_greybox(
     )
 
 
+def _check_fmi_version(fmi_version: str, runtime: str) -> None:
+    """Refuse an FMI version the runtime cannot write.
+
+    Raises
+    ------
+    ExportError
+    """
+    if fmi_version not in FMI_VERSIONS:
+        raise ExportError(f"FMI version {fmi_version!r} is not one of {', '.join(FMI_VERSIONS)}")
+    if fmi_version != "2" and runtime == "python":
+        raise ExportError(
+            f"the Python runtime writes FMI 2.0 FMUs only (pythonfmu has no FMI {fmi_version}.0): "
+            f"export with --runtime native --fmi {fmi_version}, or with --fmi 2"
+        )
+
+
 def _plan(
     model: GreyBoxModel,
     model_dir: Path,
     archive: FmuArchive,
-    runtime: str,
+    target: tuple[str, str],
     author: str | None,
     version: str,
     ood_threshold: float,
 ) -> ExportPlan:
-    """Everything both runtimes need (see :class:`ExportPlan`)."""
+    """Everything both runtimes need (see :class:`ExportPlan`); ``target`` is the runtime and
+    the FMI version."""
+    runtime, fmi_version = target
     manifest = read_manifest(model_dir)
     model_sha = file_sha256(model_dir / MANIFEST)
     interface = greybox_interface(model, archive, ood_threshold)
@@ -233,6 +260,7 @@ def _plan(
     settings = {
         "kind": "greybox",
         "runtime": runtime,
+        "fmi_version": fmi_version,
         "exported_with": __version__,
         "model_sha256": model_sha,
         "model_identifier": _identifier(f"{model.config.name}_greybox"),

@@ -3,11 +3,14 @@
 Layout of the FMU::
 
     modelDescription.xml
-    binaries/<platform>/<identifier>.so   compiled here from sources/ (gcc, buildDescription.xml)
+    binaries/<platform>/<identifier>.so   compiled here from sources/ (gcc, buildDescription.xml);
+                                          FMI 2.0: linux64, FMI 3.0: x86_64-linux
     binaries/win64/<identifier>.dll       when the white-box has a win64 binary: the same
-                                          sources cross-compiled with mingw-w64
-    sources/                              the C sources, the FMI 2.0 headers, greybox_config.h
-                                          and buildDescription.xml: a bench rebuilds from them
+                                          sources cross-compiled with mingw-w64 (FMI 3.0:
+                                          x86_64-windows)
+    sources/                              the C sources, the FMI headers, greybox_config.h,
+                                          fmi_shell_config.h and buildDescription.xml: a bench
+                                          rebuilds from them
     resources/greybox.dat                 the trained numbers (native_data.py), checked against
                                           the SHA-256 compiled into the binary
     resources/whitebox/                   the white-box FMU, unpacked: the binary dlopens it
@@ -16,15 +19,16 @@ Layout of the FMU::
 The C sources live in ``fmu_greybox/native/``: ``chain_core.c`` (the chain step, the very file
 the Python package's extension compiles), ``whitebox.c`` (the white-box and its named terms,
 as :class:`~fmu_greybox.model.whitebox.NamedModel`), ``terms.c`` (every term kind),
-``greybox_fmu.c`` (the FMI functions), ``greybox_data.c`` and ``sha256.c``. Only
-``greybox_config.h`` is generated: the FMU's identifier and GUID, the data file's hash and the
-term kind codes (:mod:`fmu_greybox.model.native_terms`).
+``greybox_fmu.c`` (the FMI 2.0 core) on ``fmi2_shell.c`` (the FMI 2.0 shell the reference
+FMUs share), ``greybox_data.c`` and ``sha256.c``; an FMI 3.0 export adds ``fmi3_shell.c``, the
+FMI 3.0 face the reference FMUs use too, over the same FMI 2.0 functions. Only
+``greybox_config.h`` (the FMU's identifier and GUID, the data file's hash and the term kind
+codes, :mod:`fmu_greybox.model.native_terms`) and ``fmi_shell_config.h`` are generated.
 """
 
 from __future__ import annotations
 
 import shutil
-import subprocess
 import tempfile
 import time
 import warnings
@@ -38,11 +42,21 @@ from lxml import etree
 from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.errors import ExportError, FmuBuildError
+from fmu_greybox.export.description3 import fmi3_description
 from fmu_greybox.export.slave import MODEL_FOLDER, STEP_RTOL
 from fmu_greybox.fmi.archive import FmuArchive
-from fmu_greybox.fmi.build import fmi2_headers
-from fmu_greybox.fmi.kinds import require_native
-from fmu_greybox.fmi.platforms import WIN64, BinaryPlatform, c_compiler, compiler_of, fmi2_platform
+from fmu_greybox.fmi.build import LOG_CATEGORIES, fmi2_headers
+from fmu_greybox.fmi.compiler import (
+    NATIVE_DIR,
+    SHELL_CONFIG,
+    CBuild,
+    compile_library,
+    library_name,
+    native_flags,
+    shell_config,
+)
+from fmu_greybox.fmi.kinds import FMI2_CS, FMI3_CS, FmuKind, require_native
+from fmu_greybox.fmi.platforms import WIN64, BinaryPlatform, compiler_of, host_platform
 from fmu_greybox.model.native_data import data_file_bytes
 from fmu_greybox.model.native_terms import kind_code, kind_defines
 from fmu_greybox.model.native_whitebox import whitebox_sections
@@ -52,10 +66,11 @@ from fmu_greybox.model.whitebox import part_layouts
 if TYPE_CHECKING:
     from fmu_greybox.export.fmu import ExportPlan
 
-#: The package's C sources of the native FMU.
-NATIVE_DIR = Path(__file__).resolve().parent.parent / "native"
+#: The package's C sources of the native FMU (both FMI versions).
 SOURCES = (
     "greybox_fmu.c",
+    "fmi2_shell.c",
+    "fmi2_shell.h",
     "whitebox.c",
     "whitebox.h",
     "dynlib.h",
@@ -68,14 +83,13 @@ SOURCES = (
     "sha256.c",
     "sha256.h",
 )
-FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
-#: Compiler options beyond the chain core's (``native/cflags.txt``, which the Python extension
-#: is compiled with too, so that both runtimes step the chain with the same machine code).
-EXTRA_CFLAGS = ("-fPIC", "-fvisibility=hidden", "-Wall", "-Wextra")
+FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+#: What an FMI 3.0 export adds: the FMI 3.0 face and its headers.
+FMI3_SOURCES = ("fmi3_shell.c",)
+FMI3_HEADERS = ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")
+#: The FMI versions an export is made for, and their kinds.
+FMI_KINDS = {"2": FMI2_CS, "3": FMI3_CS}
 LIBRARIES = ("m", "dl")
-#: Options and libraries a Windows DLL does without (position-independent code is the rule
-#: there; ``native/dynlib.h`` loads the white-box with kernel32, which is always linked).
-POSIX_ONLY = ("-fPIC", "dl")
 DATA_FILE = "greybox.dat"
 CONFIG_HEADER = "greybox_config.h"
 BUILD_DESCRIPTION = "buildDescription.xml"
@@ -88,6 +102,7 @@ def package_native(plan: ExportPlan, archive: FmuArchive, out: Path) -> None:
     Parameters
     ----------
     plan : ExportPlan
+        Its ``settings["fmi_version"]`` (``"2"`` or ``"3"``) says which FMI the FMU offers.
     archive : FmuArchive
         The white-box FMU, open.
     out : Path
@@ -109,6 +124,7 @@ def package_native(plan: ExportPlan, archive: FmuArchive, out: Path) -> None:
         "co-simulation white-box",
         ExportError,
     )
+    kind = FMI_KINDS[plan.settings["fmi_version"]]
     identifier = plan.settings["model_identifier"]
     with tempfile.TemporaryDirectory(prefix="fmu_greybox_native_") as tmp:
         root = Path(tmp) / "fmu"
@@ -117,18 +133,24 @@ def package_native(plan: ExportPlan, archive: FmuArchive, out: Path) -> None:
         shutil.copytree(archive.unzip_dir, resources / WHITEBOX_FOLDER)
         data = data_file_bytes(data_sections(plan, archive))
         (resources / DATA_FILE).write_bytes(data)
+        description = model_description(plan, kind)
         sources = root / "sources"
-        write_sources(sources, identifier, plan.guid, file_sha256(resources / DATA_FILE))
-        folder, extension = fmi2_platform()
-        compile_sources(sources, root / "binaries" / folder / f"{identifier}{extension}")
-        if folder != WIN64.folder and has_win64_binary(archive):
-            add_win64_binary(sources, root / "binaries" / WIN64.folder / f"{identifier}.dll")
-        (root / "modelDescription.xml").write_bytes(model_description(plan))
+        write_sources(sources, plan, kind, file_sha256(resources / DATA_FILE))
+        host = host_platform()
+        compile_sources(sources, root / binary_path(identifier, kind, host))
+        if not host.windows and has_win64_binary(archive):
+            add_win64_binary(sources, root / binary_path(identifier, kind, WIN64))
+        (root / "modelDescription.xml").write_bytes(description)
         staged = Path(tmp) / "staged.fmu"
         _zip_folder(root, staged)
         check_valid(staged)
         with atomic_write(out, "wb") as f, open(staged, "rb") as source:
             shutil.copyfileobj(source, f)
+
+
+def binary_path(identifier: str, kind: FmuKind, target: BinaryPlatform) -> str:
+    """The binary's member, e.g. ``binaries/x86_64-linux/<identifier>.so`` for FMI 3.0."""
+    return f"binaries/{kind.folder_of(target)}/{library_name(identifier, target)}"
 
 
 # ---------------------------------------------------------------------------- the data file
@@ -162,34 +184,37 @@ def data_sections(plan: ExportPlan, archive: FmuArchive) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------- sources, binary
-def write_sources(folder: Path, identifier: str, guid: str, data_sha256: str) -> None:
-    """Fill ``sources/``: the C sources, the FMI headers, the generated configuration header
+def write_sources(folder: Path, plan: ExportPlan, kind: FmuKind, data_sha256: str) -> None:
+    """Fill ``sources/``: the C sources, the FMI headers, the generated configuration headers
     and the build description."""
+    identifier = plan.settings["model_identifier"]
     folder.mkdir(parents=True)
-    for name in SOURCES:
+    for name in source_names(kind):
         shutil.copyfile(NATIVE_DIR / name, folder / name)
-    for name in FMI_HEADERS:
+    for name in (*FMI2_HEADERS, *(FMI3_HEADERS if kind == FMI3_CS else ())):
         shutil.copyfile(fmi2_headers() / name, folder / name)
     (folder / CONFIG_HEADER).write_text(
         "/* Generated by fmu-greybox at export: this FMU's identity, the SHA-256 of its data\n"
         " * file (resources/" + DATA_FILE + ") and the term kind codes (native_terms.py). */\n"
         "#ifndef GREYBOX_CONFIG_H\n#define GREYBOX_CONFIG_H\n"
         f'#define GREYBOX_IDENTIFIER "{identifier}"\n'
-        f'#define GREYBOX_GUID "{{{guid}}}"\n'
+        f'#define GREYBOX_GUID "{{{plan.guid}}}"\n'
         f'#define GREYBOX_DATA_FILE "{DATA_FILE}"\n'
         f'#define GREYBOX_DATA_SHA256 "{data_sha256}"\n'
         f"{kind_defines()}#endif\n",
         encoding="ascii",
     )
-    (folder / BUILD_DESCRIPTION).write_bytes(build_description(identifier))
+    time_vr = len(plan.interface.ports)
+    (folder / SHELL_CONFIG).write_text(shell_config(identifier, time_vr), encoding="ascii")
+    (folder / BUILD_DESCRIPTION).write_bytes(build_description(identifier, kind))
 
 
-def core_cflags() -> list[str]:
-    """The chain core's compiler options (``native/cflags.txt``, shared with setup.py)."""
-    return (NATIVE_DIR / "cflags.txt").read_text(encoding="ascii").split()
+def source_names(kind: FmuKind) -> tuple[str, ...]:
+    """The files of ``native/`` an FMU of ``kind`` is built from (headers included)."""
+    return (*SOURCES, *(FMI3_SOURCES if kind == FMI3_CS else ()))
 
 
-def build_description(identifier: str) -> bytes:
+def build_description(identifier: str, kind: FmuKind) -> bytes:
     """``sources/buildDescription.xml`` (the FMI build description, read by fmpy as well)."""
     root = etree.Element("fmiBuildDescription", fmiVersion="3.0")
     configuration = etree.SubElement(
@@ -197,16 +222,16 @@ def build_description(identifier: str) -> bytes:
         "BuildConfiguration",
         modelIdentifier=identifier,
         description="a shared library: compile the source files with these options and "
-        "-shared, link the libraries",
+        "-shared (-fPIC but on Windows), link the libraries",
     )
     files = etree.SubElement(
         configuration,
         "SourceFileSet",
         language="C11",
         compiler="gcc",
-        compilerOptions=" ".join([*core_cflags(), *EXTRA_CFLAGS]),
+        compilerOptions=" ".join([*native_flags(), *host_platform().flags]),
     )
-    for name in SOURCES:
+    for name in source_names(kind):
         if name.endswith(".c"):
             etree.SubElement(files, "SourceFile", name=name)
     etree.SubElement(files, "IncludeDirectory", name=".")
@@ -223,8 +248,8 @@ def compile_sources(sources: Path, library: Path, target: BinaryPlatform | None 
     sources : Path
     library : Path
     target : BinaryPlatform or None
-        This machine when ``None``; for a Windows target the POSIX-only options and libraries
-        (:data:`POSIX_ONLY`) are left out and the target's own flags added.
+        This machine when ``None`` (:func:`fmu_greybox.fmi.compiler.compile_library` adds the
+        target's options and leaves out what a Windows DLL does without).
 
     Raises
     ------
@@ -234,32 +259,19 @@ def compile_sources(sources: Path, library: Path, target: BinaryPlatform | None 
     root = etree.parse(str(sources / BUILD_DESCRIPTION)).getroot()
     configuration = root.find("BuildConfiguration")
     files = configuration.find("SourceFileSet")
-    windows = target is not None and target.windows
-    options = [o for o in files.get("compilerOptions").split() if not (windows and o in POSIX_ONLY)]
-    libraries = [lib.get("name") for lib in configuration.findall("Library")]
-    libraries = [lib for lib in libraries if not (windows and lib in POSIX_ONLY)]
-    command = [_compiler(target), *options, "-shared", *(target.flags if windows else ())]
-    command += [f"-I{sources / d.get('name')}" for d in files.findall("IncludeDirectory")]
-    command += [str(sources / f.get("name")) for f in files.findall("SourceFile")]
-    command += ["-o", str(library)]
-    command += [f"-l{lib}" for lib in libraries]
-    library.parent.mkdir(parents=True, exist_ok=True)
-    done = subprocess.run(command, capture_output=True, text=True, check=False)
-    output = (done.stdout + done.stderr).strip()
-    if done.returncode != 0:
-        raise ExportError(
-            f"compiling the native grey-box failed (exit {done.returncode}); install gcc or "
-            f"export with --runtime python:\n{' '.join(command)}\n{output}"
-        )
-    if output:
-        warnings.warn(f"compiler messages for the native grey-box:\n{output}", stacklevel=2)
-
-
-def _compiler(target: BinaryPlatform | None = None) -> str:
+    build = CBuild(
+        what="the native grey-box",
+        sources=tuple(sources / f.get("name") for f in files.findall("SourceFile")),
+        flags=tuple(files.get("compilerOptions").split()),
+        include_dirs=tuple(sources / d.get("name") for d in files.findall("IncludeDirectory")),
+        libraries=tuple(x.get("name") for x in configuration.findall("Library")),
+    )
     try:
-        return compiler_of(target) if target is not None else c_compiler()
+        compile_library(build, library, target)
     except FmuBuildError as exc:
-        raise ExportError(f"{exc} (or export with --runtime python)") from exc
+        raise ExportError(
+            f"{exc}\n(install the compiler, or export with --runtime python)"
+        ) from exc
 
 
 def has_win64_binary(archive: FmuArchive) -> bool:
@@ -270,7 +282,7 @@ def has_win64_binary(archive: FmuArchive) -> bool:
 
 def add_win64_binary(sources: Path, library: Path) -> None:
     """Cross-compile ``sources/`` for win64 with mingw-w64 into ``library``; without mingw-w64
-    warn (naming its package) and leave the FMU for linux64 only.
+    warn (naming its package) and leave the FMU for this machine only.
 
     Raises
     ------
@@ -288,8 +300,9 @@ def add_win64_binary(sources: Path, library: Path) -> None:
 
 
 # ---------------------------------------------------------------------------- description
-def model_description(plan: ExportPlan) -> bytes:
-    """The FMU's ``modelDescription.xml``: the variables, completed as the Python FMU's is."""
+def model_description(plan: ExportPlan, kind: FmuKind = FMI2_CS) -> bytes:
+    """The FMU's ``modelDescription.xml``: the variables, completed as the Python FMU's is;
+    for FMI 3.0 derived from that (:func:`~fmu_greybox.export.description3.fmi3_description`)."""
     settings = plan.settings
     root = etree.Element(
         "fmiModelDescription",
@@ -304,13 +317,7 @@ def model_description(plan: ExportPlan) -> bytes:
     )
     etree.SubElement(root, "CoSimulation", modelIdentifier=settings["model_identifier"])
     categories = etree.SubElement(root, "LogCategories")
-    for name, text in (
-        ("logStatusWarning", "Warnings (sent while debug logging is on)."),
-        ("logStatusDiscard", "Discards (none: a refused step answers fmi2Error)."),
-        ("logStatusError", "Errors: sent at any logging level."),
-        ("logStatusFatal", "Fatal errors (none)."),
-        ("logAll", "Every message of the grey-box and its white-box."),
-    ):
+    for name, text in LOG_CATEGORIES:
         etree.SubElement(categories, "Category", name=name, description=text)
     etree.SubElement(root, "DefaultExperiment", stepSize=repr(plan.model.dt))
     variables = etree.SubElement(root, "ModelVariables")
@@ -329,6 +336,8 @@ def model_description(plan: ExportPlan) -> bytes:
         if port.type == "Boolean" and port.start is not None:
             value.set("start", str(bool(port.start)).lower())
     plan.fix(root, f"fmu-greybox {__version__} (native)", needs_execution_tool=False)
+    if kind == FMI3_CS:
+        root = fmi3_description(root)
     return etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
 
 

@@ -139,6 +139,28 @@ class _Component:
     fixed: Mapping[str, float]
 
 
+def require_bench_fmi(fmi_version: str, what: str) -> None:
+    """Refuse an FMU of another FMI version than the benches carry (FMI 2.0: the fmpy and
+    libcosim runs here are made and tested for it).
+
+    Parameters
+    ----------
+    fmi_version : str
+        ``"2"``, ``"3"``, or a model description's ``fmiVersion``.
+    what : str
+        The FMU or the option, for the message.
+
+    Raises
+    ------
+    BenchError
+    """
+    if not fmi_version.startswith("2"):
+        raise BenchError(
+            f"{what}: an FMI {fmi_version[0]}.0 FMU; an SSP bench carries FMI 2.0 FMUs (its "
+            "fmpy and libcosim runs take no FMI 3.0): export the bench's FMU with --fmi 2"
+        )
+
+
 def make_bench(
     greybox_fmu: str | Path,
     recording: Recording,
@@ -170,7 +192,8 @@ def make_bench(
     Raises
     ------
     BenchError
-        A grey-box input has no recorded column, or the template is missing or invalid.
+        A grey-box input has no recorded column, the template is missing or invalid, or the FMU
+        is not FMI 2.0.
     RecordingError
         The recording is not sampled at the grey-box's step.
     ConfigError
@@ -187,6 +210,7 @@ def make_bench(
         )
     config = _project(greybox_fmu)
     description = read_model_description(str(greybox_fmu))
+    require_bench_fmi(description.fmiVersion, str(greybox_fmu))
     step = description.defaultExperiment.stepSize if description.defaultExperiment else None
     if step is not None:
         check_sample_time(recording, float(step), "the grey-box FMU (its default step)")

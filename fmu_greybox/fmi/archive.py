@@ -214,8 +214,8 @@ def open_fmu(path: str | Path) -> FmuArchive:
         _extract_checked(path, unzip_dir)
         description = _read_description(path, unzip_dir)
         kind = fmu_kind(path, description)
-        cs = description.coSimulation  # None for a model-exchange FMU
-        if cs is not None and runs_through_wine(unzip_dir, cs.modelIdentifier, kind, fmi2):
+        identifier = interface(description, kind).modelIdentifier
+        if runs_through_wine(unzip_dir, identifier, kind, fmi2):
             kind = add_wine_remoting(path, unzip_dir)
         _check_binary(path, unzip_dir, description, kind)
         _check_python_runtime(path, unzip_dir, description)

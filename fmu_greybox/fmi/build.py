@@ -21,11 +21,9 @@ from __future__ import annotations
 import hashlib
 import html
 import re
-import subprocess
 import tempfile
 import tomllib
 import uuid
-import warnings
 import zipfile
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -36,10 +34,17 @@ from xml.etree import ElementTree as ET
 from fmu_greybox import __version__
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.errors import FmuBuildError
+from fmu_greybox.fmi.compiler import (
+    FRAMEWORK_FLAGS,
+    NATIVE_DIR,
+    SHELL_CONFIG,
+    CBuild,
+    compile_library,
+    shell_config,
+)
 from fmu_greybox.fmi.kinds import ACCEPTED, FMI2_CS, MODEL_EXCHANGE, FmuKind
 from fmu_greybox.fmi.platforms import (
     BinaryPlatform,
-    compiler_of,
     host_platform,
 )
 from fmu_greybox.resources import data_path
@@ -50,29 +55,32 @@ SOURCES_DIR = data_path("fmu_sources")
 
 FRAMEWORK_DIR = SOURCES_DIR / "framework"
 """The generic FMI 2.0 co-simulation framework."""
-FMI3_SHELL_DIR = FRAMEWORK_DIR / "fmi3"
-"""The FMI 3.0 co-simulation shell around the framework's FMI 2.0 functions."""
+FMI3_SHELL = NATIVE_DIR / "fmi3_shell.c"
+"""The FMI 3.0 co-simulation face over an FMI 2.0 co-simulation core (the framework's here,
+the native grey-box's at export)."""
+
 ME_SHELL_DIR = FRAMEWORK_DIR / "me"
 """The model-exchange functions (FMI 2.0, and the FMI 3.0 shell over them), which the
 framework's files include when compiled with ``-DFW_MODEL_EXCHANGE``."""
-SHA256_SOURCES = tuple(
-    Path(__file__).resolve().parents[1] / "native" / n for n in ("sha256.c", "sha256.h")
+SHARED_SOURCES = tuple(
+    NATIVE_DIR / n for n in ("fmi2_shell.c", "fmi2_shell.h", "sha256.c", "sha256.h")
 )
-"""SHA-256 of the native grey-box FMU, which the framework's serialised states carry too."""
+"""What the framework shares with the native grey-box FMU: the FMI 2.0 shell (phases, logging,
+serialised states, the unsupported calls) and the SHA-256 its serialised states carry."""
+
+#: The log categories of every FMU built here (``native/fmi2_shell.c``, ``SHELL_CATEGORIES``,
+#: accepts these in fmi2SetDebugLogging) and what each carries.
+LOG_CATEGORIES = (
+    ("logStatusWarning", "Warnings (sent while debug logging is on)."),
+    ("logStatusDiscard", "Discards (none: a refused call answers an error)."),
+    ("logStatusError", "Errors, what failed and how to mend it: sent at any logging level."),
+    ("logStatusFatal", "Fatal errors (none)."),
+    ("logAll", "Every message of the FMU (and of an FMU it embeds)."),
+)
 
 REFERENCE_MODEL_DIR = SOURCES_DIR / "HydraulicActuator"
 """The reference actuator: white-box ``HydraulicActuator`` and ``HydraulicActuatorTruth``."""
 
-CFLAGS = (
-    "-std=c99",
-    "-O2",
-    "-funroll-loops",
-    "-fvisibility=hidden",
-    "-ffp-contract=off",
-    "-Wall",
-    "-Wextra",
-)
-"""Compiler flags of every build (plus ``-shared``/``-fPIC`` for the platform)."""
 
 _CAUSALITIES = ("input", "output", "parameter")
 _VARIABILITIES = ("continuous", "discrete", "fixed", "tunable")
@@ -500,7 +508,7 @@ def _guid(table: VariableTable, identifier: str, source_files: list[Path]) -> st
     for file in [Path(__file__), table.path, *source_files]:
         digest.update(file.name.encode())
         digest.update(file.read_bytes())
-    digest.update(" ".join(CFLAGS).encode())
+    digest.update(" ".join(FRAMEWORK_FLAGS).encode())
     return "{" + str(uuid.uuid5(_GUID_NAMESPACE, digest.hexdigest())) + "}"
 
 
@@ -593,11 +601,8 @@ def _units_logging_experiment(root: ET.Element, table: VariableTable, variables:
             attributes["offset"] = _number(offset)
         ET.SubElement(element, "BaseUnit", attributes)
     categories = ET.SubElement(root, "LogCategories")
-    ET.SubElement(
-        categories,
-        "Category",
-        {"name": "logStatusError", "description": "Errors: what failed and how to mend it"},
-    )
+    for name, text in LOG_CATEGORIES:
+        ET.SubElement(categories, "Category", {"name": name, "description": text})
     experiment = {"start_time": "startTime", "stop_time": "stopTime", "step_size": "stepSize"}
     ET.SubElement(
         root,
@@ -635,7 +640,7 @@ def model_description_fmi3(table: VariableTable, identifier: str, token: str) ->
     """Generate an FMI 3.0 co-simulation ``modelDescription.xml`` for one model of a table.
 
     The same variables, value references, units and dependencies as
-    :func:`model_description`, for the FMI 3.0 shell (``framework/fmi3``): Real variables as
+    :func:`model_description`, for the FMI 3.0 face (``native/fmi3_shell.c``): Real variables as
     ``Float64``, Integer as ``Int32``.
 
     Parameters
@@ -655,7 +660,7 @@ def model_description_fmi3(table: VariableTable, identifier: str, token: str) ->
     entry = table.model(identifier)
     time = Variable(  # FMI 3.0 requires the independent variable; the shell serves it
         name="time",
-        value_reference=max(v.value_reference for v in table.variables_of(identifier)) + 1,
+        value_reference=time_reference(table, identifier),
         causality="independent",
         variability="continuous",
         type="Real",
@@ -759,7 +764,7 @@ def variables_c_sources(table: VariableTable, identifier: str, guid: str) -> tup
         Header text and source text.
     """
     variables = table.variables_of(identifier)
-    n_vr = max(v.value_reference for v in variables) + 1
+    n_vr = time_reference(table, identifier)
     index: dict[str, int] = {}
     counts = dict.fromkeys(_TYPES, 0)
     for v in variables:
@@ -861,11 +866,16 @@ def variables_c_sources(table: VariableTable, identifier: str, guid: str) -> tup
     return "\n".join(header), "\n".join(source)
 
 
+def time_reference(table: VariableTable, identifier: str) -> int:
+    """The value reference of the FMI 3.0 ``time``: one past the model's variables."""
+    return max(v.value_reference for v in table.variables_of(identifier)) + 1
+
+
 def state_references(table: VariableTable, identifier: str) -> tuple[list[int], list[int]]:
     """Value references of a model-exchange build's states and of their derivatives: past the
     table's (the first one past it is the FMI 3.0 ``time``), as ``framework/me`` numbers them.
     """
-    first = max(v.value_reference for v in table.variables_of(identifier)) + 2
+    first = time_reference(table, identifier) + 1
     n = len(table.states)
     return list(range(first, first + n)), list(range(first + n, first + 2 * n))
 
@@ -1027,7 +1037,7 @@ def fmi2_headers() -> Path:
 def _framework_sources(kind: FmuKind) -> list[Path]:
     """The framework's C files for ``kind``: the FMI 2.0 framework, plus the FMI 3.0 shell
     (model exchange: and, included by them, the files of :data:`ME_SHELL_DIR`)."""
-    shell = sorted(FMI3_SHELL_DIR.glob("*.c")) if kind.fmi_version == "3.0" else []
+    shell = [FMI3_SHELL] if kind.fmi_version == "3.0" else []
     return [*sorted(FRAMEWORK_DIR.glob("*.c")), *shell]
 
 
@@ -1041,26 +1051,19 @@ def _compile(
 ) -> None:
     sources = [
         *_framework_sources(kind),
-        SHA256_SOURCES[0],
+        *(f for f in SHARED_SOURCES if f.suffix == ".c"),
         *sorted(model_dir.glob("*.c")),
         generated / "fmu_variables.c",
     ]
-    command = [compiler_of(target), *CFLAGS, "-shared", *target.flags]
-    for folder in (generated, model_dir, FRAMEWORK_DIR, SHA256_SOURCES[0].parent, fmi2_headers()):
-        command += ["-I", str(folder)]
-    command += [f"-D{define}" for define in entry.defines]
-    if kind.interface == MODEL_EXCHANGE:
-        command.append("-DFW_MODEL_EXCHANGE")
-    command += [str(s) for s in sources] + ["-o", str(library), "-lm"]
-    result = subprocess.run(command, capture_output=True, text=True, check=False)
-    output = (result.stdout + result.stderr).strip()
-    if result.returncode != 0:
-        raise FmuBuildError(
-            f"compiling {entry.identifier} failed (exit {result.returncode}):\n"
-            f"{' '.join(command)}\n{output}"
-        )
-    if output:
-        warnings.warn(f"compiler messages for {entry.identifier}:\n{output}", stacklevel=3)
+    defines = [*entry.defines, *(["FW_MODEL_EXCHANGE"] if kind.interface == MODEL_EXCHANGE else [])]
+    build = CBuild(
+        what=entry.identifier,
+        sources=tuple(sources),
+        flags=FRAMEWORK_FLAGS,
+        include_dirs=(generated, model_dir, FRAMEWORK_DIR, NATIVE_DIR, fmi2_headers()),
+        defines=tuple(defines),
+    )
+    compile_library(build, library, target)
 
 
 def _zip_write(archive: zipfile.ZipFile, name: str, data: bytes, executable: bool = False) -> None:
@@ -1144,7 +1147,7 @@ def build_fmu(
             *FRAMEWORK_DIR.glob("*.h"),
             *_framework_sources(kind),
             *(ME_SHELL_DIR.glob("*.c") if me else ()),
-            *SHA256_SOURCES,
+            *SHARED_SOURCES,
             *model_dir.glob("*.[ch]"),
         ]
     )
@@ -1160,6 +1163,8 @@ def build_fmu(
         generated = Path(tmp)
         (generated / "fmu_variables.h").write_text(header, encoding="utf-8")
         (generated / "fmu_variables.c").write_text(source, encoding="utf-8")
+        time = time_reference(table, entry.identifier)
+        (generated / SHELL_CONFIG).write_text(shell_config(entry.identifier, time), "ascii")
         library = generated / f"{entry.identifier}{extension}"
         _compile(model_dir, entry, generated, library, kind, target)
         target = out_dir / f"{entry.identifier}.fmu"

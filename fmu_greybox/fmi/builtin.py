@@ -42,15 +42,16 @@ def cache_dir() -> Path:
 
 
 def sources_digest() -> str:
-    """SHA-256 over the C sources (SHA-256 of the native folder too), variable tables and the
-    builder."""
+    """SHA-256 over the C sources (the shell shared with the native folder too), variable
+    tables and the builder."""
     from fmu_greybox.fmi import build as fmu_build
 
     digest = hashlib.sha256()
     root = sources_root()
     files = sorted(p for p in root.rglob("*") if p.is_file() and p.suffix != ".csv")
-    builders = [Path(fmu_build.__file__), Path(fmu_build.__file__).with_name("platforms.py")]
-    for path in [*files, *fmu_build.SHA256_SOURCES, *builders]:
+    builder = Path(fmu_build.__file__)
+    builders = [builder, *(builder.with_name(n) for n in ("platforms.py", "compiler.py"))]
+    for path in [*files, *fmu_build.SHARED_SOURCES, fmu_build.FMI3_SHELL, *builders]:
         digest.update(str(path.relative_to(path.parents[1])).encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()

@@ -28,17 +28,15 @@ import functools
 import hashlib
 import math
 import os
-import subprocess
-import tempfile
 import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from fmu_greybox.errors import FmuBuildError
+from fmu_greybox.fmi.compiler import NATIVE_DIR, CBuild, compile_cached, core_flags
 
 CVODE = "cvode"
 #: The integrators a model-exchange white-box can be stepped by.
@@ -145,8 +143,7 @@ CV_TSTOP_RETURN = 1
 #: Set to ``0`` to run the integration loop in Python (the reference the C loop is tested
 #: against); the same variable makes the diagnosis step in Python (``model/native_run.py``).
 DISABLE_VARIABLE = "FMU_GREYBOX_NATIVE_RUN"
-NATIVE_SOURCE = Path(__file__).resolve().parent.parent / "native" / "me_step.c"
-NATIVE_FLAGS = ("-O2", "-std=c11", "-fPIC", "-shared")
+NATIVE_SOURCE = NATIVE_DIR / "me_step.c"
 #: The FMU calls of the C loop, in the order of its ``enum`` (``native/me_step.c``); the last
 #: three name CVode, a termination and a time event the FMU asked for.
 NATIVE_CALLS = (
@@ -194,23 +191,13 @@ def me_library() -> ctypes.CDLL | None:
     if os.environ.get(DISABLE_VARIABLE, "1") == "0":
         return None
     from fmu_greybox.fmi.builtin import cache_dir
-    from fmu_greybox.fmi.platforms import c_compiler
 
-    digest = hashlib.sha256(" ".join(NATIVE_FLAGS).encode() + NATIVE_SOURCE.read_bytes())
+    build = CBuild(what=NATIVE_SOURCE.name, sources=(NATIVE_SOURCE,), flags=core_flags())
+    digest = hashlib.sha256(" ".join(build.flags).encode() + NATIVE_SOURCE.read_bytes())
     library = cache_dir().parent / "me-step" / digest.hexdigest()[:16] / "libfgbmestep.so"
     try:
         if not library.exists():
-            library.parent.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryDirectory(dir=library.parent) as tmp:
-                built = Path(tmp) / library.name
-                command = [c_compiler(), *NATIVE_FLAGS, str(NATIVE_SOURCE), "-o", str(built)]
-                done = subprocess.run(command, capture_output=True, text=True, check=False)
-                if done.returncode != 0:
-                    raise FmuBuildError(
-                        f"compiling {NATIVE_SOURCE.name} failed (exit {done.returncode}): "
-                        f"{(done.stdout + done.stderr).strip()}"
-                    )
-                os.replace(built, library)
+            compile_cached(build, library)
         loaded = ctypes.CDLL(str(library))
     except (FmuBuildError, OSError) as exc:
         warnings.warn(

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from fmpy import platform as fmi2_folder
 from fmpy import platform_tuple as fmi3_folder
@@ -24,6 +25,11 @@ from fmpy import sharedLibraryExtension
 
 from fmu_greybox.errors import FmuArchiveError
 
+if TYPE_CHECKING:
+    from fmu_greybox.fmi.platforms import BinaryPlatform
+
+#: The FMI 3.0 platform tuple of a win64 binary.
+WINDOWS_TUPLE = "x86_64-windows"
 CO_SIMULATION = "co-simulation"
 MODEL_EXCHANGE = "model exchange"
 
@@ -57,6 +63,13 @@ class FmuKind:
     def binary_folder(self) -> str:
         """Folder under ``binaries/`` holding this machine's library, e.g. ``"linux64"``."""
         return fmi2_folder if self.fmi_version == "2.0" else fmi3_folder
+
+    def folder_of(self, target: BinaryPlatform) -> str:
+        """Folder under ``binaries/`` of a binary built for ``target``: its FMI 2.0 folder
+        (``"win64"``), or for FMI 3.0 its platform tuple (``"x86_64-windows"``)."""
+        if self.fmi_version == "2.0":
+            return target.folder
+        return WINDOWS_TUPLE if target.windows else fmi3_folder
 
     @property
     def native(self) -> bool:

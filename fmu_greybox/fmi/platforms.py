@@ -1,8 +1,8 @@
 """The platforms a binary is compiled for: this machine, or win64 cross-compiled with mingw-w64.
 
 One place knows the FMI 2.0 binary folder, the shared-library extension, the compiler and the
-flags of each: the white-box builder (:mod:`fmu_greybox.fmi.build`) and the native grey-box
-export (:mod:`fmu_greybox.export.native`) compile for either through :func:`compile_command`.
+flags of each; every build compiles for one of them through
+:func:`fmu_greybox.fmi.compiler.compile_library`.
 """
 
 from __future__ import annotations

@@ -8,8 +8,10 @@
  * numbers come from resources/greybox.dat (greybox_data.h), checked against the SHA-256
  * compiled in (greybox_config.h, generated at export).
  *
- * Every error is sent to the master's logger, whatever the logging level, and answered with
- * fmi2Error; nothing here aborts the process. An instance holds all its data: several
+ * The phases, the table of calls allowed in each, the logging and error policy (every error to
+ * the master's logger whatever the logging level, answered with fmi2Error; nothing here aborts
+ * the process), the serialised state's header and the unsupported calls are the shell's
+ * (fmi2_shell.h), which the reference FMUs share. An instance holds all its data: several
  * instances run side by side in one process.
  */
 #define _POSIX_C_SOURCE 200809L
@@ -22,28 +24,18 @@
 
 #include "chain_core.h"
 #include "fmi2Functions.h"
+#include "fmi2_shell.h"
 #include "greybox_config.h"
 #include "greybox_data.h"
 #include "sha256.h"
 #include "whitebox.h"
 
-#define LOG_ERROR "logStatusError"
-#define LOG_ALL "logAll"
 #define MESSAGE_SIZE 1024
-#define STATE_MAGIC "FGBXSTAT"
-#define STATE_VERSION 2
-#define STATE_DIGEST 64 /* the serialised state's trailer: SHA-256 (hex) of the bytes before */
-
-typedef enum { INSTANTIATED, INITIALIZATION, STEPPING, TERMINATED, FAILED } Phase;
-static const char *const PHASES[] = {"instantiated", "initialization mode", "step complete",
-                                     "terminated", "error"};
 
 typedef struct {
-    char *name;
-    fmi2CallbackFunctions callbacks;
+    Shell shell;                     /* first: the shell's functions take the instance */
     fmi2CallbackFunctions forwarded; /* what the white-box gets: its logger forwards to ours */
-    int logging;
-    Phase phase;
+    int phase;                       /* ShellPhase */
     /* the chain (chain_core.h) */
     ChainSizes sizes;
     int64_t *plan;
@@ -64,29 +56,12 @@ typedef struct {
 
 /* ------------------------------------------------------------------ logging */
 
-static void log_text(const Instance *inst, fmi2Status status, const char *text) {
-    if (inst->callbacks.logger == NULL) return;
-    if (status < fmi2Error && !inst->logging) return; /* errors go out at any logging level */
-    inst->callbacks.logger(inst->callbacks.componentEnvironment, inst->name, status,
-                           status >= fmi2Error ? LOG_ERROR : LOG_ALL, "%s", text);
-}
-
-/* Log "call: message" as an error and return fmi2Error (the phase does not change). */
-static fmi2Status refuse(const Instance *inst, const char *call, const char *format, ...) {
-    char detail[MESSAGE_SIZE], text[MESSAGE_SIZE + 64];
-    va_list args;
-    va_start(args, format);
-    vsnprintf(detail, sizeof detail, format, args);
-    va_end(args);
-    snprintf(text, sizeof text, "%s failed: %s", call, detail);
-    log_text(inst, fmi2Error, text);
-    return fmi2Error;
-}
+/* Log "call failed: message" as an error and return fmi2Error (the phase does not change). */
+#define refuse(inst, ...) shell_refuse(&(inst)->shell, __VA_ARGS__)
 
 /* refuse, and the instance goes into the error phase (a failure, not a misuse). */
 static fmi2Status fail(Instance *inst, const char *call, const char *detail) {
-    inst->phase = FAILED;
-    return refuse(inst, call, "%s; fmi2Reset or an earlier FMU state continues", detail);
+    return shell_fail(&inst->shell, &inst->phase, call, "%s", detail);
 }
 
 /* The white-box's logger: its messages go to the master's, under the white-box's name. */
@@ -95,23 +70,20 @@ static void forward(fmi2ComponentEnvironment environment, fmi2String name, fmi2S
     const Instance *inst = environment;
     char text[MESSAGE_SIZE];
     va_list args;
-    if (inst == NULL || inst->callbacks.logger == NULL) return;
-    if (status < fmi2Error && !inst->logging) return;
+    if (inst == NULL || inst->shell.callbacks.logger == NULL) return;
+    if (status < fmi2Error && !inst->shell.logging) return;
     va_start(args, message);
     vsnprintf(text, sizeof text, message, args);
     va_end(args);
-    inst->callbacks.logger(inst->callbacks.componentEnvironment, name, status, category, "%s",
-                           text);
+    inst->shell.callbacks.logger(inst->shell.callbacks.componentEnvironment, name, status,
+                                 category, "%s", text);
 }
 
-static int allowed(const Instance *inst, const char *call, unsigned phases) {
-    if (phases & (1u << inst->phase)) return 1;
-    refuse(inst, call, "not allowed in phase \"%s\"", PHASES[inst->phase]);
-    return 0;
+static int allowed(const Instance *inst, ShellCall call) {
+    return shell_allowed(&inst->shell, call, inst->phase, NULL);
 }
 
-#define IN(phase) (1u << (phase))
-#define ANY_PHASE (IN(INSTANTIATED) | IN(INITIALIZATION) | IN(STEPPING) | IN(TERMINATED) | IN(FAILED))
+double shell_core_time(const Shell *shell) { return ((const Instance *)shell)->time; }
 
 /* ------------------------------------------------------------------ loading */
 
@@ -223,25 +195,29 @@ static void load_start_values(Instance *inst) {
     inst->correction_enabled = fmi2True;
     inst->running = 0;
     inst->time = 0.0;
-    inst->phase = INSTANTIATED;
+    inst->phase = SHELL_INSTANTIATED;
 }
 
-/* The folder of a file: URI (percent-escapes decoded), into path. */
+/* The resources folder, into path: from a file: URI (FMI 2.0, percent-escapes decoded) or a
+ * path (FMI 3.0's resourcePath, through the FMI 3.0 face, taken as it is). */
 static int uri_folder(const char *uri, char *path, size_t size) {
     const char *at = uri;
     size_t n = 0;
+    int escaped = 1;
     if (strncmp(at, "file://localhost/", 17) == 0) {
         at += 16;
     } else if (strncmp(at, "file://", 7) == 0) {
         at += 7;
     } else if (strncmp(at, "file:", 5) == 0) {
         at += 5;
+    } else if (*at != '\0') {
+        escaped = 0;
     } else {
         return -1;
     }
     for (; *at != '\0' && n + 1 < size; at++) {
         unsigned code;
-        if (at[0] == '%' && sscanf(at + 1, "%2x", &code) == 1) {
+        if (escaped && at[0] == '%' && sscanf(at + 1, "%2x", &code) == 1) {
             path[n++] = (char)code;
             at += 2;
         } else {
@@ -261,7 +237,8 @@ static void free_instance(Instance *inst) {
     if (inst->input_names != NULL) {
         for (ptrdiff_t i = 0; i < inst->n_inputs; i++) free(inst->input_names[i]);
     }
-    void *owned[] = {inst->name,       inst->plan,         inst->params_block, inst->work,
+    shell_close(&inst->shell);
+    void *owned[] = {inst->plan,         inst->params_block, inst->work,
                      inst->chain,      inst->stage_output, inst->exo_index,    inst->input_low,
                      inst->input_high, inst->input_start,  inst->input_names,  inst->reals,
                      inst->started_with, inst->y,          inst->y_wb,         inst->exo};
@@ -275,8 +252,8 @@ static int load(Instance *inst, const char *location, char *message) {
     GreyboxData data;
     int status;
     if (location == NULL || uri_folder(location, resources, sizeof resources) != 0) {
-        snprintf(message, MESSAGE_SIZE, "fmuResourceLocation \"%s\" is not a file: URI of the "
-                 "FMU's resources folder", location != NULL ? location : "(null)");
+        snprintf(message, MESSAGE_SIZE, "fmuResourceLocation \"%s\" is neither a file: URI nor "
+                 "a path of the FMU's resources folder", location != NULL ? location : "(null)");
         return -1;
     }
     snprintf(path, sizeof path, "%s/" GREYBOX_DATA_FILE, resources);
@@ -286,7 +263,7 @@ static int load(Instance *inst, const char *location, char *message) {
     if (status == 0) {
         inst->wb.allocate = calloc;
         inst->wb.release = free;
-        status = wb_open(&inst->wb, &data, resources, inst->name, &inst->forwarded, inst->dt,
+        status = wb_open(&inst->wb, &data, resources, inst->shell.name, &inst->forwarded, inst->dt,
                          message, MESSAGE_SIZE);
     }
     data_free(&data, free);
@@ -295,45 +272,33 @@ static int load(Instance *inst, const char *location, char *message) {
 
 /* ------------------------------------------------------------------ FMI: set-up */
 
-const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
-
-const char *fmi2GetVersion(void) { return fmi2Version; }
-
 fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
                               fmi2String fmuResourceLocation,
                               const fmi2CallbackFunctions *functions, fmi2Boolean visible,
                               fmi2Boolean loggingOn) {
     char message[MESSAGE_SIZE];
-    const char *name = instanceName != NULL ? instanceName : "";
     Instance *inst;
     (void)visible;
     if (functions == NULL) return NULL;
     inst = calloc(1, sizeof *inst);
     if (inst == NULL) return NULL;
-    inst->callbacks = *functions;
+    if (shell_open(&inst->shell, instanceName, functions, loggingOn) != 0) {
+        free(inst);
+        return NULL;
+    }
     inst->forwarded = *functions;
     inst->forwarded.logger = forward;
     inst->forwarded.allocateMemory = calloc;
     inst->forwarded.freeMemory = free;
     inst->forwarded.componentEnvironment = inst;
-    inst->logging = loggingOn ? 1 : 0;
-    inst->name = calloc(strlen(name) + 1, 1);
-    if (inst->name == NULL) {
-        free(inst);
-        return NULL;
+    if (shell_instantiable(&inst->shell, fmuType, fmuGUID, GREYBOX_GUID, GREYBOX_IDENTIFIER, 0) ==
+        0) {
+        if (load(inst, fmuResourceLocation, message) == 0) {
+            load_start_values(inst);
+            return inst;
+        }
+        refuse(inst, "fmi2Instantiate", "%s", message);
     }
-    strcpy(inst->name, name);
-    if (fmuType != fmi2CoSimulation) {
-        snprintf(message, sizeof message, GREYBOX_IDENTIFIER " supports co-simulation only");
-    } else if (fmuGUID == NULL || strcmp(fmuGUID, GREYBOX_GUID) != 0) {
-        snprintf(message, sizeof message, "GUID \"%s\" is not this binary's \"%s\"; the "
-                 "modelDescription.xml belongs to another export", fmuGUID ? fmuGUID : "(null)",
-                 GREYBOX_GUID);
-    } else if (load(inst, fmuResourceLocation, message) == 0) {
-        load_start_values(inst);
-        return inst;
-    }
-    refuse(inst, "fmi2Instantiate", "%s", message);
     free_instance(inst);
     return NULL;
 }
@@ -342,35 +307,12 @@ void fmi2FreeInstance(fmi2Component c) {
     if (c != NULL) free_instance(c);
 }
 
-fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories,
-                               const fmi2String categories[]) {
-    Instance *inst = c;
-    static const char *const known[] = {"logStatusWarning", "logStatusDiscard", "logStatusError",
-                                        "logStatusFatal", "logAll"};
-    if (inst == NULL) return fmi2Error;
-    for (size_t i = 0; i < nCategories; i++) {
-        int found = 0;
-        for (size_t k = 0; k < sizeof known / sizeof known[0]; k++) {
-            found |= categories[i] != NULL && strcmp(categories[i], known[k]) == 0;
-        }
-        if (!found) {
-            return refuse(inst, "fmi2SetDebugLogging", "unknown log category \"%s\"; the "
-                          "categories are those of modelDescription.xml",
-                          categories[i] ? categories[i] : "(null)");
-        }
-    }
-    inst->logging = loggingOn ? 1 : 0;
-    return fmi2OK;
-}
-
 fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined,
                                fmi2Real tolerance, fmi2Real startTime,
                                fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
     Instance *inst = c;
     (void)toleranceDefined, (void)tolerance, (void)stopTimeDefined, (void)stopTime;
-    if (inst == NULL || !allowed(inst, "fmi2SetupExperiment", IN(INSTANTIATED))) {
-        return fmi2Error;
-    }
+    if (inst == NULL || !allowed(inst, CALL_SETUP_EXPERIMENT)) return fmi2Error;
     if (!isfinite(startTime)) {
         return refuse(inst, "fmi2SetupExperiment", "startTime = %g s is not a finite time",
                       startTime);
@@ -457,21 +399,17 @@ static fmi2Status prepare(Instance *inst, const char *call) {
 
 fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
     Instance *inst = c;
-    if (inst == NULL || !allowed(inst, "fmi2EnterInitializationMode", IN(INSTANTIATED))) {
-        return fmi2Error;
-    }
-    inst->phase = INITIALIZATION;
+    if (inst == NULL || !allowed(inst, CALL_ENTER_INITIALIZATION_MODE)) return fmi2Error;
+    inst->phase = SHELL_INITIALIZATION;
     return fmi2OK;
 }
 
 fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
     Instance *inst = c;
     fmi2Status status;
-    if (inst == NULL || !allowed(inst, "fmi2ExitInitializationMode", IN(INITIALIZATION))) {
-        return fmi2Error;
-    }
+    if (inst == NULL || !allowed(inst, CALL_EXIT_INITIALIZATION_MODE)) return fmi2Error;
     status = prepare(inst, "fmi2ExitInitializationMode");
-    if (status == fmi2OK) inst->phase = STEPPING;
+    if (status == fmi2OK) inst->phase = SHELL_STEP_COMPLETE;
     return status;
 }
 
@@ -484,7 +422,7 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
     const double t = currentCommunicationPoint, h = communicationStepSize;
     double score;
     (void)noSetFMUStatePriorToCurrentPoint;
-    if (inst == NULL || !allowed(inst, call, IN(STEPPING))) return fmi2Error;
+    if (inst == NULL || !allowed(inst, CALL_DO_STEP)) return fmi2Error;
     if (!(fabs(t - inst->time) <= inst->step_tolerance)) {
         return refuse(inst, call, "currentCommunicationPoint = %.17g s, but the grey-box is at "
                       "%.17g s; it cannot jump in time (its correctors remember the last steps): "
@@ -511,13 +449,10 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
 
 fmi2Status fmi2Terminate(fmi2Component c) {
     Instance *inst = c;
-    if (inst == NULL ||
-        !allowed(inst, "fmi2Terminate", IN(STEPPING) | IN(INITIALIZATION) | IN(FAILED))) {
-        return fmi2Error;
-    }
+    if (inst == NULL || !allowed(inst, CALL_TERMINATE)) return fmi2Error;
     wb_terminate(&inst->wb);
     inst->running = 0;
-    inst->phase = TERMINATED;
+    inst->phase = SHELL_TERMINATED;
     return fmi2OK;
 }
 
@@ -530,16 +465,13 @@ fmi2Status fmi2Reset(fmi2Component c) {
 
 /* ------------------------------------------------------------------ variables */
 
-#define GETTABLE (IN(INITIALIZATION) | IN(STEPPING) | IN(TERMINATED) | IN(FAILED))
-#define SETTABLE (IN(INSTANTIATED) | IN(INITIALIZATION) | IN(STEPPING))
-
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                        fmi2Real value[]) {
     Instance *inst = c;
-    if (inst == NULL || !allowed(inst, "fmi2GetReal", GETTABLE | IN(INSTANTIATED))) {
+    if (inst == NULL || !allowed(inst, CALL_GET_REAL)) return fmi2Error;
+    if (inst->phase == SHELL_INITIALIZATION && prepare(inst, "fmi2GetReal") != fmi2OK) {
         return fmi2Error;
     }
-    if (inst->phase == INITIALIZATION && prepare(inst, "fmi2GetReal") != fmi2OK) return fmi2Error;
     for (size_t i = 0; i < nvr; i++) {
         if (vr[i] >= (fmi2ValueReference)inst->n_reals) {
             return refuse(inst, "fmi2GetReal", "value reference %u is not a Real variable",
@@ -554,7 +486,7 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
                        const fmi2Real value[]) {
     Instance *inst = c;
     const fmi2ValueReference threshold = (fmi2ValueReference)(inst ? inst->n_reals - 1 : 0);
-    if (inst == NULL || !allowed(inst, "fmi2SetReal", SETTABLE)) return fmi2Error;
+    if (inst == NULL || !allowed(inst, CALL_SET_REAL)) return fmi2Error;
     for (size_t i = 0; i < nvr; i++) {
         if (vr[i] >= (fmi2ValueReference)inst->n_inputs && vr[i] != threshold) {
             return refuse(inst, "fmi2SetReal", "value reference %u is not a Real input or "
@@ -573,10 +505,8 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           fmi2Boolean value[]) {
     Instance *inst = c;
-    if (inst == NULL || !allowed(inst, "fmi2GetBoolean", GETTABLE | IN(INSTANTIATED))) {
-        return fmi2Error;
-    }
-    if (inst->phase == INITIALIZATION && prepare(inst, "fmi2GetBoolean") != fmi2OK) {
+    if (inst == NULL || !allowed(inst, CALL_GET_BOOLEAN)) return fmi2Error;
+    if (inst->phase == SHELL_INITIALIZATION && prepare(inst, "fmi2GetBoolean") != fmi2OK) {
         return fmi2Error;
     }
     for (size_t i = 0; i < nvr; i++) {
@@ -593,7 +523,7 @@ fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
 fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Boolean value[]) {
     Instance *inst = c;
-    if (inst == NULL || !allowed(inst, "fmi2SetBoolean", SETTABLE)) return fmi2Error;
+    if (inst == NULL || !allowed(inst, CALL_SET_BOOLEAN)) return fmi2Error;
     for (size_t i = 0; i < nvr; i++) {
         if ((ptrdiff_t)vr[i] != inst->n_reals + 1) {
             return refuse(inst, "fmi2SetBoolean", "value reference %u is not a Boolean tunable "
@@ -608,7 +538,7 @@ fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
 static fmi2Status no_such_variables(fmi2Component c, const char *call, size_t nvr) {
     if (c == NULL) return fmi2Error;
     if (nvr == 0) return fmi2OK;
-    return refuse(c, call, "the grey-box has no variable of this type");
+    return shell_refuse(c, call, "the grey-box has no variable of this type");
 }
 
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
@@ -681,7 +611,7 @@ fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
     char message[MESSAGE_SIZE];
     Snapshot *s;
     double *v;
-    if (inst == NULL || !allowed(inst, call, ANY_PHASE)) return fmi2Error;
+    if (inst == NULL || !allowed(inst, CALL_GET_FMU_STATE)) return fmi2Error;
     s = *FMUstate != NULL ? *FMUstate : snapshot_new(inst);
     if (s == NULL) return refuse(inst, call, "out of memory");
     v = s->values;
@@ -720,9 +650,10 @@ static int values_fault(const Instance *inst, const double *values, char *messag
         snprintf(message, MESSAGE_SIZE, "its time = %g s is not finite", values[0]);
         return -1;
     }
-    if (!(values[1] >= INSTANTIATED && values[1] <= FAILED && values[1] == floor(values[1]))) {
+    if (!(values[1] >= SHELL_INSTANTIATED && values[1] <= SHELL_ERROR &&
+          values[1] == floor(values[1]))) {
         snprintf(message, MESSAGE_SIZE, "its phase = %g is none of 0 (%s) to %d (%s)", values[1],
-                 PHASES[INSTANTIATED], FAILED, PHASES[FAILED]);
+                 shell_phase_name(SHELL_INSTANTIATED), SHELL_ERROR, shell_phase_name(SHELL_ERROR));
         return -1;
     }
     for (int k = 0; k < 3; k++) {
@@ -768,7 +699,7 @@ fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
     const Snapshot *s = FMUstate;
     char message[MESSAGE_SIZE];
     const double *v;
-    if (inst == NULL || !allowed(inst, call, ANY_PHASE)) return fmi2Error;
+    if (inst == NULL || !allowed(inst, CALL_SET_FMU_STATE)) return fmi2Error;
     if (s == NULL || s->n_values != snapshot_values(inst)) {
         return refuse(inst, call, "not an FMU state of this grey-box");
     }
@@ -787,7 +718,7 @@ fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
         }
     }
     inst->time = s->values[0];
-    inst->phase = (Phase)s->values[1];
+    inst->phase = (int)s->values[1];
     inst->running = s->values[2] != 0.0;
     inst->out_of_domain = s->values[3] != 0.0;
     inst->correction_enabled = s->values[4] != 0.0;
@@ -809,21 +740,13 @@ fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
     return fmi2OK;
 }
 
-/* Serialised: this header, the white-box states' sizes (uint64 each), the values, the
- * white-box states' bytes, and the SHA-256 of all these as 64 hex digits (STATE_DIGEST).
- * Valid for the binary that wrote it (same GUID). */
-typedef struct {
-    char magic[8];
-    uint32_t version, n_parts;
-    char guid[48];
-    uint64_t n_values;
-} StateHeader;
-
+/* Serialised (fmi2_shell.h): the shell's header (n_parts white-box states, n_values values),
+ * the white-box states' sizes (uint64 each), the values, the white-box states' bytes, and the
+ * shell's SHA-256 trailer. Valid for the binary that wrote it (same GUID). */
 static size_t serialized_size(const Instance *inst, const size_t *sizes) {
-    size_t n = sizeof(StateHeader) + (size_t)inst->wb.n_parts * 8 +
-               (size_t)snapshot_values(inst) * sizeof(double) + STATE_DIGEST;
+    size_t n = (size_t)inst->wb.n_parts * 8 + (size_t)snapshot_values(inst) * sizeof(double);
     for (ptrdiff_t k = 0; k < inst->wb.n_parts; k++) n += sizes[k];
-    return n;
+    return shell_state_size(n);
 }
 
 /* The white-box states' serialised sizes (zero when the state holds no run). */
@@ -858,7 +781,6 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate,
     const Snapshot *s = FMUstate;
     char message[MESSAGE_SIZE];
     unsigned char *at = (unsigned char *)serializedState;
-    StateHeader header;
     size_t *sizes;
     int status;
     if (inst == NULL) return fmi2Error;
@@ -872,14 +794,8 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate,
         status = -1;
     }
     if (status == 0) {
-        memset(&header, 0, sizeof header);
-        memcpy(header.magic, STATE_MAGIC, 8);
-        header.version = STATE_VERSION;
-        header.n_parts = (uint32_t)inst->wb.n_parts;
-        strncpy(header.guid, GREYBOX_GUID, sizeof header.guid - 1);
-        header.n_values = (uint64_t)s->n_values;
-        memcpy(at, &header, sizeof header);
-        at += sizeof header;
+        shell_state_begin(at, GREYBOX_GUID, (uint32_t)inst->wb.n_parts, (uint64_t)s->n_values);
+        at += sizeof(ShellStateHeader);
         for (ptrdiff_t k = 0; k < inst->wb.n_parts; k++, at += 8) {
             const uint64_t n = sizes[k];
             memcpy(at, &n, 8);
@@ -890,12 +806,7 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate,
             status = wb_serialize(&inst->wb, s->wb_states, at, sizes, message, sizeof message);
         }
     }
-    if (status == 0) {
-        const size_t body = serialized_size(inst, sizes) - STATE_DIGEST;
-        char digest[65];
-        sha256_bytes(serializedState, body, digest);
-        memcpy(serializedState + body, digest, STATE_DIGEST);
-    }
+    if (status == 0) shell_state_seal((unsigned char *)serializedState, serialized_size(inst, sizes));
     free(sizes);
     return status == 0 ? fmi2OK : refuse(inst, call, "%s", message);
 }
@@ -906,33 +817,25 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
     Instance *inst = c;
     const unsigned char *at = (const unsigned char *)serializedState;
     char message[MESSAGE_SIZE];
-    StateHeader header;
+    ShellStateHeader header;
     Snapshot *s;
     size_t *sizes, expected;
     int status = 0;
     if (inst == NULL) return fmi2Error;
-    char digest[65];
-    if (size < sizeof header + STATE_DIGEST) {
-        return refuse(inst, call, "%zu bytes are no grey-box state", size);
+    if (shell_state_open(&inst->shell, call, at, size, GREYBOX_GUID, &header) != 0) {
+        return fmi2Error;
     }
-    sha256_bytes(serializedState, size - STATE_DIGEST, digest);
-    if (memcmp(digest, serializedState + size - STATE_DIGEST, STATE_DIGEST) != 0) {
-        return refuse(inst, call, "the state's bytes do not match their SHA-256: they were "
-                      "damaged or edited after fmi2SerializeFMUstate wrote them; restore an "
-                      "undamaged copy");
-    }
-    memcpy(&header, at, sizeof header);
-    if (memcmp(header.magic, STATE_MAGIC, 8) != 0 || header.version != STATE_VERSION ||
-        strncmp(header.guid, GREYBOX_GUID, sizeof header.guid) != 0 ||
-        header.n_parts != (uint32_t)inst->wb.n_parts ||
+    if (header.n_parts != (uint32_t)inst->wb.n_parts ||
         header.n_values != (uint64_t)snapshot_values(inst)) {
-        return refuse(inst, call, "the bytes are not a state serialised by this grey-box FMU "
-                      "(another FMU, another export, or another version)");
+        return refuse(inst, call, "the state holds %u white-box states and %llu values, this "
+                      "grey-box %td and %td", (unsigned)header.n_parts,
+                      (unsigned long long)header.n_values, inst->wb.n_parts,
+                      snapshot_values(inst));
     }
     at += sizeof header;
     sizes = table(inst->wb.n_parts, sizeof(size_t));
     s = snapshot_new(inst);
-    if (sizes == NULL || s == NULL || size < sizeof header + (size_t)inst->wb.n_parts * 8) {
+    if (sizes == NULL || s == NULL || size < shell_state_size((size_t)inst->wb.n_parts * 8)) {
         free(sizes);
         if (s != NULL) snapshot_free(inst, s);
         return refuse(inst, call, "out of memory or truncated state");
@@ -962,64 +865,4 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
     if (*FMUstate != NULL) snapshot_free(inst, *FMUstate);
     *FMUstate = s;
     return fmi2OK;
-}
-
-/* ------------------------------------------------------------------ not supported */
-
-static fmi2Status unsupported(fmi2Component c, const char *call) {
-    if (c != NULL) refuse(c, call, "not supported by this FMU");
-    return fmi2Error;
-}
-
-fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[],
-                                        size_t nUnknown, const fmi2ValueReference vKnown_ref[],
-                                        size_t nKnown, const fmi2Real dvKnown[],
-                                        fmi2Real dvUnknown[]) {
-    (void)vUnknown_ref, (void)nUnknown, (void)vKnown_ref, (void)nKnown, (void)dvKnown,
-        (void)dvUnknown;
-    return unsupported(c, "fmi2GetDirectionalDerivative");
-}
-
-fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                                       const fmi2Integer order[], const fmi2Real value[]) {
-    (void)vr, (void)nvr, (void)order, (void)value;
-    return unsupported(c, "fmi2SetRealInputDerivatives (canInterpolateInputs is false)");
-}
-
-fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                                        const fmi2Integer order[], fmi2Real value[]) {
-    (void)vr, (void)nvr, (void)order, (void)value;
-    return unsupported(c, "fmi2GetRealOutputDerivatives (maxOutputDerivativeOrder is 0)");
-}
-
-fmi2Status fmi2CancelStep(fmi2Component c) {
-    return unsupported(c, "fmi2CancelStep (steps are never asynchronous)");
-}
-
-fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value) {
-    (void)s, (void)value;
-    return unsupported(c, "fmi2GetStatus (steps are never asynchronous)");
-}
-
-fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value) {
-    Instance *inst = c;
-    if (inst == NULL || s != fmi2LastSuccessfulTime) return unsupported(c, "fmi2GetRealStatus");
-    *value = inst->time;
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value) {
-    (void)s, (void)value;
-    return unsupported(c, "fmi2GetIntegerStatus");
-}
-
-fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
-    if (c == NULL || s != fmi2Terminated) return unsupported(c, "fmi2GetBooleanStatus");
-    *value = fmi2False; /* the grey-box never asks the master to stop */
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
-    (void)s, (void)value;
-    return unsupported(c, "fmi2GetStringStatus");
 }

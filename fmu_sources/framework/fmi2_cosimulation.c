@@ -9,6 +9,10 @@
  * me/fmi2_model_exchange.c are compiled in as well (included at the end of this file): an
  * instance made with fmi2ModelExchange spends "step complete" in event mode or continuous-time
  * mode, and is stepped by the master's integrator instead of fmi2DoStep.
+ *
+ * The phases' table of allowed calls, the logging and error policy, the serialised state's
+ * header and trailer, fmi2SetDebugLogging and the calls no FMU here supports are the shell's
+ * (fmu_greybox/native/fmi2_shell.h), which the native grey-box FMU shares.
  */
 #include <math.h>
 #include <stdarg.h>
@@ -18,26 +22,25 @@
 #include <string.h>
 
 #include "fmi2Functions.h"
+#include "fmi2_shell.h"
 #include "fmu_framework.h"
-#include "sha256.h"
 
-/* The log category declared in modelDescription.xml: every message is an error saying what
- * failed and how to mend it. */
-#define LOG_CATEGORY "logStatusError"
+/* Masks of the phases in which a call of model exchange is allowed (me/; the co-simulation
+ * calls are the shell's table). */
+#define IN(phase) SHELL_IN(phase)
+#define MASK_GET SHELL_GETTABLE
+#define MASK_FMU_STATE SHELL_ANY_PHASE
 
-/* Masks of the phases in which a call is allowed. */
-#define IN(phase) (1u << (phase))
-#define MASK_GET \
-    (IN(FW_INITIALIZATION_MODE) | IN(FW_STEP_COMPLETE) | IN(FW_TERMINATED) | IN(FW_ERROR))
-#define MASK_FMU_STATE (IN(FW_INSTANTIATED) | MASK_GET)
+/* The framework's phases are the shell's (compile-time check). */
+typedef char fw_phases_are_the_shells[((int)FW_INSTANTIATED == (int)SHELL_INSTANTIATED &&
+                                       (int)FW_STEP_COMPLETE == (int)SHELL_STEP_COMPLETE &&
+                                       (int)FW_ERROR == (int)SHELL_ERROR) ? 1 : -1];
 
 /* Relative mismatch tolerated between the master's communication point and the FMU's time. */
 #define TIME_TOLERANCE 1e-9
 
 typedef struct {
-    char *name;
-    fmi2CallbackFunctions callbacks;
-    int logging; /* errors are logged unless switched off with fmi2SetDebugLogging */
+    Shell shell; /* first: the shell's functions take the instance */
     SimData data;
 #ifdef FW_MODEL_EXCHANGE
     int model_exchange;  /* instantiated as fmi2ModelExchange */
@@ -51,77 +54,33 @@ static fmi2Status me_get_real(fmi2Component c, const fmi2ValueReference vr[], si
                               fmi2Real value[]);
 #endif
 
-/* Serialised FMU state: this header, the SimData bytes, and the SHA-256 of both as 64 hex
- * digits (STATE_DIGEST). Valid only for the binary that wrote it (same GUID, same layout). */
-#define STATE_MAGIC "FGBXST02"
-#define STATE_DIGEST 64
-typedef struct {
-    char magic[8];
-    char guid[48];
-    uint64_t data_size;
-} StateHeader;
+/* Serialised FMU state (fmi2_shell.h): the shell's header (no parts, n_values the size of
+ * SimData), the SimData bytes and the shell's SHA-256 trailer. Valid only for the binary that
+ * wrote it (same GUID, same layout). */
+#define STATE_SIZE shell_state_size(sizeof(SimData))
 
 /* ------------------------------------------------------------------------------------------ */
 /* Memory and logging                                                                          */
 /* ------------------------------------------------------------------------------------------ */
 
 static void *allocate(const Instance *inst, size_t size) {
-    if (inst->callbacks.allocateMemory) return inst->callbacks.allocateMemory(1, size);
+    if (inst->shell.callbacks.allocateMemory) return inst->shell.callbacks.allocateMemory(1, size);
     return calloc(1, size);
 }
 
 static void release(const Instance *inst, void *pointer) {
     if (!pointer) return;
-    if (inst->callbacks.freeMemory) {
-        inst->callbacks.freeMemory(pointer);
+    if (inst->shell.callbacks.freeMemory) {
+        inst->shell.callbacks.freeMemory(pointer);
     } else {
         free(pointer);
     }
 }
 
-static void log_message(const Instance *inst, fmi2Status status, const char *format, ...) {
-    char message[1024];
-    va_list args;
-    if (!inst->callbacks.logger || !inst->logging) return;
-    va_start(args, format);
-    vsnprintf(message, sizeof message, format, args);
-    va_end(args);
-    inst->callbacks.logger(inst->callbacks.componentEnvironment, inst->name, status,
-                           LOG_CATEGORY, message);
-}
-
-/* Log a refused call (a misuse, not a model failure: the phase does not change). */
-static fmi2Status refuse(Instance *inst, const char *call, const char *format, ...) {
-    char detail[900];
-    va_list args;
-    va_start(args, format);
-    vsnprintf(detail, sizeof detail, format, args);
-    va_end(args);
-    log_message(inst, fmi2Error, "%s: %s", call, detail);
-    return fmi2Error;
-}
-
-/* Log a model or numerical failure, move to the error phase and return fmi2Error. */
-static fmi2Status fail(Instance *inst, const char *call, const char *format, ...) {
-    char detail[900];
-    va_list args;
-    va_start(args, format);
-    vsnprintf(detail, sizeof detail, format, args);
-    va_end(args);
-    log_message(inst, fmi2Error, "%s: %s", call, detail);
-    inst->data.phase = FW_ERROR;
-    return fmi2Error;
-}
-
-static const char *phase_name(int phase) {
-    switch (phase) {
-        case FW_INSTANTIATED: return "instantiated";
-        case FW_INITIALIZATION_MODE: return "initialization mode";
-        case FW_STEP_COMPLETE: return "step complete";
-        case FW_TERMINATED: return "terminated";
-        default: return "error";
-    }
-}
+/* Log "call failed: ..." as an error and return fmi2Error: a misuse (refuse: the phase does
+ * not change) or a model or numerical failure (fail: the error phase). */
+#define refuse(inst, ...) shell_refuse(&(inst)->shell, __VA_ARGS__)
+#define fail(inst, call, ...) shell_fail(&(inst)->shell, &(inst)->data.phase, call, __VA_ARGS__)
 
 /* The phase in words, as the instance's interface names it (model exchange: event mode or
  * continuous-time mode instead of step complete). */
@@ -131,15 +90,22 @@ static const char *phase_label(const Instance *inst) {
         return inst->continuous_time ? "continuous-time mode" : "event mode";
     }
 #endif
-    return phase_name(inst->data.phase);
+    return shell_phase_name(inst->data.phase);
 }
 
-/* Refuse a call outside its phases. Does not change the phase (a misuse is not a model error). */
-static int allowed(Instance *inst, const char *call, unsigned mask) {
-    if (mask & IN(inst->data.phase)) return 1;
-    log_message(inst, fmi2Error, "%s is not allowed in phase \"%s\".", call, phase_label(inst));
-    return 0;
+/* Refuse a call outside its phases (the shell's table; allowed_in: a mask of model exchange).
+ * Does not change the phase (a misuse is not a model error). */
+static int allowed(const Instance *inst, ShellCall call) {
+    return shell_allowed(&inst->shell, call, inst->data.phase, phase_label(inst));
 }
+
+#ifdef FW_MODEL_EXCHANGE
+static int allowed_in(const Instance *inst, const char *call, unsigned mask) {
+    return shell_allowed_in(&inst->shell, call, mask, inst->data.phase, phase_label(inst));
+}
+#endif
+
+double shell_core_time(const Shell *shell) { return ((const Instance *)shell)->data.time; }
 
 /* ------------------------------------------------------------------------------------------ */
 /* Variables                                                                                   */
@@ -199,12 +165,12 @@ static void refresh_outputs(SimData *d) {
 static const FwVariable *lookup(Instance *inst, const char *call, fmi2ValueReference vr, int type) {
     static const char *const type_names[] = {"absent", "Real", "Integer", "Boolean", "String"};
     if (vr >= N_VALUE_REFERENCES || fw_variables[vr].type == FW_ABSENT) {
-        log_message(inst, fmi2Error, "%s: unknown value reference %u.", call, (unsigned)vr);
+        refuse(inst, call, "unknown value reference %u", (unsigned)vr);
         return NULL;
     }
     if (fw_variables[vr].type != type) {
-        log_message(inst, fmi2Error, "%s: value reference %u (%s) is of type %s.", call,
-                    (unsigned)vr, fw_variables[vr].name, type_names[fw_variables[vr].type]);
+        refuse(inst, call, "value reference %u (%s) is of type %s", (unsigned)vr,
+               fw_variables[vr].name, type_names[fw_variables[vr].type]);
         return NULL;
     }
     return &fw_variables[vr];
@@ -224,9 +190,9 @@ static int settable(Instance *inst, const char *call, const FwVariable *v) {
 #endif
     }
     if (!ok) {
-        log_message(inst, fmi2Error, "%s: variable \"%s\" cannot be set in phase \"%s\"%s.", call,
-                    v->name, phase_label(inst),
-                    phase == FW_STEP_COMPLETE ? " (only inputs and tunable parameters can)" : "");
+        refuse(inst, call, "variable \"%s\" cannot be set in phase \"%s\"%s", v->name,
+               phase_label(inst),
+               phase == FW_STEP_COMPLETE ? " (only inputs and tunable parameters can)" : "");
     }
     return ok;
 }
@@ -240,82 +206,34 @@ static void mark_set(SimData *d, const FwVariable *v) {
 /* Inquire version numbers, logging                                                            */
 /* ------------------------------------------------------------------------------------------ */
 
-const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
-
-const char *fmi2GetVersion(void) { return fmi2Version; }
-
-fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories,
-                               const fmi2String categories[]) {
-    Instance *inst = (Instance *)c;
-    if (!inst) return fmi2Error;
-    for (size_t i = 0; i < nCategories; i++) {
-        if (!categories[i] || strcmp(categories[i], LOG_CATEGORY) != 0) {
-            log_message(inst, fmi2Error, "fmi2SetDebugLogging: unknown log category \"%s\"; "
-                        "the only one is \"" LOG_CATEGORY "\".",
-                        categories[i] ? categories[i] : "(null)");
-            return fmi2Error;
-        }
-    }
-    inst->logging = loggingOn ? 1 : 0;
-    return fmi2OK;
-}
-
-/* ------------------------------------------------------------------------------------------ */
-/* Creation and destruction                                                                    */
-/* ------------------------------------------------------------------------------------------ */
-
 fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
                               fmi2String fmuResourceLocation,
                               const fmi2CallbackFunctions *functions, fmi2Boolean visible,
                               fmi2Boolean loggingOn) {
-    Instance probe;
+    Instance probe; /* so that the checks below can log through the callbacks */
     Instance *inst;
-    const char *name = instanceName ? instanceName : "";
+    int model_exchange_too = 0;
     (void)fmuResourceLocation;
     (void)visible;
-    (void)loggingOn; /* errors are logged unless fmi2SetDebugLogging switches them off */
     if (!functions) return NULL;
-
-    /* A temporary instance so that the checks below can log through the callbacks. */
     memset(&probe, 0, sizeof probe);
-    probe.name = (char *)name;
-    probe.callbacks = *functions;
-    probe.logging = 1;
+    if (shell_open(&probe.shell, instanceName, functions, loggingOn) != 0) return NULL;
 #ifdef FW_MODEL_EXCHANGE
     probe.model_exchange = fmuType == fmi2ModelExchange;
-    if (fmuType != fmi2CoSimulation && fmuType != fmi2ModelExchange) {
-        log_message(&probe, fmi2Error, "fmi2Instantiate: %s supports model exchange and "
-                    "co-simulation only.", MODEL_IDENTIFIER_STRING);
-        return NULL;
-    }
-#else
-    if (fmuType != fmi2CoSimulation) {
-        log_message(&probe, fmi2Error, "fmi2Instantiate: %s supports co-simulation only.",
-                    MODEL_IDENTIFIER_STRING);
-        return NULL;
-    }
+    model_exchange_too = 1;
 #endif
-    if (!fmuGUID || strcmp(fmuGUID, MODEL_GUID) != 0) {
-        log_message(&probe, fmi2Error,
-                    "fmi2Instantiate: GUID \"%s\" does not match the binary's \"%s\"; the "
-                    "modelDescription.xml belongs to another build.",
-                    fmuGUID ? fmuGUID : "(null)", MODEL_GUID);
+    if (shell_instantiable(&probe.shell, fmuType, fmuGUID, MODEL_GUID, MODEL_IDENTIFIER_STRING,
+                           model_exchange_too) != 0) {
+        shell_close(&probe.shell);
         return NULL;
     }
-
     inst = (Instance *)allocate(&probe, sizeof *inst);
     if (!inst) {
-        log_message(&probe, fmi2Fatal, "fmi2Instantiate: out of memory.");
+        refuse(&probe, "fmi2Instantiate", "out of memory");
+        shell_close(&probe.shell);
         return NULL;
     }
     *inst = probe;
-    inst->name = (char *)allocate(&probe, strlen(name) + 1);
-    if (!inst->name) {
-        release(&probe, inst);
-        log_message(&probe, fmi2Fatal, "fmi2Instantiate: out of memory.");
-        return NULL;
-    }
-    strcpy(inst->name, name);
     load_start_values(&inst->data);
     return inst;
 }
@@ -323,7 +241,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
 void fmi2FreeInstance(fmi2Component c) {
     Instance *inst = (Instance *)c;
     if (!inst) return;
-    release(inst, inst->name);
+    shell_close(&inst->shell);
     release(inst, inst);
 }
 
@@ -339,16 +257,14 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined,
     (void)tolerance;
     (void)stopTimeDefined;
     (void)stopTime;
-    if (!inst || !allowed(inst, "fmi2SetupExperiment", IN(FW_INSTANTIATED))) return fmi2Error;
+    if (!inst || !allowed(inst, CALL_SETUP_EXPERIMENT)) return fmi2Error;
     inst->data.time = startTime;
     return fmi2OK;
 }
 
 fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
     Instance *inst = (Instance *)c;
-    if (!inst || !allowed(inst, "fmi2EnterInitializationMode", IN(FW_INSTANTIATED))) {
-        return fmi2Error;
-    }
+    if (!inst || !allowed(inst, CALL_ENTER_INITIALIZATION_MODE)) return fmi2Error;
     inst->data.phase = FW_INITIALIZATION_MODE;
     inst->data.outputs_valid = 0;
     return fmi2OK;
@@ -356,9 +272,7 @@ fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
 
 fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
     Instance *inst = (Instance *)c;
-    if (!inst || !allowed(inst, "fmi2ExitInitializationMode", IN(FW_INITIALIZATION_MODE))) {
-        return fmi2Error;
-    }
+    if (!inst || !allowed(inst, CALL_EXIT_INITIALIZATION_MODE)) return fmi2Error;
     if (check_parameters(inst, "fmi2ExitInitializationMode") != fmi2OK) return fmi2Error;
     model_initialize(&inst->data);
     inst->data.phase = FW_STEP_COMPLETE; /* model exchange: event mode */
@@ -372,7 +286,7 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
 
 fmi2Status fmi2Terminate(fmi2Component c) {
     Instance *inst = (Instance *)c;
-    if (!inst || !allowed(inst, "fmi2Terminate", IN(FW_STEP_COMPLETE))) return fmi2Error;
+    if (!inst || !allowed(inst, CALL_TERMINATE)) return fmi2Error;
     inst->data.phase = FW_TERMINATED;
     return fmi2OK;
 }
@@ -394,10 +308,11 @@ typedef void (*ReadValue)(const Instance *inst, const FwVariable *v, size_t i, v
 typedef fmi2Status (*WriteValue)(Instance *inst, const FwVariable *v, size_t i,
                                  const void *values);
 
-static fmi2Status get_values(fmi2Component c, const char *call, const fmi2ValueReference vr[],
+static fmi2Status get_values(fmi2Component c, ShellCall get, const fmi2ValueReference vr[],
                              size_t nvr, int type, void *values, ReadValue read) {
     Instance *inst = (Instance *)c;
-    if (!inst || !allowed(inst, call, MASK_GET)) return fmi2Error;
+    const char *call = shell_call_name(get);
+    if (!inst || !allowed(inst, get)) return fmi2Error;
     for (size_t i = 0; i < nvr; i++) {
         const FwVariable *v = lookup(inst, call, vr[i], type);
         if (!v) return fmi2Error;
@@ -407,10 +322,11 @@ static fmi2Status get_values(fmi2Component c, const char *call, const fmi2ValueR
     return fmi2OK;
 }
 
-static fmi2Status set_values(fmi2Component c, const char *call, const fmi2ValueReference vr[],
+static fmi2Status set_values(fmi2Component c, ShellCall set, const fmi2ValueReference vr[],
                              size_t nvr, int type, const void *values, WriteValue write) {
     Instance *inst = (Instance *)c;
-    if (!inst) return fmi2Error;
+    const char *call = shell_call_name(set);
+    if (!inst || !allowed(inst, set)) return fmi2Error;
     for (size_t i = 0; i < nvr; i++) {
         const FwVariable *v = lookup(inst, call, vr[i], type);
         if (!v || !settable(inst, call, v)) return fmi2Error;
@@ -439,9 +355,7 @@ static void read_string(const Instance *inst, const FwVariable *v, size_t i, voi
 static fmi2Status write_real(Instance *inst, const FwVariable *v, size_t i, const void *values) {
     fmi2Real value = ((const fmi2Real *)values)[i];
     if (!isfinite(value)) {
-        log_message(inst, fmi2Error, "fmi2SetReal: %s = %g is not a finite number.", v->name,
-                    value);
-        return fmi2Error;
+        return refuse(inst, "fmi2SetReal", "%s = %g is not a finite number", v->name, value);
     }
     inst->data.real[v->index] = value;
     return fmi2OK;
@@ -460,9 +374,8 @@ static fmi2Status write_boolean(Instance *inst, const FwVariable *v, size_t i, c
 static fmi2Status write_string(Instance *inst, const FwVariable *v, size_t i, const void *values) {
     fmi2String value = ((const fmi2String *)values)[i];
     if (!value || strlen(value) >= FW_STRING_SIZE) {
-        log_message(inst, fmi2Error, "fmi2SetString: %s must be a string of at most %d bytes.",
-                    v->name, FW_STRING_SIZE - 1);
-        return fmi2Error;
+        return refuse(inst, "fmi2SetString", "%s must be a string of at most %d bytes", v->name,
+                      FW_STRING_SIZE - 1);
     }
     strcpy(inst->data.string[v->index], value);
     return fmi2OK;
@@ -475,42 +388,42 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
         if (vr[i] >= N_VALUE_REFERENCES) return me_get_real(c, vr, nvr, value);
     }
 #endif
-    return get_values(c, "fmi2GetReal", vr, nvr, FW_REAL, value, read_real);
+    return get_values(c, CALL_GET_REAL, vr, nvr, FW_REAL, value, read_real);
 }
 
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           fmi2Integer value[]) {
-    return get_values(c, "fmi2GetInteger", vr, nvr, FW_INTEGER, value, read_integer);
+    return get_values(c, CALL_GET_INTEGER, vr, nvr, FW_INTEGER, value, read_integer);
 }
 
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           fmi2Boolean value[]) {
-    return get_values(c, "fmi2GetBoolean", vr, nvr, FW_BOOLEAN, value, read_boolean);
+    return get_values(c, CALL_GET_BOOLEAN, vr, nvr, FW_BOOLEAN, value, read_boolean);
 }
 
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                          fmi2String value[]) {
-    return get_values(c, "fmi2GetString", vr, nvr, FW_STRING, value, read_string);
+    return get_values(c, CALL_GET_STRING, vr, nvr, FW_STRING, value, read_string);
 }
 
 fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                        const fmi2Real value[]) {
-    return set_values(c, "fmi2SetReal", vr, nvr, FW_REAL, value, write_real);
+    return set_values(c, CALL_SET_REAL, vr, nvr, FW_REAL, value, write_real);
 }
 
 fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Integer value[]) {
-    return set_values(c, "fmi2SetInteger", vr, nvr, FW_INTEGER, value, write_integer);
+    return set_values(c, CALL_SET_INTEGER, vr, nvr, FW_INTEGER, value, write_integer);
 }
 
 fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Boolean value[]) {
-    return set_values(c, "fmi2SetBoolean", vr, nvr, FW_BOOLEAN, value, write_boolean);
+    return set_values(c, CALL_SET_BOOLEAN, vr, nvr, FW_BOOLEAN, value, write_boolean);
 }
 
 fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                          const fmi2String value[]) {
-    return set_values(c, "fmi2SetString", vr, nvr, FW_STRING, value, write_string);
+    return set_values(c, CALL_SET_STRING, vr, nvr, FW_STRING, value, write_string);
 }
 
 /* ------------------------------------------------------------------------------------------ */
@@ -577,7 +490,7 @@ static fmi2Status check_state(Instance *inst, const char *call, const SimData *d
 
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
     Instance *inst = (Instance *)c;
-    if (!inst || !allowed(inst, "fmi2GetFMUstate", MASK_FMU_STATE)) return fmi2Error;
+    if (!inst || !allowed(inst, CALL_GET_FMU_STATE)) return fmi2Error;
     if (!*FMUstate) {
         *FMUstate = allocate(inst, sizeof(SimData));
         if (!*FMUstate) return fail(inst, "fmi2GetFMUstate", "out of memory.");
@@ -588,7 +501,7 @@ fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
 
 fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
     Instance *inst = (Instance *)c;
-    if (!inst || !allowed(inst, "fmi2SetFMUstate", MASK_FMU_STATE)) return fmi2Error;
+    if (!inst || !allowed(inst, CALL_SET_FMU_STATE)) return fmi2Error;
     if (!FMUstate) return refuse(inst, "fmi2SetFMUstate", "the FMU state is NULL.");
     if (check_state(inst, "fmi2SetFMUstate", FMUstate) != fmi2OK) return fmi2Error;
     memcpy(&inst->data, FMUstate, sizeof(SimData));
@@ -609,62 +522,44 @@ fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, si
     Instance *inst = (Instance *)c;
     (void)FMUstate;
     if (!inst) return fmi2Error;
-    *size = sizeof(StateHeader) + sizeof(SimData) + STATE_DIGEST;
+    *size = STATE_SIZE;
     return fmi2OK;
 }
 
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[],
                                  size_t size) {
     Instance *inst = (Instance *)c;
-    StateHeader header;
-    char digest[65];
+    unsigned char *bytes = (unsigned char *)serializedState;
     if (!inst) return fmi2Error;
-    if (!FMUstate) return refuse(inst, "fmi2SerializeFMUstate", "the FMU state is NULL.");
-    if (size < sizeof header + sizeof(SimData) + STATE_DIGEST) {
-        return refuse(inst, "fmi2SerializeFMUstate", "buffer of %zu bytes is too small (need %zu).",
-                    size, sizeof header + sizeof(SimData) + STATE_DIGEST);
+    if (!FMUstate) return refuse(inst, "fmi2SerializeFMUstate", "the FMU state is NULL");
+    if (size < STATE_SIZE) {
+        return refuse(inst, "fmi2SerializeFMUstate", "a buffer of %zu bytes is too small (%zu "
+                      "needed)", size, STATE_SIZE);
     }
-    memset(&header, 0, sizeof header);
-    memcpy(header.magic, STATE_MAGIC, sizeof header.magic);
-    strncpy(header.guid, MODEL_GUID, sizeof header.guid - 1);
-    header.data_size = sizeof(SimData);
-    memcpy(serializedState, &header, sizeof header);
-    memcpy(serializedState + sizeof header, FMUstate, sizeof(SimData));
-    sha256_bytes(serializedState, sizeof header + sizeof(SimData), digest);
-    memcpy(serializedState + sizeof header + sizeof(SimData), digest, STATE_DIGEST);
+    shell_state_begin(bytes, MODEL_GUID, 0, sizeof(SimData));
+    memcpy(bytes + sizeof(ShellStateHeader), FMUstate, sizeof(SimData));
+    shell_state_seal(bytes, STATE_SIZE);
     return fmi2OK;
 }
 
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
                                    fmi2FMUstate *FMUstate) {
-    Instance *inst = (Instance *)c;
-    StateHeader header;
-    SimData *data;
-    char digest[65];
     static const char *const call = "fmi2DeSerializeFMUstate";
+    Instance *inst = (Instance *)c;
+    const unsigned char *bytes = (const unsigned char *)serializedState;
+    ShellStateHeader header;
+    SimData *data;
     if (!inst) return fmi2Error;
-    if (size != sizeof header + sizeof(SimData) + STATE_DIGEST) {
-        return refuse(inst, call, "%zu bytes given, a state of this FMU has %zu.", size,
-                    sizeof header + sizeof(SimData) + STATE_DIGEST);
+    if (shell_state_open(&inst->shell, call, bytes, size, MODEL_GUID, &header) != 0) {
+        return fmi2Error;
     }
-    sha256_bytes(serializedState, sizeof header + sizeof(SimData), digest);
-    if (memcmp(digest, serializedState + sizeof header + sizeof(SimData), STATE_DIGEST) != 0) {
-        return refuse(inst, call, "the state's bytes do not match their SHA-256: they were "
-                      "damaged or edited after fmi2SerializeFMUstate wrote them; restore an "
-                      "undamaged copy.");
-    }
-    memcpy(&header, serializedState, sizeof header);
-    if (memcmp(header.magic, STATE_MAGIC, sizeof header.magic) != 0 ||
-        header.data_size != sizeof(SimData)) {
-        return refuse(inst, call, "the bytes are not a serialised state of this FMU.");
-    }
-    if (strncmp(header.guid, MODEL_GUID, sizeof header.guid) != 0) {
-        return refuse(inst, call, "the state was written by another FMU (GUID %.40s).",
-                      header.guid);
+    if (size != STATE_SIZE || header.n_parts != 0 || header.n_values != sizeof(SimData)) {
+        return refuse(inst, call, "%zu bytes given, a state of this FMU has %zu", size,
+                      STATE_SIZE);
     }
     data = allocate(inst, sizeof(SimData)); /* not on the stack: a model's memory may be large */
-    if (!data) return fail(inst, call, "out of memory.");
-    memcpy(data, serializedState + sizeof header, sizeof(SimData));
+    if (!data) return fail(inst, call, "out of memory");
+    memcpy(data, bytes + sizeof header, sizeof(SimData));
     if (check_state(inst, call, data) != fmi2OK) {
         release(inst, data);
         return fmi2Error;
@@ -676,41 +571,6 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
         *FMUstate = data;
     }
     return fmi2OK;
-}
-
-/* ------------------------------------------------------------------------------------------ */
-/* Capabilities this FMU does not declare (modelDescription.xml sets them false)                */
-/* ------------------------------------------------------------------------------------------ */
-
-static fmi2Status unsupported(fmi2Component c, const char *call) {
-    Instance *inst = (Instance *)c;
-    if (inst) log_message(inst, fmi2Error, "%s is not supported by this FMU.", call);
-    return fmi2Error;
-}
-
-fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[],
-                                        size_t nUnknown, const fmi2ValueReference vKnown_ref[],
-                                        size_t nKnown, const fmi2Real dvKnown[],
-                                        fmi2Real dvUnknown[]) {
-    (void)vUnknown_ref, (void)nUnknown, (void)vKnown_ref, (void)nKnown, (void)dvKnown,
-        (void)dvUnknown;
-    return unsupported(c, "fmi2GetDirectionalDerivative");
-}
-
-fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                                       const fmi2Integer order[], const fmi2Real value[]) {
-    (void)vr, (void)nvr, (void)order, (void)value;
-    return unsupported(c, "fmi2SetRealInputDerivatives (canInterpolateInputs is false)");
-}
-
-fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                                        const fmi2Integer order[], fmi2Real value[]) {
-    (void)vr, (void)nvr, (void)order, (void)value;
-    return unsupported(c, "fmi2GetRealOutputDerivatives (maxOutputDerivativeOrder is 0)");
-}
-
-fmi2Status fmi2CancelStep(fmi2Component c) {
-    return unsupported(c, "fmi2CancelStep (steps are never asynchronous)");
 }
 
 /* ------------------------------------------------------------------------------------------ */
@@ -727,7 +587,7 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
     const double t0 = currentCommunicationPoint;
     const double h = communicationStepSize;
     (void)noSetFMUStatePriorToCurrentPoint;
-    if (!inst || !allowed(inst, call, IN(FW_STEP_COMPLETE))) return fmi2Error;
+    if (!inst || !allowed(inst, CALL_DO_STEP)) return fmi2Error;
 #ifdef FW_MODEL_EXCHANGE
     if (inst->model_exchange) {
         return refuse(inst, call, "the instance was made for model exchange: the master's "
@@ -772,39 +632,6 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
     }
     d->outputs_valid = 0;
     return fmi2OK;
-}
-
-/* ------------------------------------------------------------------------------------------ */
-/* Status inquiry (steps are synchronous: only the last successful time is of interest)        */
-/* ------------------------------------------------------------------------------------------ */
-
-fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value) {
-    (void)s, (void)value;
-    return unsupported(c, "fmi2GetStatus (steps are never asynchronous)");
-}
-
-fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value) {
-    Instance *inst = (Instance *)c;
-    if (!inst || s != fmi2LastSuccessfulTime) return unsupported(c, "fmi2GetRealStatus");
-    *value = inst->data.time;
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value) {
-    (void)s, (void)value;
-    return unsupported(c, "fmi2GetIntegerStatus");
-}
-
-fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
-    Instance *inst = (Instance *)c;
-    if (!inst || s != fmi2Terminated) return unsupported(c, "fmi2GetBooleanStatus");
-    *value = fmi2False; /* the FMU never asks the master to stop */
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
-    (void)s, (void)value;
-    return unsupported(c, "fmi2GetStringStatus");
 }
 
 #ifdef FW_MODEL_EXCHANGE

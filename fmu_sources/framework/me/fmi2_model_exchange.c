@@ -47,7 +47,7 @@ static Instance *me_instance(fmi2Component c, const char *call, unsigned mask, i
         refuse(inst, call, "the instance was made for co-simulation: fmi2DoStep advances it.");
         return NULL;
     }
-    if (!allowed(inst, call, mask)) return NULL;
+    if (!allowed_in(inst, call, mask)) return NULL;
     if (continuous >= 0 && inst->data.phase == FW_STEP_COMPLETE &&
         inst->continuous_time != continuous) {
         refuse(inst, call, "not allowed in %s; call it in %s.", phase_label(inst),
@@ -229,10 +229,9 @@ fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x_nominal
  * the value references: one by one. */
 static fmi2Status me_get_real(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                               fmi2Real value[]) {
-    static const char *const call = "fmi2GetReal";
     Instance *inst = (Instance *)c;
     double dx[N_STATES];
-    if (!inst || !allowed(inst, call, MASK_GET)) return fmi2Error;
+    if (!inst || !allowed(inst, CALL_GET_REAL)) return fmi2Error;
     for (size_t i = 0; i < nvr; i++) {
         const fmi2ValueReference r = vr[i];
         fmi2Status status = fmi2OK;
@@ -244,7 +243,7 @@ static fmi2Status me_get_real(fmi2Component c, const fmi2ValueReference vr[], si
             me_derivatives(&inst->data, dx);
             value[i] = dx[r - FW_VR_DERIVATIVES];
         } else {
-            status = get_values(c, call, &vr[i], 1, FW_REAL, &value[i], read_real);
+            status = get_values(c, CALL_GET_REAL, &vr[i], 1, FW_REAL, &value[i], read_real);
         }
         if (status != fmi2OK) return status;
     }

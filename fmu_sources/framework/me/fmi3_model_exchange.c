@@ -1,11 +1,12 @@
 /*
- * fmi3_model_exchange.c -- the FMI 3.0 model-exchange functions as a shell over the FMI 2.0
+ * fmi3_model_exchange.c -- the FMI 3.0 model-exchange functions as a face over the FMI 2.0
  * ones (me/fmi2_model_exchange.c).
  *
- * Included at the end of fmi3/fmi3_cosimulation.c when the builder compiles an FMI 3.0
- * model-exchange FMU (-DFW_MODEL_EXCHANGE); not a translation unit of its own. Each call
- * translates its arguments and calls the FMI 2.0 function doing the work, as the co-simulation
- * shell does, so the FMI 2.0 and FMI 3.0 model-exchange builds evaluate the same derivatives.
+ * Included at the end of the FMI 3.0 face, fmu_greybox/native/fmi3_shell.c, when the builder
+ * compiles an FMI 3.0 model-exchange FMU (-DFW_MODEL_EXCHANGE); not a translation unit of its
+ * own. Each call translates its arguments and calls the FMI 2.0 function doing the work, as the
+ * co-simulation face does, so the FMI 2.0 and FMI 3.0 model-exchange builds evaluate the same
+ * derivatives.
  */
 
 fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String instantiationToken,
@@ -13,22 +14,8 @@ fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String in
                                           fmi3Boolean loggingOn,
                                           fmi3InstanceEnvironment instanceEnvironment,
                                           fmi3LogMessageCallback logMessage) {
-    fmi2CallbackFunctions callbacks;
-    Shell *shell = (Shell *)calloc(1, sizeof *shell);
-    if (!shell) return NULL;
-    shell->environment = instanceEnvironment;
-    shell->log = logMessage;
-    shell->logging = 1;
-    memset(&callbacks, 0, sizeof callbacks);
-    callbacks.logger = relay;
-    callbacks.componentEnvironment = shell;
-    shell->inner = fmi2Instantiate(instanceName, fmi2ModelExchange, instantiationToken,
-                                   resourcePath, &callbacks, visible, loggingOn);
-    if (!shell->inner) {
-        free(shell);
-        return NULL;
-    }
-    return shell;
+    return face_new(instanceName, fmi2ModelExchange, instantiationToken, resourcePath, visible,
+                    loggingOn, instanceEnvironment, logMessage);
 }
 
 fmi3Status fmi3EnterEventMode(fmi3Instance instance) {

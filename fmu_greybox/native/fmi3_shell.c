@@ -1,42 +1,56 @@
 /*
- * fmi3_cosimulation.c -- the FMI 3.0 co-simulation API as a shell around the FMI 2.0 one.
+ * fmi3_shell.c -- the FMI 3.0 co-simulation face of an FMI 2.0 co-simulation core.
  *
- * The framework's state machine, variables, FMU state and integrator are those of
- * fmi2_cosimulation.c, compiled into the same library: every FMI 3.0 call here translates its
- * arguments and calls the FMI 2.0 function that does the work, so both kinds of FMU built from
- * one model step the same numbers. Types: Float64 is the table's Real, Int32 its Integer,
- * Boolean and String as in FMI 2.0; the other FMI 3.0 types, clocks, event mode, model
- * exchange and scheduled execution are refused with a message (modelDescription.xml declares
- * none of them). Built with FW_MODEL_EXCHANGE, the FMI 3.0 model-exchange functions of
- * me/fmi3_model_exchange.c (a shell over the FMI 2.0 ones of me/fmi2_model_exchange.c) replace
- * the refusals of model exchange and event mode at the end of this file.
+ * One file serves every FMU the project builds: the reference FMUs (the framework,
+ * fmu_sources/framework/fmi2_cosimulation.c) and the native grey-box (greybox_fmu.c). The core
+ * owns the state machine, the variables, the FMU state and the stepping; every FMI 3.0 call
+ * here translates its arguments and calls the FMI 2.0 function that does the work, so both
+ * faces of one core step the same numbers. Types: Float64 is the core's Real, Int32 its
+ * Integer, Boolean and String as in FMI 2.0; the other FMI 3.0 types, clocks, event mode,
+ * model exchange and scheduled execution are refused with a message (modelDescription.xml
+ * declares none of them). The core's identity comes from fmi_shell_config.h, generated at
+ * build: FMI_SHELL_IDENTIFIER (a string) and FMI_SHELL_TIME_VR (the value reference of the
+ * independent variable time, one past the core's own). Built with FW_MODEL_EXCHANGE, the FMI
+ * 3.0 model-exchange functions of the framework's me/fmi3_model_exchange.c (a face over the
+ * FMI 2.0 ones of me/fmi2_model_exchange.c) replace the refusals of model exchange and event
+ * mode at the end of this file.
  */
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "fmi2Functions.h"
 #include "fmi3Functions.h"
+#include "fmi_shell_config.h"
+#ifdef FW_MODEL_EXCHANGE
 #include "fmu_framework.h"
+#endif
 
-/* One FMI 3.0 instance: the FMI 2.0 instance doing the work and the master's logger. */
+/* One FMI 3.0 instance: the FMI 2.0 instance doing the work and the master's logger (errors
+ * go to it at any logging level: the shell's policy, fmi2_shell.h). */
 typedef struct {
     fmi2Component inner;
     fmi3InstanceEnvironment environment;
     fmi3LogMessageCallback log;
-    int logging;
-} Shell;
+} Face;
 
-/* The FMI 2.0 logger of the inner instance: hands its (already formatted) message on, without
- * the name of the FMI 2.0 function it starts with (the master knows which FMI 3.0 call failed). */
+/* The FMI 2.0 logger of the inner instance: formats its message (a printf format and its
+ * arguments, as FMI 2.0 has it) and hands it on, without the name of the FMI 2.0 function it
+ * starts with (the master knows which FMI 3.0 call failed). */
 static void relay(fmi2ComponentEnvironment environment, fmi2String instanceName,
                   fmi2Status status, fmi2String category, fmi2String message, ...) {
-    const Shell *shell = (const Shell *)environment;
-    const char *call_end =
-        message && strncmp(message, "fmi2", 4) == 0 ? strstr(message, ": ") : NULL;
+    const Face *face = (const Face *)environment;
+    char text[2048];
+    const char *call_end;
+    va_list args;
     (void)instanceName;
-    if (!shell || !shell->log) return;
-    shell->log(shell->environment, (fmi3Status)status, category, call_end ? call_end + 2 : message);
+    if (!face || !face->log || !message) return;
+    va_start(args, message);
+    vsnprintf(text, sizeof text, message, args);
+    va_end(args);
+    call_end = strncmp(text, "fmi2", 4) == 0 ? strstr(text, ": ") : NULL;
+    face->log(face->environment, (fmi3Status)status, category, call_end ? call_end + 2 : text);
 }
 
 static fmi3Status status3(fmi2Status status) {
@@ -49,20 +63,20 @@ static fmi3Status status3(fmi2Status status) {
 #define FW_FMI3_INTERFACE "co-simulation"
 #endif
 
-/* Log a call this FMU does not support and refuse it. */
+/* Log a call this FMU does not support and refuse it (as the shell words a refusal). */
 static fmi3Status unsupported(fmi3Instance instance, const char *call) {
-    const Shell *shell = (const Shell *)instance;
-    if (shell && shell->log && shell->logging) {
+    const Face *face = (const Face *)instance;
+    if (face && face->log) {
         char message[256];
-        snprintf(message, sizeof message, "%s is not supported by %s (FMI 3.0 %s "
-                 "with Float64, Int32, Boolean and String variables only).", call,
-                 MODEL_IDENTIFIER_STRING, FW_FMI3_INTERFACE);
-        shell->log(shell->environment, fmi3Error, "logStatusError", message);
+        snprintf(message, sizeof message, "%s failed: not supported by %s (FMI 3.0 %s with "
+                 "Float64, Int32, Boolean and String variables only)", call,
+                 FMI_SHELL_IDENTIFIER, FW_FMI3_INTERFACE);
+        face->log(face->environment, fmi3Error, "logStatusError", message);
     }
     return fmi3Error;
 }
 
-#define INNER(instance) (((Shell *)(instance))->inner)
+#define INNER(instance) (((Face *)(instance))->inner)
 
 /* ------------------------------------------------------------------------------------------ */
 /* Version, logging, creation and destruction                                                  */
@@ -73,8 +87,30 @@ const char *fmi3GetVersion(void) { return fmi3Version; }
 fmi3Status fmi3SetDebugLogging(fmi3Instance instance, fmi3Boolean loggingOn, size_t nCategories,
                                const fmi3String categories[]) {
     if (!instance) return fmi3Error;
-    ((Shell *)instance)->logging = loggingOn ? 1 : 0;
     return status3(fmi2SetDebugLogging(INNER(instance), loggingOn, nCategories, categories));
+}
+
+/* A new FMI 3.0 instance over an instance of the core of the given type; NULL when out of
+ * memory or when the core refuses (its reason logged through relay). */
+static Face *face_new(fmi3String instanceName, fmi2Type type, fmi3String instantiationToken,
+                      fmi3String resourcePath, fmi3Boolean visible, fmi3Boolean loggingOn,
+                      fmi3InstanceEnvironment instanceEnvironment,
+                      fmi3LogMessageCallback logMessage) {
+    fmi2CallbackFunctions callbacks;
+    Face *face = (Face *)calloc(1, sizeof *face);
+    if (!face) return NULL;
+    face->environment = instanceEnvironment;
+    face->log = logMessage;
+    memset(&callbacks, 0, sizeof callbacks);
+    callbacks.logger = relay;
+    callbacks.componentEnvironment = face;
+    face->inner = fmi2Instantiate(instanceName, type, instantiationToken, resourcePath,
+                                  &callbacks, visible, loggingOn);
+    if (!face->inner) {
+        free(face);
+        return NULL;
+    }
+    return face;
 }
 
 fmi3Instance fmi3InstantiateCoSimulation(
@@ -83,31 +119,17 @@ fmi3Instance fmi3InstantiateCoSimulation(
     fmi3Boolean earlyReturnAllowed, const fmi3ValueReference requiredIntermediateVariables[],
     size_t nRequiredIntermediateVariables, fmi3InstanceEnvironment instanceEnvironment,
     fmi3LogMessageCallback logMessage, fmi3IntermediateUpdateCallback intermediateUpdate) {
-    fmi2CallbackFunctions callbacks;
-    Shell *shell = (Shell *)calloc(1, sizeof *shell);
+    Face refusal = {NULL, instanceEnvironment, logMessage};
     (void)earlyReturnAllowed; /* steps never return early */
     (void)requiredIntermediateVariables;
     (void)nRequiredIntermediateVariables;
     (void)intermediateUpdate;
-    if (!shell) return NULL;
-    shell->environment = instanceEnvironment;
-    shell->log = logMessage;
-    shell->logging = 1;
     if (eventModeUsed) {
-        unsupported(shell, "fmi3InstantiateCoSimulation with eventModeUsed (no event mode)");
-        free(shell);
+        unsupported(&refusal, "fmi3InstantiateCoSimulation with eventModeUsed (no event mode)");
         return NULL;
     }
-    memset(&callbacks, 0, sizeof callbacks);
-    callbacks.logger = relay;
-    callbacks.componentEnvironment = shell;
-    shell->inner = fmi2Instantiate(instanceName, fmi2CoSimulation, instantiationToken,
-                                   resourcePath, &callbacks, visible, loggingOn);
-    if (!shell->inner) {
-        free(shell);
-        return NULL;
-    }
-    return shell;
+    return face_new(instanceName, fmi2CoSimulation, instantiationToken, resourcePath, visible,
+                    loggingOn, instanceEnvironment, logMessage);
 }
 
 void fmi3FreeInstance(fmi3Instance instance) {
@@ -154,8 +176,8 @@ static int scalars(fmi3Instance instance, const char *call, size_t nvr, size_t n
     return 0;
 }
 
-/* The independent variable time: one value reference past the table's (modelDescription.xml). */
-#define VR_TIME N_VALUE_REFERENCES
+/* The independent variable time (modelDescription.xml). */
+#define VR_TIME FMI_SHELL_TIME_VR
 
 fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
                           fmi3Float64 values[], size_t nValues) {
