@@ -154,7 +154,7 @@ def test_diagnose_command_writes_json_and_report(whitebox_fmu, truth_fmu, tmp_pa
         assert compared["terms+correctors_rmse"] == row["gb_rmse"]
         # judged as the residuals the diagnosis judges: noise units, drift-whitened
         assert set(compared["judged"]) == set(PARTS)
-        assert row["best"] == min(PARTS, key=lambda part: compared["judged"][part])
+        assert row["best"] == min(PARTS, key=lambda part: compared[f"{part}_rmse"])
     assert parts["best"] == min(PARTS, key=parts["score"].__getitem__)
     # the diagnosis' comparison says it is the quick one (training's decides what ships)
     assert payload["verdict"][-1].startswith(f"   {DIAGNOSIS_PARTS}: ")

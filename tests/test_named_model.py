@@ -309,7 +309,7 @@ def test_train_with_terms_compares_its_parts_forward_in_time(termed, tmp_path) -
         assert row["terms_rmse"] == pytest.approx(error, rel=1e-9)
         judged_rms = np.sqrt(np.mean(judged[:, q] ** 2))
         assert row["judged"]["terms"] == pytest.approx(judged_rms, rel=1e-6)
-        assert row["best"] == min(STAGE_PARTS, key=lambda part: row["judged"][part])
+        assert row["best"] == min(STAGE_PARTS, key=lambda part: row[f"{part}_rmse"])
         assert len(row["blocks"]["terms"]) == len(row["judged_blocks"]["terms"]) == BLOCKS
     alone = train_model(termed["config"], recording, terms=terms(), ship="terms")
     assert not alone.chain.active_.any() and alone.terms == terms()

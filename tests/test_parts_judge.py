@@ -118,3 +118,28 @@ def test_the_issues_case_ships_what_holds_on_the_next_recording(tmp_path) -> Non
     assert metrics["parts"]["shipped"]["RAM"] == "terms"
     assert ram["gb_rmse"] <= 1.05 * ram["named_rmse"], ram
     assert metrics["model"]["stages"]["RAM"] == "white-box + named terms"
+
+
+def test_the_named_terms_are_compared_with_the_white_box_on_the_raw_error() -> None:
+    """A slow systematic error that the named terms remove, on a signal whose input-noise
+    drift is slow too: judged, the white-box and the terms look alike (the drift could have
+    made that error on one recording); on the raw error the terms win, and the terms ship. A
+    few named magnitudes cannot learn a drift; only a comparison with a corrector is judged."""
+    rng = np.random.default_rng(5)
+    n = 6000
+    deviations = _random_walks(rng, (4, n, 1), 0.08)
+    judge = ResidualJudge(np.array([1.0]), DriftWhitening(deviations, np.array([1.0]), DT))
+    noise = rng.normal(size=(n, 1))
+    slow = 3.0 * np.sin(2 * np.pi * 0.2 * np.arange(n) * DT)[:, None]
+    recorded = np.zeros((n, 1))
+    predictions = {
+        "white-box": recorded - (noise + slow),
+        "terms": recorded - noise,
+        "terms+correctors": recorded - noise,
+        "correctors": recorded - (noise + slow),
+    }
+    parts = compare_parts(["ITFV"], recorded, predictions, {"ITFV": 1.0}, 100, judge=judge)
+    row = parts.stages["ITFV"]
+    assert row["judged"]["terms"] > 0.95 * row["judged"]["white-box"]  # alike, judged
+    assert row["terms_rmse"] < 0.5 * row["white-box_rmse"]
+    assert parts.shipped == {"ITFV": "terms"}

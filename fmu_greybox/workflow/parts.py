@@ -21,14 +21,15 @@ correctors alone (fewer additions first, and the named physics, which extrapolat
 which does not). Beating clearly takes two things: an RMS error lower by more than
 :data:`EQUAL_MARGIN` over the held-out rows, and a lower one in most of the :data:`BLOCKS`
 consecutive blocks they are cut into, so that one stretch of the recording (a manoeuvre the
-correctors happen to know) does not decide for all. ``train`` judges the error as the
-diagnosis does (:class:`~fmu_greybox.data.noise.ResidualJudge`): in sensor-noise units and
-whitened against the drift that the inputs' noise drives through the white-box. That drift is
-one realisation of noise, which the next recording does not repeat: a corrector that learns
-where it wandered on the training recording wins on that recording's later rows, by raw RMSE,
-and loses on the next recording. A stage that ships no named terms takes the
-plain white-box (the terms' ``stages_off``); a stage that ships no corrector passes it through.
-A stage's ``ship`` setting, or ``train --ship`` for every stage, names the part instead.
+correctors happen to know) does not decide for all. Where a corrector takes part in a comparison,
+``train`` judges the error as the diagnosis does (:class:`~fmu_greybox.data.noise.ResidualJudge`):
+in sensor-noise units and whitened against the drift that the inputs' noise drives through the
+white-box. That drift is one realisation of noise, which the next recording does not repeat: a
+corrector that learns where it wandered on the training recording wins on that recording's later
+rows, by raw RMSE, and loses on the next recording. The white-box and the named terms, a few
+magnitudes that cannot learn a drift, are compared on the RMSE. A stage that ships no named terms
+takes the plain white-box (the terms' ``stages_off``); a stage that ships no corrector passes it
+through. A stage's ``ship`` setting, or ``train --ship`` for every stage, names the part instead.
 """
 
 from __future__ import annotations
@@ -95,9 +96,8 @@ class PartsComparison:
         Stage -> ``{PART}_rmse`` for each part compared, ``blocks`` (part -> RMSE in each of
         the :data:`BLOCKS` blocks of the held-out rows), with a judge (:func:`compare_parts`)
         ``judged`` and ``judged_blocks`` (the same of the judged residual, in noise units),
-        ``best`` (the part with the lowest RMSE, or judged residual when judged) and
-        ``shipped`` (the part chosen for the stage, :func:`choose_stage_part`, on the judged
-        residual when judged).
+        ``best`` (the part with the lowest RMSE) and ``shipped`` (the part chosen for the
+        stage, :func:`choose_stage_part`).
     score : dict
         Part -> mean over the stages of its RMSE divided by the stage's scale (its training
         target's spread).
@@ -229,9 +229,19 @@ def beats_clearly(
     return wins > len(blocks[better]) / 2
 
 
-def choose_stage_part(total: Mapping[str, float], blocks: Mapping[str, Sequence[float]]) -> str:
+def choose_stage_part(
+    total: Mapping[str, float],
+    blocks: Mapping[str, Sequence[float]],
+    judged: tuple[Mapping[str, float], Mapping[str, Sequence[float]]] | None = None,
+) -> str:
     """The part a stage ships: the first of :data:`STAGE_PARTS` compared that the best part
     (lowest RMSE) does not beat clearly (:func:`beats_clearly`).
+
+    With ``judged``, the first that no other part beats clearly, each pair compared on the
+    judged residual when a corrector takes part in it, and on the RMSE when not (the white-box
+    against the named terms). A corrector can learn one recording's drift, which the next
+    recording does not repeat, and is judged against it; a few named magnitudes cannot, and
+    the raw error, drift and all, says whether they hold.
 
     Parameters
     ----------
@@ -239,14 +249,24 @@ def choose_stage_part(total: Mapping[str, float], blocks: Mapping[str, Sequence[
         Part -> RMSE over the held-out rows (the parts compared).
     blocks : mapping of str to sequence of float
         Part -> RMSE in each block.
+    judged : (mapping, mapping), optional
+        The same two of the judged residual (:func:`compare_parts`'s ``judge``).
 
     Returns
     -------
     str
     """
     compared = [p for p in STAGE_PARTS if p in total]
-    best = min(compared, key=total.__getitem__)
-    return next(p for p in compared if p == best or not beats_clearly(best, p, total, blocks))
+    if judged is None:
+        best = min(compared, key=total.__getitem__)
+        return next(p for p in compared if p == best or not beats_clearly(best, p, total, blocks))
+
+    def beats(better: str, worse: str) -> bool:
+        on = judged if has_corrector(better) or has_corrector(worse) else (total, blocks)
+        return beats_clearly(better, worse, *on)
+
+    unbeaten = [p for p in compared if not any(beats(q, p) for q in compared if q != p)]
+    return unbeaten[0] if unbeaten else min(compared, key=total.__getitem__)
 
 
 def compare_parts(
@@ -281,9 +301,10 @@ def compare_parts(
     stage_ship : mapping of str to str, optional
         Stage -> its ``ship`` setting (:attr:`~fmu_greybox.project.config.StageConfig.ship`).
     judge : callable, optional
-        Residuals (recorded minus predicted, shape (m, Q)) -> the residuals the choice is made
-        on, same shape (:class:`~fmu_greybox.data.noise.ResidualJudge`: in noise units,
-        whitened against input-noise drift). Without it, the RMSE decides.
+        Residuals (recorded minus predicted, shape (m, Q)) -> the residuals a comparison with
+        a corrector is made on, same shape (:class:`~fmu_greybox.data.noise.ResidualJudge`: in
+        noise units, whitened against input-noise drift; :func:`choose_stage_part`). Without
+        it, the RMSE decides.
 
     Returns
     -------
@@ -308,15 +329,15 @@ def compare_parts(
             normalised[part].append(total[part] / (scale[name] or 1.0))
         row: dict[str, Any] = {f"{part}_rmse": total[part] for part in compared}
         row["blocks"] = blocks
-        if judged is not None:  # the choice is made on the judged residual
+        evidence = None
+        if judged is not None:  # a corrector is judged on the judged residual
             zero = np.zeros(m)
-            total = {p: rmse(judged[p][:, q], zero) for p in compared}
-            blocks = {p: block_rmse(judged[p][:, q], zero) for p in compared}
-            row["judged"] = total
-            row["judged_blocks"] = blocks
+            row["judged"] = {p: rmse(judged[p][:, q], zero) for p in compared}
+            row["judged_blocks"] = {p: block_rmse(judged[p][:, q], zero) for p in compared}
+            evidence = (row["judged"], row["judged_blocks"])
         chosen = ship if ship != BEST else (stage_ship or {}).get(name, BEST)
         if chosen == BEST:
-            chosen = choose_stage_part(total, blocks) if decided else "terms+correctors"
+            chosen = choose_stage_part(total, blocks, evidence) if decided else "terms+correctors"
         stages[name] = {
             **row,
             "best": min(compared, key=total.__getitem__),
