@@ -134,26 +134,9 @@ class Experiment:
         return self.u.shape[0]
 
     def estimate_noise(self, runs: int = 4, seed: int = 0) -> np.ndarray | None:
-        """Set the noise model (:mod:`.noise`) and return the white-box simulation it leads to.
-
-        Each recorded input's noise is estimated, and noisy inputs are smoothed against it
-        (:class:`~fmu_greybox.data.noise.InputSmoother`: the simulations that follow answer
-        the inputs, not their sensors' noise). Then, against the white-box over those inputs:
-        each observed signal's sensor noise, and the whitening against the drift that ``runs``
-        simulations with the inputs' remaining error re-drawn show.
-
-        Parameters
-        ----------
-        runs : int
-            Simulations with re-drawn input error.
-        seed : int
-            Seed of the re-drawing.
-
-        Returns
-        -------
-        ndarray, shape (n, n_outputs), or None
-            The white-box over the (smoothed) inputs; None if the FMU fails on them.
-        """
+        """Set the noise model (:func:`~fmu_greybox.data.noise.estimate_noise_model`, with its
+        ``runs`` and ``seed``; the inputs are smoothed where noisy) and return the white-box
+        over the inputs kept, shape (n, n_outputs); None if the FMU fails on them."""
         caches: list[dict] = []  # the first run is over the inputs kept: its cache is kept
 
         def simulate_over(u: np.ndarray) -> np.ndarray | None:
