@@ -275,7 +275,9 @@ def test_train_and_validate_commands(recording, tmp_path: Path) -> None:
     for stage, row in metrics["stages"].items():
         rows = row["calibration_independent_rows"]
         line = next(text for text in result.output.splitlines() if text.startswith(f"{stage} "))
-        assert line.endswith(f"{spread_text(rows)} ({rows:.0f})")
+        # and last, what the model computes on the stage
+        contents = load_model(tmp_path / "model").contents()[stage]
+        assert line.endswith(f"{spread_text(rows)} ({rows:.0f})  {contents}")
     for stage in ("EHV", "RAM", "ITFV"):
         assert set(metrics["stages"][stage]) == {
             "wb_rmse",

@@ -274,7 +274,8 @@ def test_model_description_of_another_build_is_refused_at_instantiation(
     with open_fmu(fmu) as archive, pytest.raises(FmuError) as info:
         FmuInstance(archive, [], ["ram_position"])
     assert (info.value.call, info.value.status) == ("fmi2Instantiate", "NULL")
-    assert "does not match the binary's" in str(info.value)
+    assert "this binary's" in str(info.value)
+    assert "the modelDescription.xml belongs to another build or export" in str(info.value)
 
 
 # ------------------------------------------------------------------------ XML tricks

@@ -197,7 +197,7 @@ def test_fmu_failing_mid_run_raises_fmu_error(
     assert error.time == pytest.approx(time, abs=1e-9)
     message = str(error)
     assert "fmi2DoStep" in message and "fmi2Error" in message and f"t = {time:g} s" in message
-    assert "[fmi2Error] fmi2DoStep: " in message  # the FMU's own log message is quoted
+    assert "[fmi2Error] fmi2DoStep failed: " in message  # the FMU's own log message is quoted
 
 
 def test_parameter_out_of_range_fails_at_initialisation(
