@@ -50,7 +50,7 @@ from fmu_greybox.export.native import BUILD_DESCRIPTION, NATIVE_DIR
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.instance import fmu_instance
 from fmu_greybox.model import terms as term_kinds
-from fmu_greybox.model.native_terms import NATIVE_KINDS
+from fmu_greybox.model.native_terms import NATIVE_KINDS, kind_defines
 from fmu_greybox.model.store import load_model, save_model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -169,6 +169,20 @@ def test_a_kind_without_native_code_is_refused_at_export(
     with pytest.raises(ExportError, match="--runtime python"):
         export_greybox(tmp_path / "model", tmp_path / "x.fmu")
     assert not (tmp_path / "x.fmu").exists()
+
+
+def test_the_kind_table_follows_the_codes_whatever_the_mapping_order(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The C kind table is positional: a kind taken out of the mapping and put back (as the
+    test above does through monkeypatch) moves to its end, and the table must not follow:
+    exported FMUs built after it stepped the wrong kind's function."""
+    before = kind_defines()
+    code = NATIVE_KINDS["InputGain"]
+    monkeypatch.delitem(NATIVE_KINDS, "InputGain")
+    monkeypatch.setitem(NATIVE_KINDS, "InputGain", code)
+    assert list(NATIVE_KINDS)[-1] == "InputGain" and code < max(NATIVE_KINDS.values())
+    assert kind_defines() == before
 
 
 def test_state_with_terms_memory_continues_identically(

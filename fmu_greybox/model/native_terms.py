@@ -125,7 +125,7 @@ def kind_defines() -> str:
     """The kind table of ``greybox_config.h``: ``TERM_KIND_TABLE(X)`` calls
     ``X(function, place, line)`` once per kind, in the order of the codes (from 1)."""
     rows = []
-    for name, code in NATIVE_KINDS.items():
+    for name, code in sorted(NATIVE_KINDS.items(), key=lambda item: item[1]):  # by code
         kind = TERM_KINDS[name]
         function = kind.native.function or "NULL"
         rows.append(
