@@ -497,6 +497,20 @@ def _unit_error(unit: str, path: Path | None, where: str, detail: str) -> FmuBui
 # ------------------------------------------------------------------------------------------------
 
 
+def unit_element(unit: str) -> ET.Element:
+    """The ``Unit`` element of a unit string: its SI base-unit exponents, factor and offset
+    (:func:`_parse_unit`)."""
+    exps, factor, offset = _parse_unit(unit)
+    element = ET.Element("Unit", {"name": unit})
+    attributes = {k: str(exps[k]) for k in BASE_UNITS if k in exps}
+    if factor != 1.0:
+        attributes["factor"] = _number(factor)
+    if offset != 0.0:
+        attributes["offset"] = _number(offset)
+    ET.SubElement(element, "BaseUnit", attributes)
+    return element
+
+
 def _number(value: float) -> str:
     """Shortest text that reads back as the same double."""
     return repr(float(value))
@@ -592,14 +606,7 @@ def _units_logging_experiment(root: ET.Element, table: VariableTable, variables:
     declared = sorted({v.unit for v in variables if v.unit})
     units = ET.SubElement(root, "UnitDefinitions") if declared else None
     for unit in declared:
-        exps, factor, offset = _parse_unit(unit)
-        element = ET.SubElement(units, "Unit", {"name": unit})
-        attributes = {k: str(exps[k]) for k in BASE_UNITS if k in exps}
-        if factor != 1.0:
-            attributes["factor"] = _number(factor)
-        if offset != 0.0:
-            attributes["offset"] = _number(offset)
-        ET.SubElement(element, "BaseUnit", attributes)
+        units.append(unit_element(unit))
     categories = ET.SubElement(root, "LogCategories")
     for name, text in LOG_CATEGORIES:
         ET.SubElement(categories, "Category", {"name": name, "description": text})
@@ -996,15 +1003,7 @@ def _add_units(root: ET.Element, units: list[str], interface_position: int) -> N
     for unit in units:
         if unit in known:
             continue
-        exps, factor, offset = _parse_unit(unit)
-        element = ET.Element("Unit", {"name": unit})
-        attributes = {k: str(exps[k]) for k in BASE_UNITS if k in exps}
-        if factor != 1.0:
-            attributes["factor"] = _number(factor)
-        if offset != 0.0:
-            attributes["offset"] = _number(offset)
-        ET.SubElement(element, "BaseUnit", attributes)
-        known[unit] = element
+        known[unit] = unit_element(unit)
     for element in list(definitions):
         definitions.remove(element)
     for name in sorted(known):
