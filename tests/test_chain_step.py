@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import os
+import re
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
+from tools import SANITIZE, sanitizer_environment
 
 from fmu_greybox import _chainstep
 from fmu_greybox.gp import SparseGPR
@@ -375,3 +380,42 @@ def test_auto_target_chooses_increment_for_an_integrating_residual() -> None:
     assert selection["chosen"] == "increment"
     assert selection["increment"] < selection["residual"]
     assert set(chain.selection_) == {"EHV", "RAM", "ITFV"}
+
+
+#: Run this file's other tests against the sanitized extension given as argv[1], in a process
+#: whose ``fmu_greybox._chainstep`` is that build.
+SANITIZED_RUN = """
+import importlib.util, sys
+spec = importlib.util.spec_from_file_location("fmu_greybox._chainstep", sys.argv[1])
+module = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(module)
+sys.modules["fmu_greybox._chainstep"] = module
+import pytest
+sys.exit(pytest.main(["-q", "-p", "no:xdist", "-p", "no:cacheprovider", *sys.argv[2:]]))
+"""
+
+
+def test_the_chain_step_under_address_and_undefined_behaviour_sanitizers(tmp_path: Path) -> None:
+    """The extension rebuilt by the package's own ``setup.py`` with -fsanitize=address,undefined,
+    and every other test of this file run against it in a process that any out-of-bounds
+    access, use after free or undefined behaviour would end (issue 42: the chain step in CI
+    under the sanitizers, as the native FMU is)."""
+    root = Path(__file__).resolve().parents[1]
+    flags = " ".join(SANITIZE)
+    env = {**os.environ, "CFLAGS": flags, "LDFLAGS": flags}
+    command = [sys.executable, "setup.py", "-q", "build_ext", "-b", str(tmp_path / "lib")]
+    subprocess.run([*command, "-t", str(tmp_path / "tmp")], cwd=root, env=env, check=True)
+    (built,) = (tmp_path / "lib" / "fmu_greybox").glob("_chainstep*.so")
+    symbols = subprocess.run(["nm", "-D", str(built)], capture_output=True, text=True).stdout
+    assert "__asan_report_load8" in symbols and "__ubsan_handle" in symbols  # instrumented
+    selection = ["-k", "not sanitizers", str(Path(__file__))]
+    run = subprocess.run(
+        [sys.executable, "-c", SANITIZED_RUN, str(built), *selection],
+        cwd=root,
+        env=sanitizer_environment(),
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    passed = re.search(r"(\d+) passed", run.stdout)
+    assert passed and int(passed.group(1)) >= 20, run.stdout[-2000:]

@@ -10,7 +10,6 @@ libcosim and the sanitizer build run the FMI 2.0 functions.
 from __future__ import annotations
 
 import hashlib
-import os
 import re
 import shutil
 import struct
@@ -43,6 +42,7 @@ from test_export import (
     tampered,
     trained,
 )
+from tools import SANITIZE, sanitizer_environment
 
 from fmu_greybox.errors import ExportError, FmuError
 from fmu_greybox.export.fmu import RUNTIMES, export_greybox
@@ -383,34 +383,6 @@ def rebuilt(native_fmu: Path, folder: Path, extra: tuple[str, ...] = ()) -> tupl
     command = ["gcc", *options, *extra, "-shared", f"-I{sources}", *sources_c, "-o", str(binary)]
     subprocess.run([*command, *(f"-l{lib}" for lib in libraries)], check=True)
     return unpacked, binary
-
-
-#: AddressSanitizer and UndefinedBehaviorSanitizer, every finding fatal.
-SANITIZE = (
-    "-O1",
-    "-g",
-    "-fno-omit-frame-pointer",
-    "-fsanitize=address,undefined",
-    "-fno-sanitize-recover=all",
-)
-
-
-def sanitizer_environment() -> dict[str, str]:
-    """This process's environment with gcc's ASan and UBSan runtimes preloaded (a Python that
-    was not built with them loads an instrumented FMU only so), any finding ending the
-    process."""
-    runtimes = [
-        subprocess.run(
-            ["gcc", f"-print-file-name={name}"], capture_output=True, text=True, check=True
-        ).stdout.strip()
-        for name in ("libasan.so", "libubsan.so")
-    ]
-    return {
-        **os.environ,
-        "LD_PRELOAD": ":".join(runtimes),
-        "ASAN_OPTIONS": "detect_leaks=0:abort_on_error=1",
-        "UBSAN_OPTIONS": "halt_on_error=1:print_stacktrace=1",
-    }
 
 
 def test_state_flips_and_steps_under_address_and_undefined_behaviour_sanitizers(
