@@ -47,6 +47,7 @@ from fmu_greybox.fmi.builtin import reference_fmus  # noqa: E402
 from fmu_greybox.fmi.instance import FmuInstance  # noqa: E402
 from fmu_greybox.model.simulate import simulate_recording  # noqa: E402
 from fmu_greybox.model.store import (  # noqa: E402
+    FORMAT_VERSION,
     MANIFEST,
     MANIFEST_HASH,
     TRAINING_ROWS,
@@ -661,8 +662,12 @@ def model_cases(tmp: Path, saved: Path) -> list[Case]:
         ),
         Case(
             "model",
-            "model: format version 5",
-            tampered("version", manifest_edit(lambda m: m.update(format_version=5))),
+            f"model: format version {FORMAT_VERSION + 1}, newer than this tool's",
+            tampered(
+                "version",
+                manifest_edit(lambda m: m.update(format_version=FORMAT_VERSION + 1)),
+                rehash=True,
+            ),
             here + "test_valid_json_edits_of_the_manifest_are_refused",
         ),
         Case(

@@ -141,7 +141,8 @@ def test_each_missing_file_is_named(saved: Path, tmp_path: Path) -> None:
         (
             lambda m: m.update(format_version=FORMAT_VERSION + 1),
             f"format version {FORMAT_VERSION + 1}; this tool reads versions "
-            + ", ".join(str(v) for v in range(1, FORMAT_VERSION + 1)),
+            + ", ".join(str(v) for v in range(1, FORMAT_VERSION + 1))
+            + r"\. It was written by a newer fmu-greybox: upgrade this one",
         ),
     ],
     ids=["dt", "stage removed", "hash removed", "version as text", "newer version"],

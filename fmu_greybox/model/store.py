@@ -297,9 +297,16 @@ def read_manifest(model_dir: str | Path) -> dict[str, Any]:
         )
     version = manifest.get("format_version")
     if version not in READABLE_VERSIONS:
+        newer = isinstance(version, int) and version > FORMAT_VERSION
+        mend = (
+            "It was written by a newer fmu-greybox: upgrade this one (pip install -U "
+            "fmu-greybox), or retrain the model with it"
+            if newer
+            else "Retrain the model with this version"
+        )
         raise ModelFormatError(
             f"{path}: format version {version!r}; this tool reads versions "
-            f"{', '.join(map(str, READABLE_VERSIONS))}. Retrain the model with this version"
+            f"{', '.join(map(str, READABLE_VERSIONS))}. {mend}"
         )
     recorded = manifest.get(MANIFEST_HASH)
     if recorded is None and version >= HASHED_VERSION:
