@@ -109,5 +109,6 @@ def recording_option(what: str, several: str = "") -> Decorator:
 
 
 def info(ctx: click.Context, message: str) -> None:
+    """Print ``message`` unless ``--quiet`` was given."""
     if not ctx.obj.get("quiet"):
         click.echo(message)
