@@ -1,7 +1,7 @@
 """The ``modelDescription.xml`` of an FMU built from a variable table: FMI 2.0 and FMI 3.0
 co-simulation, and the model-exchange one made from either (its states and their derivatives
-added), with one ``Unit`` element per unit used (:func:`unit_element`, which the native
-grey-box's description uses too).
+added), with one ``Unit`` element per unit used (:func:`unit_element`, for the
+co-simulation descriptions' units and the model-exchange one's added ones alike).
 """
 
 from __future__ import annotations
