@@ -5,9 +5,10 @@ A model is a folder holding ``variables.toml`` (the variable table), ``config.h`
 and ``model.c`` (physics); ``fmu_sources/framework/`` supplies the FMI plumbing and the
 integrator. For one model identifier of the table the builder
 
-1. reads and checks the variable table,
+1. reads and checks the variable table (:mod:`fmu_greybox.fmi.variables`),
 2. generates ``fmu_variables.h`` / ``fmu_variables.c`` (value references, storage indices,
-   start values, ranges) and ``modelDescription.xml`` (units, variables, model structure),
+   start values, ranges) and ``modelDescription.xml`` (units, variables, model structure;
+   :mod:`fmu_greybox.fmi.description`),
 3. compiles everything with gcc into one shared library (``-O2``, IEEE arithmetic: no
    ``-ffast-math``, no floating-point contraction), and
 4. zips ``modelDescription.xml``, ``binaries/<platform>/<identifier>.<ext>`` and
