@@ -15,8 +15,7 @@ from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 
 from fmu_greybox.errors import FmuBuildError
-from fmu_greybox.fmi import build as fmu_build
-from fmu_greybox.fmi import platforms
+from fmu_greybox.fmi import platforms, variables
 from fmu_greybox.fmi.build import (
     REFERENCE_MODEL_DIR,
     build_fmu,
@@ -124,13 +123,13 @@ def test_readme_documents_every_parameter() -> None:
 
 
 def test_unit_parser() -> None:
-    assert fmu_build._parse_unit("m3/(s.Pa)") == ({"m": 4, "kg": -1, "s": 1}, 1.0, 0.0)
-    assert fmu_build._parse_unit("Pa.s/m3") == ({"kg": 1, "m": -4, "s": -1}, 1.0, 0.0)
-    assert fmu_build._parse_unit("m/mA") == ({"m": 1, "A": -1}, 1e3, 0.0)
-    assert fmu_build._parse_unit("1") == ({}, 1.0, 0.0)
-    assert fmu_build._parse_unit("degC") == ({"K": 1}, 1.0, 273.15)
+    assert variables.parse_unit("m3/(s.Pa)") == ({"m": 4, "kg": -1, "s": 1}, 1.0, 0.0)
+    assert variables.parse_unit("Pa.s/m3") == ({"kg": 1, "m": -4, "s": -1}, 1.0, 0.0)
+    assert variables.parse_unit("m/mA") == ({"m": 1, "A": -1}, 1e3, 0.0)
+    assert variables.parse_unit("1") == ({}, 1.0, 0.0)
+    assert variables.parse_unit("degC") == ({"K": 1}, 1.0, 273.15)
     with pytest.raises(FmuBuildError, match="unknown unit symbol 'furlong'"):
-        fmu_build._parse_unit("furlong/s")
+        variables.parse_unit("furlong/s")
 
 
 def _copy_model(tmp_path: Path) -> Path:

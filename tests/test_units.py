@@ -7,7 +7,7 @@ import math
 import pytest
 
 from fmu_greybox.errors import FmuBuildError
-from fmu_greybox.fmi import build as fmu_build
+from fmu_greybox.fmi import variables
 from fmu_greybox.units import UnitSyntaxError, conversion, normalise_unit, si_unit
 
 
@@ -28,7 +28,7 @@ from fmu_greybox.units import UnitSyntaxError, conversion, normalise_unit, si_un
     ],
 )
 def test_builder_and_recordings_read_a_unit_alike(spelling, exponents, factor):
-    built = fmu_build._parse_unit(spelling)
+    built = variables.parse_unit(spelling)
     assert built[0] == exponents
     assert math.isclose(built[1], factor, rel_tol=1e-12)
     resolved = si_unit(spelling)
@@ -39,9 +39,9 @@ def test_builder_and_recordings_read_a_unit_alike(spelling, exponents, factor):
 
 def test_builder_names_an_unknown_symbol():
     with pytest.raises(FmuBuildError, match="unknown unit symbol 'furlong'"):
-        fmu_build._parse_unit("furlong/s")
+        variables.parse_unit("furlong/s")
     with pytest.raises(FmuBuildError, match="unit 'm/': unexpected end"):
-        fmu_build._parse_unit("m/")
+        variables.parse_unit("m/")
 
 
 @pytest.mark.parametrize(

@@ -50,7 +50,10 @@ def sources_digest() -> str:
     root = sources_root()
     files = sorted(p for p in root.rglob("*") if p.is_file() and p.suffix != ".csv")
     builder = Path(fmu_build.__file__)
-    builders = [builder, *(builder.with_name(n) for n in ("platforms.py", "compiler.py"))]
+    builders = [
+        *fmu_build.GENERATORS,
+        *(builder.with_name(n) for n in ("platforms.py", "compiler.py")),
+    ]
     for path in [*files, *fmu_build.SHARED_SOURCES, fmu_build.FMI3_SHELL, *builders]:
         digest.update(str(path.relative_to(path.parents[1])).encode())
         digest.update(path.read_bytes())
