@@ -29,13 +29,24 @@ install_missing clang "the fuzz tests" clang libclang-rt-dev
 # under Wine (Debian's wine64 puts the program in /usr/lib/wine, off the PATH)
 install_missing x86_64-w64-mingw32-gcc "the Windows tests" gcc-mingw-w64-x86-64
 install_missing /usr/lib/wine/wine64 "the Windows tests" wine64
-# the package as a user installs it: wheel, fresh venv, a short run away from the checkout
-bash scripts/wheel_check.sh
+# the package as a user installs it: wheel, fresh venv, a short run away from the checkout;
+# beside the tests (much of it is unpacking packages), its output shown when it ends
+wheel_log="$(mktemp)"
+trap 'rm -f "$wheel_log"' EXIT
+bash scripts/wheel_check.sh >"$wheel_log" 2>&1 &
+wheel_pid=$!
 status=0
 # one pytest worker per CPU (pytest-xdist); the tests share no files, ports or folders; a
 # module's tests stay on one worker, so that its module- and session-scoped fixtures (trained
 # models, exported FMUs, the demo's run) are built once
 .venv/bin/python -m pytest -q -n auto --dist loadfile "$@" || status=$?
+wheel_status=0
+wait "$wheel_pid" || wheel_status=$?
+grep -v "^WARNING: Location" "$wheel_log" || true
+if [ "$wheel_status" -ne 0 ]; then
+  echo "the wheel check failed (exit $wheel_status): its output is above" >&2
+  exit 1
+fi
 if [ "$status" -eq 5 ]; then
   echo "pytest collected no tests: that is a failure" >&2
   exit 1

@@ -345,18 +345,27 @@ def box(dom: str, name: str) -> tuple[int, int, int, int]:
 
 
 def test_a_failed_demo_writes_no_report(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A step that fails (here the diagnosis, the first after the recordings are written)
+    ends the demo with exit 1 and its message, keeps what the steps before it wrote, and writes
+    no report or summary."""
     import fmu_greybox.report.demo as demo_module
-    from fmu_greybox.errors import BenchError
+    from fmu_greybox.errors import NumericalError
 
-    def broken_bench(*_args, **_kwargs):
-        raise BenchError("bench.ssp failed in fmpy: simulated failure")
+    class BrokenDiagnosis:
+        def __init__(self, *_args, **_kwargs) -> None:
+            pass
 
-    monkeypatch.setattr(demo_module, "run_bench", broken_bench)
+        def fit(self, _recording):
+            raise NumericalError("the diagnosis failed: simulated failure")
+
+    monkeypatch.setattr(demo_module, "Diagnosis", BrokenDiagnosis)
     out = tmp_path / "out"
     result = CliRunner().invoke(main, ["-q", "demo", "--out", str(out), "--effect", EFFECT, *SMALL])
     assert result.exit_code == 1
     assert "simulated failure" in result.stderr and "Traceback" not in result.output
-    assert (out / "diagnosis.json").is_file()  # steps done before the failure are kept
+    assert (out / "recording.csv").is_file()  # steps done before the failure are kept
+    assert (out / "validation.csv").is_file()
+    assert not (out / "diagnosis.json").exists()
     assert not (out / "report.html").exists() and not (out / "summary.json").exists()
 
 
