@@ -1,9 +1,10 @@
 """The compiled co-simulation hot path; everything else about the package is in pyproject.toml.
 
-``fmu_greybox._chainstep`` advances the corrector chain by one step and makes single-point
-sparse-GP predictions (docs/greybox.md, "The chain step"). pip compiles it at install with the
-machine's C compiler, from the numerical core ``chain_core.c`` (which every native grey-box FMU
-compiles too, with the same flags: ``native/cflags.txt``) and its CPython glue ``chainstep.c``.
+``fmu_greybox._chainstep`` advances the corrector chain by one step, makes single-point
+sparse-GP predictions (docs/greybox.md, "The chain step") and says why a step is refused. pip
+compiles it at install with the machine's C compiler, from the numerical core ``chain_core.c``
+and the rules of a step ``rules.c`` (which every native grey-box FMU compiles too, with the
+same flags: ``native/cflags.txt``) and their CPython glue ``chainstep.c``.
 """
 
 from pathlib import Path
@@ -16,8 +17,8 @@ setup(
     ext_modules=[
         Extension(
             "fmu_greybox._chainstep",
-            sources=[str(NATIVE / "chainstep.c"), str(NATIVE / "chain_core.c")],
-            depends=[str(NATIVE / "chain_core.h")],
+            sources=[str(NATIVE / n) for n in ("chainstep.c", "chain_core.c", "rules.c")],
+            depends=[str(NATIVE / n) for n in ("chain_core.h", "rules.h")],
             extra_compile_args=(NATIVE / "cflags.txt").read_text(encoding="ascii").split(),
         )
     ]

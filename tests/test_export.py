@@ -40,6 +40,7 @@ from fmu_greybox.export.ssp import make_bench
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.instance import fmu_instance
 from fmu_greybox.model.calibration import VarianceCalibration
+from fmu_greybox.model.domain import InputDomain
 from fmu_greybox.model.simulate import simulate_recording
 from fmu_greybox.model.stage_data import prepare
 from fmu_greybox.model.store import MANIFEST, GreyBoxModel, file_sha256, load_model, save_model
@@ -569,6 +570,56 @@ def test_absurd_input_messages_name_the_input_and_its_domain(
     u[INPUTS.index("load_force")] = np.nan
     refusal = str(step_refusal(greybox_fmu, u0, u, 0.0, dt))
     assert "load_force = nan" in refusal and "not a finite number" in refusal
+
+
+def logged_refusal(error: FmuError) -> str:
+    """What an FMU sent to the FMI logger when it refused ``fmi2DoStep``, after the call."""
+    return str(error).split("fmi2DoStep failed: ", 1)[1]
+
+
+def test_both_runtimes_refuse_the_same_steps_in_the_same_words(
+    python_fmu: Path, native_fmu: Path, model_dir: Path, validation: Recording
+) -> None:
+    """Issue 44: the Python FMU checks a step with the native FMU's own C (``native/rules.c``,
+    through the extension), so both refuse an input outside its domain, one that is not
+    finite, another step than the trained one and a jump in time with the same text, which is
+    the text the refusals have always had (written out here with Python's formatting)."""
+    model = load_model(model_dir)
+    with open_fmu(model.whitebox_fmu) as archive:
+        domain = InputDomain.of(archive, list(INPUTS), model.training.input_ranges)
+    u0, dt = input_rows(validation)[0], float(validation.dt)
+    k = INPUTS.index("load_force")
+    outside, absent = u0.copy(), u0.copy()
+    outside[k], absent[k] = 1e30, np.nan
+    low, high = domain.low[k], domain.high[k]
+    expected = {
+        (0.0, dt, "outside"): (
+            f"input load_force = 1e+30 at t = 0 s lies outside the grey-box's input domain "
+            f"[{low:.9g}, {high:.9g}] (the training range widened, docs/bench.md, 'Input "
+            "domain'); the grey-box refuses to extrapolate this far: keep the input within the "
+            "domain, or retrain with recordings that cover it"
+        ),
+        (0.0, dt, "absent"): (
+            "input load_force = nan at t = 0 s is not a finite number; the grey-box refuses it "
+            "(set a finite value and step again)"
+        ),
+        (0.0, 2 * dt, "u0"): (
+            "communication step 0.002 s at t = 0 s; the correctors were trained at 0.001 s and "
+            "need exactly that step. Set the bench's step to 0.001 s"
+        ),
+        (0.5, dt, "u0"): (
+            "currentCommunicationPoint = 0.5 s, but the grey-box is at 0 s; it cannot jump in "
+            "time (its correctors remember the last steps): step on from 0 s, or restore an FMU "
+            "state saved at 0.5 s"
+        ),
+    }
+    rows = {"outside": outside, "absent": absent, "u0": u0}
+    for (time, step, row), text in expected.items():
+        for fmu in (native_fmu, python_fmu):
+            refusal = step_refusal(fmu, u0, rows[row], time, step)
+            assert logged_refusal(refusal) == text, (runtime_of(fmu), row, step)
+    assert domain.refusal(list(outside), 0.0) == expected[(0.0, dt, "outside")]
+    assert domain.refusal(list(u0), 0.0) is None
 
 
 def test_absurd_inputs_at_initialisation_are_refused(

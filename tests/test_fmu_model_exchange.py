@@ -41,6 +41,7 @@ from fmu_greybox.export.fmu import export_greybox
 from fmu_greybox.fmi import integrator as integrator_module
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import model_fmus, reference_project
+from fmu_greybox.fmi.compiler import DISABLE_VARIABLE
 from fmu_greybox.fmi.instance import Fmu3MeInstance, FmuMeInstance, fmu_instance
 from fmu_greybox.fmi.integrator import DEFAULT_INTEGRATOR, Integrator
 from fmu_greybox.fmi.kinds import FMI2_CS, FMI2_ME, FMI3_ME
@@ -170,14 +171,14 @@ def test_the_c_loop_gives_the_python_loops_numbers(me_fmus, monkeypatch) -> None
     rows = input_rows(200)
     for path in me_fmus.values():
         native = stepped(path, rows)
-        monkeypatch.setenv(integrator_module.DISABLE_VARIABLE, "0")
+        monkeypatch.setenv(DISABLE_VARIABLE, "0")
         integrator_module.me_library.cache_clear()
         try:
             with open_fmu(path) as archive, fmu_instance(archive, INPUTS, OUTPUTS) as inst:
                 assert inst._stepper.native is None
                 python = np.array([inst.step(u, DT).copy() for u in rows])
         finally:
-            monkeypatch.delenv(integrator_module.DISABLE_VARIABLE)
+            monkeypatch.delenv(DISABLE_VARIABLE)
             integrator_module.me_library.cache_clear()
         np.testing.assert_array_equal(python, native)
 

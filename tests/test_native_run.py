@@ -4,10 +4,12 @@ name their cause."""
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
 import os
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -17,8 +19,9 @@ from test_native_fmu import EXAMPLES
 from fmu_greybox.errors import FmuError
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import reference_fmus
+from fmu_greybox.fmi.compiler import DISABLE_VARIABLE, CBuild, core_flags, load_cached_library
 from fmu_greybox.model import terms as term_kinds
-from fmu_greybox.model.native_run import DISABLE_VARIABLE, run_native, runs_natively
+from fmu_greybox.model.native_run import run_native, runs_natively
 from fmu_greybox.model.simulate import run_open_loop, simulate_with_terms
 from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS, NamedModel
 
@@ -144,6 +147,35 @@ def test_without_a_compiler_simulations_step_in_python_and_say_so(tmp_path) -> N
     assert done.stdout.split() == ["False"]
     assert "native runner is unavailable" in done.stderr
     assert "C compiler 'no-such-compiler' not found" in done.stderr
+
+
+def test_one_loader_builds_caches_and_falls_back_saying_why(tmp_path, monkeypatch) -> None:
+    """``load_cached_library`` (the runner's and the model-exchange loop's): a library is
+    compiled once and loaded from the cache after; C that does not compile gives ``None`` and
+    a warning naming what runs instead and the compiler's error; the switch gives ``None``
+    without a word."""
+    source = tmp_path / "twice.c"
+    source.write_text("double twice(double x) { return 2.0 * x; }\n")
+    build = CBuild(what="twice.c", sources=(source,), flags=core_flags())
+    library = tmp_path / "cache" / "libtwice.so"
+
+    def twice(loaded: ctypes.CDLL, x: float) -> float:
+        loaded.twice.restype, loaded.twice.argtypes = ctypes.c_double, [ctypes.c_double]
+        return loaded.twice(x)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert twice(load_cached_library(build, library, "doubling in Python"), 1.25) == 2.5
+    source.write_text("this is not C;\n")  # the cached library is loaded as it is
+    assert twice(load_cached_library(build, library, "doubling in Python"), 1.25) == 2.5
+    with pytest.warns(UserWarning, match=r"(?s)^doubling in Python: compiling twice\.c failed.*"):
+        assert (
+            load_cached_library(build, tmp_path / "other" / "lib.so", "doubling in Python") is None
+        )
+    monkeypatch.setenv(DISABLE_VARIABLE, "0")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert load_cached_library(build, library, "doubling in Python") is None
 
 
 def test_a_stage_that_takes_the_terms_off_sees_the_plain_white_box(whitebox, rows) -> None:

@@ -220,7 +220,7 @@ def test_parameter_made_invalid_mid_run_names_the_call_and_time(truth_fmu: Path)
     assert error.time == pytest.approx(0.005)
     assert str(error) == (
         "fmi2DoStep returned fmi2Error at t = 0.005 s: [fmi2Error] fmi2DoStep failed: "
-        "time_delay = 0.06 is outside its range [0, 0.05].; fmi2Reset or an earlier FMU state "
+        "time_delay = 0.06 is outside its range [0, 0.05]; fmi2Reset or an earlier FMU state "
         "continues"
     )
 

@@ -53,7 +53,7 @@ from pythonfmu import (
 )
 from pythonfmu.enums import Fmi2Status
 
-from fmu_greybox import __version__
+from fmu_greybox import __version__, _chainstep
 from fmu_greybox.errors import ExportError, ModelFormatError
 from fmu_greybox.export.runtime import RUNTIME_FILE, attach_logger, guarded, refuse_step, report
 from fmu_greybox.fmi.archive import FmuArchive, open_fmu
@@ -454,24 +454,14 @@ class GreyBoxSlave(Fmi2Slave):
         return True
 
     def _refusal(self, current_time: float, step_size: float) -> str | None:
-        """Why a step is refused (the same checks, in the same order, as the native runtime's
-        fmi2DoStep): a jump in time, another step than the trained one, inputs outside the
-        input domain (:mod:`fmu_greybox.model.domain`)."""
+        """Why a step is refused: a jump in time, another step than the trained one, inputs
+        outside the input domain (:mod:`fmu_greybox.model.domain`); checked in this order and
+        worded by the native runtime's own code (``native/rules.c``, through
+        :mod:`fmu_greybox._chainstep`), so both runtimes refuse alike."""
         dt, time = self.model.dt, self._time
-        if not abs(current_time - time) <= STEP_RTOL * dt:
-            return (
-                f"currentCommunicationPoint = {current_time:.17g} s, but the grey-box is at "
-                f"{time:.17g} s; it cannot jump in time (its correctors remember the last "
-                f"steps): step on from {time:.17g} s, or restore an FMU state saved at "
-                f"{current_time:.17g} s"
-            )
-        if not abs(step_size - dt) <= STEP_RTOL * dt:
-            return (
-                f"communication step {step_size:g} s at t = {current_time:g} s; the correctors "
-                f"were trained at {dt:g} s and need exactly that step. Set the bench's step to "
-                f"{dt:g} s"
-            )
-        return self.domain.refusal(self._reals[: self._n_in], time)
+        return _chainstep.step_refusal(
+            current_time, step_size, time, dt, STEP_RTOL * dt
+        ) or self.domain.refusal(self._reals[: self._n_in], time)
 
     @guarded("fmi2Terminate")
     def terminate(self) -> None:

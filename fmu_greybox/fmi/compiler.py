@@ -5,13 +5,15 @@ Every C build of the package goes through :func:`compile_library`: the reference
 (:mod:`fmu_greybox.fmi.build`), the native grey-box FMU and its rebuild from ``sources/``
 (:mod:`fmu_greybox.export.native`), the native simulation runner
 (:mod:`fmu_greybox.model.native_run`) and the model-exchange integration loop
-(:mod:`fmu_greybox.fmi.integrator`); setup.py compiles the Python extension with the same
+(:mod:`fmu_greybox.fmi.integrator`), the last two cached on first use and loaded by
+:func:`load_cached_library`; setup.py compiles the Python extension with the same
 core options (``native/cflags.txt``). The platforms themselves (folders, extensions,
 compilers) are :mod:`fmu_greybox.fmi.platforms`.
 """
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
 import os
 import subprocess
@@ -44,6 +46,10 @@ NATIVE_EXTRA_FLAGS = ("-fvisibility=hidden", "-Wall", "-Wextra")
 SHELL_CONFIG = "fmi_shell_config.h"
 #: Libraries a Windows DLL does without (``native/dynlib.h`` loads with kernel32 there).
 POSIX_LIBRARIES = ("dl",)
+#: Set to ``0`` to load no cached library (:func:`load_cached_library`): the diagnosis's
+#: simulations and the model-exchange integration loop then run in Python, the reference the C
+#: is tested against.
+DISABLE_VARIABLE = "FMU_GREYBOX_NATIVE_RUN"
 
 
 def core_flags() -> tuple[str, ...]:
@@ -164,6 +170,41 @@ def compile_cached(build: CBuild, library: Path, generated: dict[str, str] | Non
         folders = (Path(tmp), *build.include_dirs)
         compile_library(dataclasses.replace(build, include_dirs=folders), built)
         os.replace(built, library)
+
+
+def load_cached_library(
+    build: CBuild, library: Path, instead: str, generated: dict[str, str] | None = None
+) -> ctypes.CDLL | None:
+    """The shared library ``library`` of a cache, compiled from ``build`` on first use
+    (:func:`compile_cached`), loaded.
+
+    Parameters
+    ----------
+    build : CBuild
+    library : Path
+        In a folder keyed by a digest of what it is compiled from: an existing file is loaded
+        as it is.
+    instead : str
+        What the caller does without the library, the warning's first words, e.g.
+        ``"simulations step in Python (slower)"``.
+    generated : dict of str to str, optional
+        Headers written for the build (:func:`compile_cached`).
+
+    Returns
+    -------
+    ctypes.CDLL or None
+        ``None`` where :data:`DISABLE_VARIABLE` is ``0``, or where the library cannot be built
+        or loaded: then with a warning, ``"<instead>: <why>"``, to the caller's caller.
+    """
+    if os.environ.get(DISABLE_VARIABLE, "1") == "0":
+        return None
+    try:
+        if not library.exists():
+            compile_cached(build, library, generated)
+        return ctypes.CDLL(str(library))
+    except (FmuBuildError, OSError) as exc:
+        warnings.warn(f"{instead}: {exc}", stacklevel=3)
+        return None
 
 
 def shell_config(identifier: str, time_reference: int) -> str:

@@ -27,16 +27,13 @@ import ctypes
 import functools
 import hashlib
 import math
-import os
-import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 
-from fmu_greybox.errors import FmuBuildError
-from fmu_greybox.fmi.compiler import NATIVE_DIR, CBuild, compile_cached, core_flags
+from fmu_greybox.fmi.compiler import NATIVE_DIR, CBuild, core_flags, load_cached_library
 
 CVODE = "cvode"
 #: The integrators a model-exchange white-box can be stepped by.
@@ -140,9 +137,6 @@ class IntegratorError(RuntimeError):
 #: CVode's ``itask`` and return values missing from fmpy's bindings (``cvode.h``).
 CV_ONE_STEP = 2
 CV_TSTOP_RETURN = 1
-#: Set to ``0`` to run the integration loop in Python (the reference the C loop is tested
-#: against); the same variable makes the diagnosis step in Python (``model/native_run.py``).
-DISABLE_VARIABLE = "FMU_GREYBOX_NATIVE_RUN"
 NATIVE_SOURCE = NATIVE_DIR / "me_step.c"
 #: The FMU calls of the C loop, in the order of its ``enum`` (``native/me_step.c``); the last
 #: three name CVode, a termination and a time event the FMU asked for.
@@ -186,24 +180,18 @@ class _FgbMe(ctypes.Structure):
 @functools.lru_cache(maxsize=1)
 def me_library() -> ctypes.CDLL | None:
     """The C integration loop (``native/me_step.c``), compiled on first use and cached beside
-    the built-in FMUs; ``None`` where :data:`DISABLE_VARIABLE` is ``0`` or it cannot be built
-    (then with a warning saying why, once per process: the loop runs in Python)."""
-    if os.environ.get(DISABLE_VARIABLE, "1") == "0":
-        return None
+    the built-in FMUs; ``None`` where :data:`~fmu_greybox.fmi.compiler.DISABLE_VARIABLE` is
+    ``0`` or it cannot be built (then with a warning saying why, once per process: the loop
+    runs in Python; both by :func:`~fmu_greybox.fmi.compiler.load_cached_library`)."""
     from fmu_greybox.fmi.builtin import cache_dir
 
     build = CBuild(what=NATIVE_SOURCE.name, sources=(NATIVE_SOURCE,), flags=core_flags())
     digest = hashlib.sha256(" ".join(build.flags).encode() + NATIVE_SOURCE.read_bytes())
     library = cache_dir().parent / "me-step" / digest.hexdigest()[:16] / "libfgbmestep.so"
-    try:
-        if not library.exists():
-            compile_cached(build, library)
-        loaded = ctypes.CDLL(str(library))
-    except (FmuBuildError, OSError) as exc:
-        warnings.warn(
-            f"model-exchange white-boxes integrate in a Python loop (slower): {exc}",
-            stacklevel=2,
-        )
+    loaded = load_cached_library(
+        build, library, "model-exchange white-boxes integrate in a Python loop (slower)"
+    )
+    if loaded is None:
         return None
     loaded.fgb_me_step.argtypes = [ctypes.POINTER(_FgbMe), ctypes.c_double, ctypes.c_double]
     loaded.fgb_me_step.restype = ctypes.c_int

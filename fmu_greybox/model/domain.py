@@ -26,13 +26,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fmu_greybox import _chainstep
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.model.chain import RANGE_MARGIN
 
 #: Multiples of an input's training scale the domain extends beyond its training range.
 INPUT_MARGIN = 1.0
-#: Where ``docs/bench.md`` explains the domain (quoted in the refusals).
-DOCS = "docs/bench.md, 'Input domain'"
 
 
 def training_ranges(names: Sequence[str], rows: np.ndarray) -> dict[str, list[float]]:
@@ -144,20 +143,19 @@ class InputDomain:
     def refusal(self, u: Sequence[float], time: float) -> str | None:
         """Why the inputs ``u`` are refused at ``time``, or ``None`` if they are accepted.
 
-        The same words as the native runtime's (``native/greybox_fmu.c``,
-        ``inputs_acceptable``).
+        The first input that is not finite or lies outside its interval is named, by the
+        native runtime's own code (``native/rules.c``, through :mod:`fmu_greybox._chainstep`):
+        both runtimes refuse the same inputs in the same words.
+
+        Parameters
+        ----------
+        u : sequence of float, shape (n_inputs,)
+            The inputs, in the order of :attr:`names`.
+        time : float
+            The grey-box's time [s], quoted in the message.
+
+        Returns
+        -------
+        str or None
         """
-        for name, value, low, high in zip(self.names, u, self.low, self.high, strict=True):
-            if not math.isfinite(value):
-                return (
-                    f"input {name} = {value:g} at t = {time:.9g} s is not a finite number; the "
-                    "grey-box refuses it (set a finite value and step again)"
-                )
-            if not low <= value <= high:
-                return (
-                    f"input {name} = {value:.9g} at t = {time:.9g} s lies outside the "
-                    f"grey-box's input domain [{low:.9g}, {high:.9g}] (the training range "
-                    f"widened, {DOCS}); the grey-box refuses to extrapolate this far: keep the "
-                    "input within the domain, or retrain with recordings that cover it"
-                )
-        return None
+        return _chainstep.input_refusal(self.names, u, self.low, self.high, time)

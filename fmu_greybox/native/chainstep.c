@@ -1,7 +1,7 @@
 /*
  * chainstep.c -- the CPython glue of the grey-box's numerical core (chain_core.c).
  *
- * Three functions, for the Python module fmu_greybox._chainstep:
+ * Its functions, for the Python module fmu_greybox._chainstep:
  *
  *   predict(posterior, m, d, x, grad, full_noise) -> (mean, var)
  *       One point through one sparse-GP posterior (SparseGPR.predict_one).
@@ -9,15 +9,25 @@
  *       One communication step of the whole corrector chain (GreyBoxChain.step).
  *   start(plan, state, y_wb, exo)
  *       The chain's state from one row of white-box outputs (ChainPlan.start).
+ *   run(plan, params, work, state, exo, y_wb, first, taps, out)
+ *       A free run of the chain over many rows (ChainPlan.run).
+ *   step_refusal(t, h, now, dt, tolerance) -> str | None
+ *   input_refusal(names, u, low, high, now) -> str | None
+ *       Why a step is refused, in the native FMU's words (rules.c; the Python FMU's slave.py
+ *       and model/domain.py InputDomain.refusal).
  *
  * The arrays are laid out by Python (fmu_greybox/gp/predictive.py: Posterior.packed;
- * fmu_greybox/model/chain_step.py: ChainPlan) and passed as buffers; this file holds no state
- * and no numerics: both live in chain_core.c, which the native grey-box FMU compiles too.
+ * fmu_greybox/model/chain_step.py: ChainPlan) and passed as buffers; this file holds no state,
+ * no numerics and no rules: they live in chain_core.c and rules.c, which the native grey-box
+ * FMU compiles too.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 
+#include <string.h>
+
 #include "chain_core.h"
+#include "rules.h"
 
 /* ------------------------------------------------------------------ Python glue */
 
@@ -294,11 +304,105 @@ static PyObject *py_run(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     Py_RETURN_NONE;
 }
 
+/* ------------------------------------------------------------------ the rules of a step */
+
+PyDoc_STRVAR(step_refusal_doc,
+             "step_refusal(t, h, now, dt, tolerance) -> str | None\n\n"
+             "Why a step from t of size h [s] is refused by a grey-box at time now trained at "
+             "the step dt (times agree within tolerance [s]): a jump in time, or another step "
+             "than the trained one. None when the step may start. The native FMU's rules and "
+             "words (rules.c).");
+
+static PyObject *py_step_refusal(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    char message[RULES_MESSAGE_SIZE];
+    double x[5];
+    (void)self;
+    if (nargs != 5) {
+        PyErr_SetString(PyExc_TypeError, "step_refusal takes 5 arguments");
+        return NULL;
+    }
+    for (int i = 0; i < 5; i++) {
+        x[i] = PyFloat_AsDouble(args[i]);
+        if (x[i] == -1.0 && PyErr_Occurred()) return NULL;
+    }
+    if (rules_step(x[0], x[1], x[2], x[3], x[4], message, sizeof message) == 0) Py_RETURN_NONE;
+    return PyUnicode_DecodeUTF8(message, (Py_ssize_t)strlen(message), "replace");
+}
+
+/* The n numbers of a sequence, in new memory (PyMem_Free), or NULL with an exception set. */
+static double *numbers(PyObject *object, Py_ssize_t n, const char *name) {
+    PyObject *items = PySequence_Fast(object, name);
+    double *out = NULL;
+    if (items == NULL) return NULL;
+    if (PySequence_Fast_GET_SIZE(items) != n) {
+        PyErr_Format(PyExc_ValueError, "%s holds %zd values, one per input (%zd) is needed", name,
+                     PySequence_Fast_GET_SIZE(items), n);
+    } else if ((out = PyMem_Malloc((size_t)(n > 0 ? n : 1) * sizeof(double))) == NULL) {
+        PyErr_NoMemory();
+    } else {
+        for (Py_ssize_t i = 0; i < n; i++) {
+            out[i] = PyFloat_AsDouble(PySequence_Fast_GET_ITEM(items, i));
+            if (out[i] == -1.0 && PyErr_Occurred()) {
+                PyMem_Free(out);
+                out = NULL;
+                break;
+            }
+        }
+    }
+    Py_DECREF(items);
+    return out;
+}
+
+PyDoc_STRVAR(input_refusal_doc,
+             "input_refusal(names, u, low, high, now) -> str | None\n\n"
+             "Why the inputs u are refused at time now [s]: the first that is not finite or "
+             "lies outside its domain [low, high], named by names. None when all are accepted. "
+             "names: sequence of str; u, low, high: sequences of as many floats. The native "
+             "FMU's rules and words (rules.c).");
+
+static PyObject *py_input_refusal(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    char message[RULES_MESSAGE_SIZE];
+    double *u = NULL, *low = NULL, *high = NULL, now;
+    PyObject *result = NULL;
+    Py_ssize_t n, i;
+    (void)self;
+    if (nargs != 5) {
+        PyErr_SetString(PyExc_TypeError, "input_refusal takes 5 arguments");
+        return NULL;
+    }
+    n = PySequence_Size(args[0]);
+    now = PyFloat_AsDouble(args[4]);
+    if (n < 0 || (now == -1.0 && PyErr_Occurred())) return NULL;
+    if ((u = numbers(args[1], n, "u")) != NULL && (low = numbers(args[2], n, "low")) != NULL &&
+        (high = numbers(args[3], n, "high")) != NULL) {
+        i = rules_refused_input(n, u, low, high);
+        if (i < 0) {
+            result = Py_NewRef(Py_None);
+        } else {
+            PyObject *name = PySequence_GetItem(args[0], i);
+            const char *text = name != NULL ? PyUnicode_AsUTF8(name) : NULL;
+            if (text != NULL) {
+                rules_input_message(text, u[i], low[i], high[i], now, message, sizeof message);
+                result = PyUnicode_DecodeUTF8(message, (Py_ssize_t)strlen(message), "replace");
+            }
+            Py_XDECREF(name);
+        }
+    }
+    PyMem_Free(u);
+    PyMem_Free(low);
+    PyMem_Free(high);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"predict", (PyCFunction)(void (*)(void))py_predict, METH_FASTCALL, predict_doc},
     {"step", (PyCFunction)(void (*)(void))py_step, METH_FASTCALL, step_doc},
     {"start", (PyCFunction)(void (*)(void))py_start, METH_FASTCALL, start_doc},
     {"run", (PyCFunction)(void (*)(void))py_run, METH_FASTCALL, run_doc},
+    {"step_refusal", (PyCFunction)(void (*)(void))py_step_refusal, METH_FASTCALL,
+     step_refusal_doc},
+    {"input_refusal", (PyCFunction)(void (*)(void))py_input_refusal, METH_FASTCALL,
+     input_refusal_doc},
     {NULL, NULL, 0, NULL},
 };
 

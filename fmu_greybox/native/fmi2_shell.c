@@ -117,10 +117,13 @@ fmi2Status shell_refuse(const Shell *shell, const char *call, const char *format
 
 fmi2Status shell_fail(const Shell *shell, int *phase, const char *call, const char *format, ...) {
     char detail[MESSAGE_SIZE];
+    size_t n;
     va_list args;
     va_start(args, format);
     vsnprintf(detail, sizeof detail, format, args);
     va_end(args);
+    n = strlen(detail);
+    if (n > 0 && detail[n - 1] == '.') detail[n - 1] = '\0'; /* not ".; fmi2Reset ..." */
     *phase = SHELL_ERROR;
     return shell_refuse(shell, call, "%s; fmi2Reset or an earlier FMU state continues", detail);
 }

@@ -6,7 +6,8 @@
  * (chain_core.c, the code the Python runtime runs too), and publish the corrected outputs,
  * their standard deviations, the white-box outputs and the out-of-domain score. The trained
  * numbers come from resources/greybox.dat (greybox_data.h), checked against the SHA-256
- * compiled in (greybox_config.h, generated at export).
+ * compiled in (greybox_config.h, generated at export). What a step must satisfy, and the words
+ * of each refusal, are rules.c's: the Python runtime refuses with the same functions.
  *
  * The phases, the table of calls allowed in each, the logging and error policy (every error to
  * the master's logger whatever the logging level, answered with fmi2Error; nothing here aborts
@@ -27,6 +28,7 @@
 #include "fmi2_shell.h"
 #include "greybox_config.h"
 #include "greybox_data.h"
+#include "rules.h"
 #include "sha256.h"
 #include "whitebox.h"
 
@@ -323,27 +325,14 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined,
 
 /* ------------------------------------------------------------------ the inputs' domain */
 
-/* Whether the inputs u are finite and within the input domain; the reason into message. */
+/* Whether the inputs u are finite and within the input domain (rules.h); the reason into
+ * message. */
 static int inputs_acceptable(const Instance *inst, const double *u, char *message) {
-    for (ptrdiff_t i = 0; i < inst->n_inputs; i++) {
-        const char *name = inst->input_names[i];
-        if (!isfinite(u[i])) {
-            snprintf(message, MESSAGE_SIZE, "input %s = %g at t = %.9g s is not a finite number; "
-                     "the grey-box refuses it (set a finite value and step again)", name, u[i],
-                     inst->time);
-            return 0;
-        }
-        if (u[i] < inst->input_low[i] || u[i] > inst->input_high[i]) {
-            snprintf(message, MESSAGE_SIZE, "input %s = %.9g at t = %.9g s lies outside the "
-                     "grey-box's input domain [%.9g, %.9g] (the training range widened, "
-                     "docs/bench.md, 'Input domain'); the grey-box refuses to extrapolate this "
-                     "far: keep the input within the domain, or retrain with recordings that "
-                     "cover it", name, u[i], inst->time, inst->input_low[i],
-                     inst->input_high[i]);
-            return 0;
-        }
-    }
-    return 1;
+    const ptrdiff_t i = rules_refused_input(inst->n_inputs, u, inst->input_low, inst->input_high);
+    if (i < 0) return 1;
+    rules_input_message(inst->input_names[i], u[i], inst->input_low[i], inst->input_high[i],
+                        inst->time, message, MESSAGE_SIZE);
+    return 0;
 }
 
 /* ------------------------------------------------------------------ stepping */
@@ -423,16 +412,8 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
     double score;
     (void)noSetFMUStatePriorToCurrentPoint;
     if (inst == NULL || !allowed(inst, CALL_DO_STEP)) return fmi2Error;
-    if (!(fabs(t - inst->time) <= inst->step_tolerance)) {
-        return refuse(inst, call, "currentCommunicationPoint = %.17g s, but the grey-box is at "
-                      "%.17g s; it cannot jump in time (its correctors remember the last steps): "
-                      "step on from %.17g s, or restore an FMU state saved at %.17g s", t,
-                      inst->time, inst->time, t);
-    }
-    if (!(fabs(h - inst->dt) <= inst->step_tolerance)) {
-        return refuse(inst, call, "communication step %g s at t = %g s; the correctors were "
-                      "trained at %g s and need exactly that step. Set the bench's step to %g s",
-                      h, t, inst->dt, inst->dt);
+    if (rules_step(t, h, inst->time, inst->dt, inst->step_tolerance, message, sizeof message)) {
+        return refuse(inst, call, "%s", message);
     }
     if (!inputs_acceptable(inst, inst->reals, message)) return refuse(inst, call, "%s", message);
     /* by exactly the trained step: the outputs do not depend on how a master rounds its time */
