@@ -17,6 +17,7 @@ Wine (Debian's ``wine64``) and mingw-w64 (``gcc-mingw-w64-x86-64``) are installe
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
 import shutil
 import zipfile
@@ -37,6 +38,7 @@ from fmu_greybox.fmi.builtin import model_fmus, reference_project
 from fmu_greybox.fmi.instance import WineInstance, fmu_instance
 from fmu_greybox.fmi.platforms import WIN64, compiler_of
 from fmu_greybox.model.native_run import run_native
+from fmu_greybox.model.store import load_model, save_model
 from fmu_greybox.project.config import load_config
 from fmu_greybox.workflow.train import train_model, with_inducing
 
@@ -220,3 +222,69 @@ def test_the_win64_greybox_under_wine_gives_the_linux64_numbers_and_refusals(
     assert runs["win64"].refusals == runs["linux64"].refusals
     assert set(runs["win64"].refusals.values()) == {3}  # fmi2Error
     assert not runs["win64"].python_in_process
+
+
+# ------------------------------------------------------------------------ a white-box with sources
+@pytest.fixture(scope="module")
+def sources_greybox(tmp_path_factory) -> tuple[Path, object]:
+    """A native grey-box FMU exported from the ordinary reference white-box (a linux64 binary
+    and its C sources, ``sources/``, no win64 binary), and the recording it was trained on."""
+    require_windows_tools()
+    folder = tmp_path_factory.mktemp("sources_greybox")
+    whitebox = model_fmus("HydraulicActuator")["HydraulicActuator"]
+    return bench_windows.native_greybox(folder, whitebox)
+
+
+def test_the_greybox_cross_compiles_a_whitebox_that_has_sources_only(sources_greybox) -> None:
+    whitebox = model_fmus("HydraulicActuator")["HydraulicActuator"]
+    with zipfile.ZipFile(whitebox) as fmu:
+        assert "sources/buildDescription.xml" in fmu.namelist()
+        assert not [n for n in fmu.namelist() if n.startswith("binaries/win64/")]
+    with zipfile.ZipFile(sources_greybox[0]) as fmu:
+        greybox = fmu.read("binaries/win64/hydraulic_actuator_greybox.dll")
+        cross_compiled = fmu.read("resources/whitebox/binaries/win64/HydraulicActuator.dll")
+        data = fmu.read("resources/greybox.dat")
+    assert greybox[:2] == cross_compiled[:2] == b"MZ"
+    assert f"win64 {hashlib.sha256(cross_compiled).hexdigest()}".encode() in data
+
+
+def test_the_cross_compiled_whitebox_under_wine_gives_the_linux64_numbers(
+    sources_greybox, tmp_path
+) -> None:
+    """The grey-box of a white-box cross-compiled at export, stepped by the Windows C master
+    under Wine and by the Linux one: every output within 1e-9 of its range."""
+    fmu, recording = sources_greybox
+    rows = np.column_stack([recording[n] for n in INPUTS])[:300]
+    runs = bench_windows.both_masters(fmu, rows, tmp_path)
+    names = bench_windows.real_outputs(fmu)
+    assert np.ptp(runs["linux64"].outputs[:, names.index("ram_position")]) > 1e-4
+    differences = bench_windows.relative_differences(runs, names)
+    assert max(differences.values()) <= 1e-9, differences
+    assert runs["win64"].refusals == runs["linux64"].refusals
+
+
+def test_a_whitebox_whose_sources_do_not_compile_exports_for_linux64_only(
+    sources_greybox, tmp_path
+) -> None:
+    """The same trained model saved with a copy of its white-box whose ``sources/model.c``
+    is broken (the binary the same): the export warns, naming the white-box file and the
+    compiler's error, and the FMU carries no win64 binary."""
+    whitebox = model_fmus("HydraulicActuator")["HydraulicActuator"]
+    broken = tmp_path / "HydraulicActuator.fmu"
+    with zipfile.ZipFile(whitebox) as source, zipfile.ZipFile(broken, "w") as target:
+        for info in source.infolist():
+            data = source.read(info)
+            target.writestr(
+                info, data + b"\nnot C;\n" if info.filename == "sources/model.c" else data
+            )
+    model = load_model(sources_greybox[0].parent / "model")
+    folder = save_model(dataclasses.replace(model, whitebox_fmu=broken), tmp_path / "model")
+    with pytest.warns(
+        UserWarning,
+        match=r"(?s)whitebox\.fmu: the white-box has C sources.*\nsources/model\.c:\d+:\d+: error",
+    ):
+        fmu = export_greybox(folder, tmp_path / "greybox.fmu").path
+    with zipfile.ZipFile(fmu) as archive:
+        names = archive.namelist()
+    assert "binaries/linux64/hydraulic_actuator_greybox.so" in names
+    assert not [n for n in names if "win64" in n]

@@ -5,7 +5,8 @@ Layout of the FMU::
     modelDescription.xml
     binaries/<platform>/<identifier>.so   compiled here from sources/ (gcc, buildDescription.xml);
                                           FMI 2.0: linux64, FMI 3.0: x86_64-linux
-    binaries/win64/<identifier>.dll       when the white-box has a win64 binary: the same
+    binaries/win64/<identifier>.dll       when the white-box has a win64 binary, or C sources
+                                          that mingw-w64 cross-compiles into one: the same
                                           sources cross-compiled with mingw-w64 (FMI 3.0:
                                           x86_64-windows)
     sources/                              the C sources, the FMI headers, greybox_config.h,
@@ -13,7 +14,9 @@ Layout of the FMU::
                                           rebuilds from them
     resources/greybox.dat                 the trained numbers (native_data.py), checked against
                                           the SHA-256 compiled into the binary
-    resources/whitebox/                   the white-box FMU, unpacked: the binary dlopens it
+    resources/whitebox/                   the white-box FMU, unpacked: the binary dlopens it;
+                                          its binaries/win64/<id>.dll cross-compiled here
+                                          from its sources/ when it had none
     resources/greybox_model/              the model folder (provenance, the SSP benches)
 
 The C sources live in ``fmu_greybox/native/``: ``chain_core.c`` (the chain step, the very file
@@ -30,6 +33,7 @@ GUID, the data file's hash and the C kind table of the term kinds,
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 import time
@@ -48,10 +52,11 @@ from fmu_greybox.export.description3 import fmi3_description
 from fmu_greybox.export.slave import MODEL_FOLDER, STEP_RTOL
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.fmi.build import LOG_CATEGORIES, fmi2_headers
+from fmu_greybox.fmi.build_description import BUILD_DESCRIPTION, sources_build
+from fmu_greybox.fmi.build_description import build_description as description_text
 from fmu_greybox.fmi.compiler import (
     NATIVE_DIR,
     SHELL_CONFIG,
-    CBuild,
     compile_library,
     library_name,
     native_flags,
@@ -96,7 +101,6 @@ FMI_KINDS = {"2": FMI2_CS, "3": FMI3_CS}
 LIBRARIES = ("m", "dl")
 DATA_FILE = "greybox.dat"
 CONFIG_HEADER = "greybox_config.h"
-BUILD_DESCRIPTION = "buildDescription.xml"
 WHITEBOX_FOLDER = "whitebox"
 
 
@@ -134,15 +138,17 @@ def package_native(plan: ExportPlan, archive: FmuArchive, out: Path) -> None:
         root = Path(tmp) / "fmu"
         resources = root / "resources"
         plan.copy_model(resources / MODEL_FOLDER)
-        shutil.copytree(archive.unzip_dir, resources / WHITEBOX_FOLDER)
-        data = data_file_bytes(data_sections(plan, archive))
+        whitebox = resources / WHITEBOX_FOLDER
+        shutil.copytree(archive.unzip_dir, whitebox)
+        host = host_platform()
+        win64 = not host.windows and whitebox_win64(archive, whitebox, host)
+        data = data_file_bytes(data_sections(plan, archive, whitebox))
         (resources / DATA_FILE).write_bytes(data)
         description = model_description(plan, kind)
         sources = root / "sources"
         write_sources(sources, plan, kind, file_sha256(resources / DATA_FILE))
-        host = host_platform()
         compile_sources(sources, root / binary_path(identifier, kind, host))
-        if not host.windows and has_win64_binary(archive):
+        if win64:
             add_win64_binary(sources, root / binary_path(identifier, kind, WIN64))
         (root / "modelDescription.xml").write_bytes(description)
         staged = Path(tmp) / "staged.fmu"
@@ -158,8 +164,10 @@ def binary_path(identifier: str, kind: FmuKind, target: BinaryPlatform) -> str:
 
 
 # ---------------------------------------------------------------------------- the data file
-def data_sections(plan: ExportPlan, archive: FmuArchive) -> dict[str, Any]:
-    """Everything the binary reads from ``greybox.dat`` (``greybox_fmu.c``, ``whitebox.c``).
+def data_sections(plan: ExportPlan, archive: FmuArchive, whitebox: Path) -> dict[str, Any]:
+    """Everything the binary reads from ``greybox.dat`` (``greybox_fmu.c``, ``whitebox.c``);
+    ``whitebox`` is the white-box's copy in the resources, whose binaries' hashes it holds
+    (a win64 binary cross-compiled at export included).
 
     The chain's plan and parameters are stored as :class:`ChainPlan` lays them out, untouched:
     whatever per-stage numbers a plan carries reach the compiled step without new plumbing.
@@ -174,7 +182,9 @@ def data_sections(plan: ExportPlan, archive: FmuArchive) -> dict[str, Any]:
         kind_code(term)  # refuse a kind without native implementation before anything else
     stages = [len(model.chain.stages), iface.exo_index.size]
     return {
-        **whitebox_sections(archive, iface.input_names, layouts, model.dt, len(outputs), stages),
+        **whitebox_sections(
+            archive, iface.input_names, layouts, model.dt, len(outputs), stages, whitebox
+        ),
         "plan": chain_plan,
         "params": params,
         "stage_output": iface.stage_output.astype(np.int64),
@@ -221,28 +231,9 @@ def source_names(kind: FmuKind) -> tuple[str, ...]:
 
 def build_description(identifier: str, kind: FmuKind) -> bytes:
     """``sources/buildDescription.xml`` (the FMI build description, read by fmpy as well)."""
-    root = etree.Element("fmiBuildDescription", fmiVersion="3.0")
-    configuration = etree.SubElement(
-        root,
-        "BuildConfiguration",
-        modelIdentifier=identifier,
-        description="a shared library: compile the source files with these options and "
-        "-shared (-fPIC but on Windows), link the libraries",
-    )
-    files = etree.SubElement(
-        configuration,
-        "SourceFileSet",
-        language="C11",
-        compiler="gcc",
-        compilerOptions=" ".join([*native_flags(), *host_platform().flags]),
-    )
-    for name in source_names(kind):
-        if name.endswith(".c"):
-            etree.SubElement(files, "SourceFile", name=name)
-    etree.SubElement(files, "IncludeDirectory", name=".")
-    for library in LIBRARIES:
-        etree.SubElement(configuration, "Library", name=library)
-    return etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
+    files = [name for name in source_names(kind) if name.endswith(".c")]
+    flags = [*native_flags(), *host_platform().flags]
+    return description_text(identifier, files, flags, LIBRARIES)
 
 
 def compile_sources(sources: Path, library: Path, target: BinaryPlatform | None = None) -> None:
@@ -261,17 +252,8 @@ def compile_sources(sources: Path, library: Path, target: BinaryPlatform | None 
     ExportError
         The compiler is missing or fails (its output is quoted).
     """
-    root = etree.parse(str(sources / BUILD_DESCRIPTION)).getroot()
-    configuration = root.find("BuildConfiguration")
-    files = configuration.find("SourceFileSet")
-    build = CBuild(
-        what="the native grey-box",
-        sources=tuple(sources / f.get("name") for f in files.findall("SourceFile")),
-        flags=tuple(files.get("compilerOptions").split()),
-        include_dirs=tuple(sources / d.get("name") for d in files.findall("IncludeDirectory")),
-        libraries=tuple(x.get("name") for x in configuration.findall("Library")),
-    )
     try:
+        build = sources_build(sources, library.stem, "the native grey-box")
         compile_library(build, library, target)
     except FmuBuildError as exc:
         raise ExportError(
@@ -283,6 +265,58 @@ def has_win64_binary(archive: FmuArchive) -> bool:
     """Whether the white-box FMU carries a win64 binary (``binaries/win64/<identifier>.dll``)."""
     folder = archive.unzip_dir / "binaries" / WIN64.folder
     return (folder / f"{archive.model_identifier}.dll").is_file()
+
+
+def whitebox_win64(archive: FmuArchive, whitebox: Path, host: BinaryPlatform) -> bool:
+    """Whether the white-box's copy ``whitebox`` has a win64 binary, cross-compiled here from
+    its C sources (``sources/``, as its build description says) when it has none.
+
+    Without mingw-w64 warn (naming its package); when the sources do not compile for win64,
+    warn naming the white-box FMU and quoting the compiler's first errors: either way the
+    grey-box FMU is for this machine only, and the export goes on.
+    """
+    if has_win64_binary(archive):
+        return True
+    if not (whitebox / "sources").is_dir():
+        return False
+    identifier = archive.model_identifier
+    library = whitebox / "binaries" / WIN64.folder / library_name(identifier, WIN64)
+    try:
+        compiler_of(WIN64)
+        listed = [  # FMI 2.0's <SourceFiles>, as fmpy reads them
+            name
+            for configuration in archive.model_description.buildConfigurations
+            for file_set in configuration.sourceFileSets
+            for name in file_set.sourceFiles
+        ]
+        build = sources_build(
+            whitebox / "sources",
+            identifier,
+            f"{archive.path.name} for win64",
+            listed,
+            (fmi2_headers(),),
+        )
+        compile_library(build, library, WIN64)
+    except FmuBuildError as exc:
+        library.unlink(missing_ok=True)
+        warnings.warn(
+            f"{archive.path}: the white-box has C sources but no win64 binary, and its sources "
+            f"were not cross-compiled for win64:\n{first_errors(str(exc), whitebox)}\n"
+            f"The grey-box FMU is for {host.folder} only; mend the white-box's sources/ or "
+            "give it a win64 binary (binaries/win64), and export again",
+            stacklevel=3,
+        )
+        return False
+    return True
+
+
+def first_errors(message: str, folder: Path, count: int = 3) -> str:
+    """The first ``count`` error lines of a compiler failure's message, their files named
+    from ``folder`` (its first lines when none says error: a missing compiler, an unreadable
+    build description)."""
+    lines = message.replace(f"{folder}{os.sep}", "").splitlines()
+    errors = [line for line in lines[2:] if "error" in line.lower()]  # after the command
+    return "\n".join((errors or lines)[:count])
 
 
 def add_win64_binary(sources: Path, library: Path) -> None:

@@ -11,8 +11,11 @@ integrator. For one model identifier of the table the builder
    :mod:`fmu_greybox.fmi.description`),
 3. compiles everything with gcc into one shared library (``-O2``, IEEE arithmetic: no
    ``-ffast-math``, no floating-point contraction), and
-4. zips ``modelDescription.xml``, ``binaries/<platform>/<identifier>.<ext>`` and
-   ``documentation/`` into ``<out_dir>/<identifier>.fmu``, written atomically.
+4. zips ``modelDescription.xml``, ``binaries/<platform>/<identifier>.<ext>``,
+   ``documentation/`` and ``sources/`` (the C files and headers, generated ones included, and
+   ``buildDescription.xml``, :mod:`fmu_greybox.fmi.build_description`: a tool rebuilds the
+   FMU for another platform, as the native export does for win64) into
+   ``<out_dir>/<identifier>.fmu``, written atomically.
 
 The FMI 2 headers are the ones fmpy ships (``fmpy/c-code``).
 """
@@ -30,6 +33,7 @@ from typing import Any
 
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.errors import FmuBuildError
+from fmu_greybox.fmi.build_description import BUILD_DESCRIPTION, build_description
 from fmu_greybox.fmi.compiler import (
     FRAMEWORK_FLAGS,
     NATIVE_DIR,
@@ -101,7 +105,8 @@ REFERENCE_MODEL_DIR = SOURCES_DIR / "HydraulicActuator"
 #: The modules whose code shapes a built FMU: its GUID, and the cache of the built-in FMUs,
 #: change with any of them.
 GENERATORS = tuple(
-    Path(__file__).with_name(n) for n in ("build.py", "variables.py", "description.py")
+    Path(__file__).with_name(n)
+    for n in ("build.py", "build_description.py", "variables.py", "description.py")
 )
 
 # The C names of the generated tables (fmu_framework.h)
@@ -292,14 +297,8 @@ def _framework_sources(kind: FmuKind) -> list[Path]:
     return [*sorted(FRAMEWORK_DIR.glob("*.c")), *shell]
 
 
-def _compile(
-    model_dir: Path,
-    entry: ModelEntry,
-    generated: Path,
-    library: Path,
-    kind: FmuKind,
-    target: BinaryPlatform,
-) -> None:
+def _model_build(model_dir: Path, entry: ModelEntry, generated: Path, kind: FmuKind) -> CBuild:
+    """What one model's shared library is compiled from (``generated``: the generated files)."""
     sources = [
         *_framework_sources(kind),
         *(f for f in SHARED_SOURCES if f.suffix == ".c"),
@@ -307,14 +306,38 @@ def _compile(
         generated / "fmu_variables.c",
     ]
     defines = [*entry.defines, *(["FW_MODEL_EXCHANGE"] if kind.interface == MODEL_EXCHANGE else [])]
-    build = CBuild(
+    return CBuild(
         what=entry.identifier,
         sources=tuple(sources),
         flags=FRAMEWORK_FLAGS,
         include_dirs=(generated, model_dir, FRAMEWORK_DIR, NATIVE_DIR, fmi2_headers()),
         defines=tuple(defines),
     )
-    compile_library(build, library, target)
+
+
+def _source_member(path: Path) -> str:
+    """A C file's member under ``sources/``: flat, but for the framework's sub-folders
+    (``me/``, which its files include by that path)."""
+    inside = path.relative_to(FRAMEWORK_DIR) if path.is_relative_to(FRAMEWORK_DIR) else path.name
+    return f"sources/{Path(inside).as_posix()}"
+
+
+def _zip_sources(
+    archive: zipfile.ZipFile, build: CBuild, files: list[Path], identifier: str
+) -> None:
+    """Pack ``sources/``: every C file and header of the build but the FMI headers (the
+    importing tool has them), and ``buildDescription.xml``: a tool rebuilds the FMU for its
+    platform, as the native export does for win64 (:mod:`fmu_greybox.export.native`)."""
+    for path in files:
+        _zip_write(archive, _source_member(path), path.read_bytes())
+    text = build_description(
+        identifier,
+        [_source_member(p).removeprefix("sources/") for p in build.sources],
+        build.flags,
+        build.libraries,
+        build.defines,
+    )
+    _zip_write(archive, f"sources/{BUILD_DESCRIPTION}", text)
 
 
 def _zip_write(archive: zipfile.ZipFile, name: str, data: bytes, executable: bool = False) -> None:
@@ -417,13 +440,17 @@ def build_fmu(
         time = time_reference(table, entry.identifier)
         (generated / SHELL_CONFIG).write_text(shell_config(entry.identifier, time), "ascii")
         library = generated / f"{entry.identifier}{extension}"
-        _compile(model_dir, entry, generated, library, kind, target)
+        build = _model_build(model_dir, entry, generated, kind)
+        compile_library(build, library, target)
+        packed = [*c_files, *(generated / n for n in ("fmu_variables.c", "fmu_variables.h"))]
+        packed += [generated / SHELL_CONFIG] if kind.fmi_version == "3.0" else []
         target = out_dir / f"{entry.identifier}.fmu"
         with atomic_write(target, "wb") as stream, zipfile.ZipFile(stream, "w") as archive:
             _zip_write(archive, "modelDescription.xml", description)
             _zip_write(
                 archive, f"binaries/{folder}/{library.name}", library.read_bytes(), executable=True
             )
+            _zip_sources(archive, build, packed, entry.identifier)
             readme = model_dir / "README.md"
             if readme.is_file():
                 text = readme.read_text(encoding="utf-8")

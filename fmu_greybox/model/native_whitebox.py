@@ -8,6 +8,7 @@ native simulation runner (:mod:`fmu_greybox.model.native_run`) both write them f
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -25,18 +26,21 @@ def whitebox_sections(
     dt: float,
     n_outputs: int,
     stages: Sequence[int] = (0, 0),
+    unpacked: Path | None = None,
 ) -> dict[str, Any]:
     """The sections ``native/whitebox.c`` reads: ``sizes`` (inputs, outputs, ``stages``: the
     chain's stages and exogenous inputs, parts, terms), the white-box's identity, its binaries'
     hashes and input references, and its parts with their terms (shared by the native FMU and
-    the native simulation runner, :mod:`fmu_greybox.model.native_run`)."""
+    the native simulation runner, :mod:`fmu_greybox.model.native_run`); ``unpacked`` is the
+    folder whose binaries are hashed, the archive's when ``None`` (the native FMU: the
+    white-box's copy in its resources, which may have gained a win64 binary)."""
     n_terms = sum(len(layout.terms) for layout in layouts)
     return {
         "sizes": np.array([len(inputs), n_outputs, *stages, len(layouts), n_terms], dtype=np.int64),
         "wb_input_vr": _references(archive, list(inputs)),
         "wb_guid": archive.guid,
         "wb_identifier": archive.model_identifier,
-        "wb_binaries": _binary_hashes(archive),
+        "wb_binaries": _binary_hashes(unpacked or archive.unzip_dir, archive.model_identifier),
         **_part_sections(list(layouts), archive, list(inputs), dt),
     }
 
@@ -81,10 +85,10 @@ def _part_sections(layouts: list, archive: FmuArchive, inputs: list[str], dt: fl
     }
 
 
-def _binary_hashes(archive: FmuArchive) -> str:
+def _binary_hashes(unpacked: Path, identifier: str) -> str:
     """``platform sha256`` lines of the white-box's binaries (checked before dlopen)."""
     lines = []
-    for folder in sorted((archive.unzip_dir / "binaries").iterdir()):
-        for library in sorted(folder.glob(f"{archive.model_identifier}.*")):
+    for folder in sorted((unpacked / "binaries").iterdir()):
+        for library in sorted(folder.glob(f"{identifier}.*")):
             lines.append(f"{folder.name} {file_sha256(library)}")
     return "\n".join(lines)
