@@ -12,6 +12,7 @@ import pytest
 from conftest import INPUTS, OUTPUTS, unpacked
 from fmpy import extract, read_model_description, simulate_fmu
 from fmpy.fmi2 import FMU2Slave
+from fmpy.model_description import read_build_description
 from fmpy.validation import validate_fmu
 
 from fmu_greybox.errors import FmuBuildError
@@ -43,12 +44,18 @@ def test_archive_layout_and_validation(fmu_dir: Path, identifier: str) -> None:
     folder, extension = fmi2_platform()
     with zipfile.ZipFile(fmu) as archive:
         names = set(archive.namelist())
-    assert names == {
+    sources = {n for n in names if n.startswith("sources/")}
+    assert names - sources == {
         "modelDescription.xml",
         f"binaries/{folder}/{identifier}{extension}",
         "documentation/README.md",
         "documentation/index.html",
     }
+    assert {"sources/model.c", "sources/config.h", "sources/fmu_variables.h"} <= sources
+    configuration = read_build_description(str(fmu))[0]  # checked against FMI's schema
+    assert configuration.modelIdentifier == identifier
+    listed = {f"sources/{n}" for s in configuration.sourceFileSets for n in s.sourceFiles}
+    assert "sources/model.c" in listed and listed <= sources
     assert validate_fmu(str(fmu)) == []
     assert not list(fmu_dir.glob(".*"))  # no temporary left behind
 

@@ -244,8 +244,13 @@ def test_the_greybox_cross_compiles_a_whitebox_that_has_sources_only(sources_gre
         greybox = fmu.read("binaries/win64/hydraulic_actuator_greybox.dll")
         cross_compiled = fmu.read("resources/whitebox/binaries/win64/HydraulicActuator.dll")
         data = fmu.read("resources/greybox.dat")
+        note = fmu.read("documentation/binaries.txt").decode()
     assert greybox[:2] == cross_compiled[:2] == b"MZ"
     assert f"win64 {hashlib.sha256(cross_compiled).hexdigest()}".encode() in data
+    assert (
+        "resources/whitebox/binaries/win64/HydraulicActuator.dll: cross-compiled at export from "
+        "the white-box's sources/ with x86_64-w64-mingw32-gcc"
+    ) in note
 
 
 def test_the_cross_compiled_whitebox_under_wine_gives_the_linux64_numbers(

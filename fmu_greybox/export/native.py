@@ -9,6 +9,7 @@ Layout of the FMU::
                                           that mingw-w64 cross-compiles into one: the same
                                           sources cross-compiled with mingw-w64 (FMI 3.0:
                                           x86_64-windows)
+    documentation/binaries.txt            each binary above and below, and how it was made
     sources/                              the C sources, the FMI headers, greybox_config.h,
                                           fmi_shell_config.h and buildDescription.xml: a bench
                                           rebuilds from them
@@ -102,6 +103,8 @@ LIBRARIES = ("m", "dl")
 DATA_FILE = "greybox.dat"
 CONFIG_HEADER = "greybox_config.h"
 WHITEBOX_FOLDER = "whitebox"
+#: The FMU's note of where each of its binaries comes from.
+BINARIES_NOTE = "documentation/binaries.txt"
 
 
 def package_native(plan: ExportPlan, archive: FmuArchive, out: Path) -> None:
@@ -150,6 +153,8 @@ def package_native(plan: ExportPlan, archive: FmuArchive, out: Path) -> None:
         compile_sources(sources, root / binary_path(identifier, kind, host))
         if win64:
             add_win64_binary(sources, root / binary_path(identifier, kind, WIN64))
+        cross_compiled = win64 and not has_win64_binary(archive)
+        write_binaries_note(root / BINARIES_NOTE, archive.path.name, kind, cross_compiled)
         (root / "modelDescription.xml").write_bytes(description)
         staged = Path(tmp) / "staged.fmu"
         _zip_folder(root, staged)
@@ -336,6 +341,26 @@ def add_win64_binary(sources: Path, library: Path) -> None:
         )
         return
     compile_sources(sources, library, WIN64)
+
+
+def write_binaries_note(
+    note: Path, whitebox_name: str, kind: FmuKind, cross_compiled: bool
+) -> None:
+    """Write ``documentation/binaries.txt``: each binary of the FMU (``note``'s FMU folder) and
+    how it was made; ``cross_compiled``: the white-box's win64 DLL was compiled at export."""
+    root = note.parent.parent
+    windows = kind.folder_of(WIN64)
+    lines = []
+    for path in sorted(root.glob("binaries/*/*")):
+        compiler = WIN64.compiler if path.parent.name == windows else "this machine's C compiler"
+        lines.append(f"{path.relative_to(root)}: compiled at export from sources/ with {compiler}")
+    for path in sorted((root / "resources" / WHITEBOX_FOLDER).glob("binaries/*/*")):
+        how = f"as in the white-box FMU {whitebox_name}"
+        if cross_compiled and path.parent.name == WIN64.folder:
+            how = f"cross-compiled at export from the white-box's sources/ with {WIN64.compiler}"
+        lines.append(f"{path.relative_to(root)}: {how}")
+    note.parent.mkdir(parents=True, exist_ok=True)
+    note.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
 # ---------------------------------------------------------------------------- description

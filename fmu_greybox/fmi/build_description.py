@@ -62,13 +62,13 @@ def build_description(
         compiler="gcc",
         compilerOptions=" ".join(flags),
     )
+    for name in files:  # FMI's schema: the files, the definitions, the include folders
+        etree.SubElement(file_set, "SourceFile", name=name)
     for define in defines:
         name, _, value = define.partition("=")
         definition = etree.SubElement(file_set, "PreprocessorDefinition", name=name)
         if value:
             definition.set("value", value)
-    for name in files:
-        etree.SubElement(file_set, "SourceFile", name=name)
     etree.SubElement(file_set, "IncludeDirectory", name=".")
     for library in libraries:
         etree.SubElement(configuration, "Library", name=library)
