@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import os
+import re
 import shutil
 import zipfile
 from pathlib import Path
@@ -32,11 +33,12 @@ from test_fmu_kinds import INPUTS, OUTPUTS, assert_close, input_rows, recording,
 from fmu_greybox.cli import main
 from fmu_greybox.errors import FmuArchiveError, FmuBuildError
 from fmu_greybox.export.fmu import export_greybox
+from fmu_greybox.export.native import whitebox_win64
 from fmu_greybox.fmi import wine
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import model_fmus, reference_project
 from fmu_greybox.fmi.instance import WineInstance, fmu_instance
-from fmu_greybox.fmi.platforms import WIN64, compiler_of
+from fmu_greybox.fmi.platforms import WIN64, compiler_of, host_platform
 from fmu_greybox.model.native_run import run_native
 from fmu_greybox.model.store import load_model, save_model
 from fmu_greybox.project.config import load_config
@@ -293,3 +295,50 @@ def test_a_whitebox_whose_sources_do_not_compile_exports_for_linux64_only(
         names = archive.namelist()
     assert "binaries/linux64/hydraulic_actuator_greybox.so" in names
     assert not [n for n in names if "win64" in n]
+
+
+def test_without_mingw_a_whitebox_with_sources_exports_for_linux64_naming_the_package(
+    sources_greybox, tmp_path, monkeypatch
+) -> None:
+    """Only this machine's gcc (and its assembler and linker) on the PATH: the export warns,
+    naming mingw-w64's package."""
+    tools = tmp_path / "bin"
+    tools.mkdir()
+    for tool in ("gcc", "as", "ld"):
+        (tools / tool).symlink_to(shutil.which(tool))
+    monkeypatch.setenv("PATH", str(tools))
+    model = sources_greybox[0].parent / "model"
+    with pytest.warns(UserWarning, match=rf"apt-get install {WIN64.package}"):
+        fmu = export_greybox(model, tmp_path / "greybox.fmu").path
+    with zipfile.ZipFile(fmu) as archive:
+        assert not [n for n in archive.namelist() if "win64" in n]
+
+
+def test_a_whitebox_without_build_description_is_cross_compiled_from_its_listed_sources(
+    tmp_path,
+) -> None:
+    """FMI 2.0's way: no ``sources/buildDescription.xml``, the C files listed in the model
+    description (``<SourceFiles>``): they are cross-compiled into the white-box's copy."""
+    require_windows_tools()
+    whitebox = model_fmus("HydraulicActuator")["HydraulicActuator"]
+    listed = tmp_path / "HydraulicActuator.fmu"
+    with zipfile.ZipFile(whitebox) as source, zipfile.ZipFile(listed, "w") as target:
+        description = source.read("sources/buildDescription.xml").decode()
+        files = "".join(
+            f'<File name="{n}"/>' for n in re.findall(r'SourceFile name="([^"]+)"', description)
+        )
+        for info in source.infolist():
+            data = source.read(info)
+            if info.filename == "modelDescription.xml":
+                data = re.sub(
+                    rb"(<CoSimulation [^>]*?) />",
+                    rb"\1><SourceFiles>" + files.encode() + rb"</SourceFiles></CoSimulation>",
+                    data,
+                )
+            if info.filename != "sources/buildDescription.xml":
+                target.writestr(info, data)
+    copy = tmp_path / "copy"
+    with open_fmu(listed) as archive:
+        shutil.copytree(archive.unzip_dir, copy)
+        assert whitebox_win64(archive, copy, host_platform())
+    assert (copy / "binaries" / "win64" / "HydraulicActuator.dll").read_bytes()[:2] == b"MZ"

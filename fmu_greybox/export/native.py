@@ -288,19 +288,17 @@ def whitebox_win64(archive: FmuArchive, whitebox: Path, host: BinaryPlatform) ->
     library = whitebox / "binaries" / WIN64.folder / library_name(identifier, WIN64)
     try:
         compiler_of(WIN64)
-        listed = [  # FMI 2.0's <SourceFiles>, as fmpy reads them
-            name
-            for configuration in archive.model_description.buildConfigurations
-            for file_set in configuration.sourceFileSets
-            for name in file_set.sourceFiles
-        ]
-        build = sources_build(
-            whitebox / "sources",
-            identifier,
-            f"{archive.path.name} for win64",
-            listed,
-            (fmi2_headers(),),
+    except FmuBuildError as exc:
+        warnings.warn(
+            f"{archive.path}: the white-box has C sources but no win64 binary, and the grey-box "
+            f"FMU gets none (it is for {host.folder} only): {exc}",
+            stacklevel=3,
         )
+        return False
+    try:
+        what = f"{archive.path.name} for win64"
+        listed = listed_sources(archive)
+        build = sources_build(whitebox / "sources", identifier, what, listed, (fmi2_headers(),))
         compile_library(build, library, WIN64)
     except FmuBuildError as exc:
         library.unlink(missing_ok=True)
@@ -313,6 +311,17 @@ def whitebox_win64(archive: FmuArchive, whitebox: Path, host: BinaryPlatform) ->
         )
         return False
     return True
+
+
+def listed_sources(archive: FmuArchive) -> list[str]:
+    """The source files an FMI 2.0 model description lists (``<SourceFiles>``, as fmpy reads
+    them), for an FMU without a build description."""
+    return [
+        name
+        for configuration in archive.model_description.buildConfigurations
+        for file_set in configuration.sourceFileSets
+        for name in file_set.sourceFiles
+    ]
 
 
 def first_errors(message: str, folder: Path, count: int = 3) -> str:
