@@ -342,3 +342,22 @@ def test_a_whitebox_without_build_description_is_cross_compiled_from_its_listed_
         shutil.copytree(archive.unzip_dir, copy)
         assert whitebox_win64(archive, copy, host_platform())
     assert (copy / "binaries" / "win64" / "HydraulicActuator.dll").read_bytes()[:2] == b"MZ"
+
+
+def test_a_build_description_with_unsafe_options_is_not_compiled(tmp_path) -> None:
+    """A supplier's build description may not run other programs at export (here a compiler
+    plugin): the white-box gets no win64 binary, with a warning naming the option."""
+    require_windows_tools()
+    whitebox = model_fmus("HydraulicActuator")["HydraulicActuator"]
+    plugged = tmp_path / "HydraulicActuator.fmu"
+    with zipfile.ZipFile(whitebox) as source, zipfile.ZipFile(plugged, "w") as target:
+        for info in source.infolist():
+            data = source.read(info)
+            if info.filename == "sources/buildDescription.xml":
+                data = data.replace(b'compilerOptions="', b'compilerOptions="-fplugin=/tmp/x.so ')
+            target.writestr(info, data)
+    copy = tmp_path / "copy"
+    with open_fmu(plugged) as archive, pytest.warns(UserWarning, match=r"-fplugin=/tmp/x\.so"):
+        shutil.copytree(archive.unzip_dir, copy)
+        assert not whitebox_win64(archive, copy, host_platform())
+    assert not (copy / "binaries" / "win64" / "HydraulicActuator.dll").exists()

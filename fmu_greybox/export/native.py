@@ -328,7 +328,9 @@ def first_errors(message: str, folder: Path, count: int = 3) -> str:
     """The first ``count`` error lines of a compiler failure's message, their files named
     from ``folder`` (its first lines when none says error: a missing compiler, an unreadable
     build description)."""
-    lines = message.replace(f"{folder}{os.sep}", "").splitlines()
+    for prefix in (folder.resolve(), folder):
+        message = message.replace(f"{prefix}{os.sep}", "")
+    lines = message.splitlines()
     errors = [line for line in lines[2:] if "error" in line.lower()]  # after the command
     return "\n".join((errors or lines)[:count])
 

@@ -12,6 +12,7 @@ one lists its source files in its model description (``<SourceFiles>``), with no
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -21,6 +22,13 @@ from fmu_greybox.errors import FmuBuildError
 from fmu_greybox.fmi.compiler import CBuild
 
 BUILD_DESCRIPTION = "buildDescription.xml"
+#: The compiler options a read build description may give (it may come with a supplier's FMU:
+#: no plugins, wrappers, spec files, other tool folders or options passed to the assembler,
+#: linker or preprocessor, which would run other programs or read other files at export).
+SAFE_OPTION = re.compile(
+    r"-(O[0-3sgz]?|std=[\w+]+|g[0-3]?|ansi|pedantic|W(?![alp],)[\w=+-]+|f(?!plugin)[\w=+.-]+"
+    r"|m[\w=+.-]+|D\w+(=[\w.+-]*)?|U\w+)"
+)
 #: What a reader of the description does with the files.
 HOW_TO_BUILD = (
     "a shared library: compile the source files with these options and -shared (-fPIC but on "
@@ -103,7 +111,8 @@ def sources_build(
     ------
     FmuBuildError
         Neither a build description nor listed files; a build description that cannot be
-        read, has no source file set, or several with different options.
+        read, has no source file set, or several with different options; a compiler option
+        outside :data:`SAFE_OPTION`; a file or folder outside ``sources``.
     """
     path = sources / BUILD_DESCRIPTION
     if not path.is_file():
@@ -112,7 +121,9 @@ def sources_build(
                 f"{sources} has no {BUILD_DESCRIPTION} and the model description lists no "
                 "<SourceFiles>: add either to the FMU to have it compiled"
             )
-        return CBuild(what, tuple(sources / n for n in listed), (), (sources, *headers))
+        where = "the model description's <SourceFiles>"
+        files = tuple(_inside(sources, name, where) for name in listed)
+        return CBuild(what, files, (), (sources, *headers))
     configuration = _configuration(path, identifier)
     file_sets = configuration.findall("SourceFileSet")
     if not file_sets:
@@ -124,17 +135,39 @@ def sources_build(
             "compiles with one: give all its source files the same options"
         )
     flags, defines = options.pop()
+    _check_options(path, flags)
+    files = [f.get("name") for s in file_sets for f in s.findall("SourceFile")]
+    folders = [d.get("name") for s in file_sets for d in s.findall("IncludeDirectory")]
     return CBuild(
         what=what,
-        sources=tuple(sources / f.get("name") for s in file_sets for f in s.findall("SourceFile")),
+        sources=tuple(_inside(sources, name, BUILD_DESCRIPTION) for name in files),
         flags=flags,
-        include_dirs=(
-            *(sources / d.get("name") for s in file_sets for d in s.findall("IncludeDirectory")),
-            *headers,
-        ),
+        include_dirs=(*(_inside(sources, name, BUILD_DESCRIPTION) for name in folders), *headers),
         defines=defines,
         libraries=tuple(x.get("name") for x in configuration.findall("Library")),
     )
+
+
+def _check_options(path: Path, flags: Sequence[str]) -> None:
+    """Refuse compiler options outside :data:`SAFE_OPTION`."""
+    unsafe = [flag for flag in flags if not SAFE_OPTION.fullmatch(flag)]
+    if unsafe:
+        raise FmuBuildError(
+            f"{path}: compiler options {' '.join(unsafe)} are not compiled from an FMU's build "
+            "description (optimisation, standard, warning, code-generation and -D/-U options "
+            "are); remove them from compilerOptions"
+        )
+
+
+def _inside(sources: Path, name: str | None, where: str) -> Path:
+    """A file or folder ``where`` names, which must lie in ``sources``."""
+    named = (sources / (name or "")).resolve()
+    if not name or not named.is_relative_to(sources.resolve()):
+        raise FmuBuildError(
+            f"{sources}: {where} names {name!r}, not a path inside sources/; name files and "
+            "folders relative to sources/, without '..'"
+        )
+    return named
 
 
 def _configuration(path: Path, identifier: str) -> etree._Element:
