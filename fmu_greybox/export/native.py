@@ -34,6 +34,7 @@ GUID, the data file's hash and the C kind table of the term kinds,
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import tempfile
@@ -55,9 +56,12 @@ from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.fmi.build import LOG_CATEGORIES, fmi2_headers
 from fmu_greybox.fmi.build_description import BUILD_DESCRIPTION, sources_build
 from fmu_greybox.fmi.build_description import build_description as description_text
+from fmu_greybox.fmi.builtin import cache_dir
 from fmu_greybox.fmi.compiler import (
     NATIVE_DIR,
     SHELL_CONFIG,
+    CBuild,
+    compile_cached,
     compile_library,
     library_name,
     native_flags,
@@ -299,7 +303,7 @@ def whitebox_win64(archive: FmuArchive, whitebox: Path, host: BinaryPlatform) ->
         what = f"{archive.path.name} for win64"
         listed = listed_sources(archive)
         build = sources_build(whitebox / "sources", identifier, what, listed, (fmi2_headers(),))
-        compile_library(build, library, WIN64)
+        cross_compiled_once(build, library)
     except FmuBuildError as exc:
         library.unlink(missing_ok=True)
         warnings.warn(
@@ -311,6 +315,29 @@ def whitebox_win64(archive: FmuArchive, whitebox: Path, host: BinaryPlatform) ->
         )
         return False
     return True
+
+
+def cross_compiled_once(build: CBuild, library: Path) -> None:
+    """Cross-compile ``build`` for win64 into ``library``, once per distinct build: a copy is
+    kept in the cache (``FMU_GREYBOX_CACHE``), keyed by the content of its sources and headers
+    and by its options, so that exporting many models of one white-box compiles it once.
+
+    Raises
+    ------
+    FmuBuildError
+        As :func:`fmu_greybox.fmi.compiler.compile_library`.
+    """
+    key = hashlib.sha256(repr((build.flags, build.defines, build.libraries)).encode())
+    compiler = Path(compiler_of(WIN64)).resolve()  # an upgraded compiler builds again
+    key.update(f"{compiler} {compiler.stat().st_size} {compiler.stat().st_mtime_ns}".encode())
+    headers = (h for folder in build.include_dirs for h in sorted(folder.rglob("*.h")))
+    for path in (*build.sources, *headers):
+        key.update(path.name.encode() + b"\0" + path.read_bytes())
+    cached = cache_dir().parent / "win64-whitebox" / key.hexdigest()[:16] / library.name
+    if not cached.is_file():
+        compile_cached(build, cached, target=WIN64)
+    library.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(cached, library)
 
 
 def listed_sources(archive: FmuArchive) -> list[str]:

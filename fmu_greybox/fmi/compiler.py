@@ -145,7 +145,12 @@ def compile_library(build: CBuild, library: Path, target: BinaryPlatform | None 
         warnings.warn(f"compiler messages for {build.what}:\n{output}", stacklevel=3)
 
 
-def compile_cached(build: CBuild, library: Path, generated: dict[str, str] | None = None) -> None:
+def compile_cached(
+    build: CBuild,
+    library: Path,
+    generated: dict[str, str] | None = None,
+    target: BinaryPlatform | None = None,
+) -> None:
     """Compile ``build`` into ``library`` of a cache, atomically (concurrent builders do not
     clash): in a temporary folder beside it, renamed into place once complete.
 
@@ -156,6 +161,8 @@ def compile_cached(build: CBuild, library: Path, generated: dict[str, str] | Non
     generated : dict of str to str, optional
         Headers written into the temporary folder first (name to text), which is searched
         for includes before ``build.include_dirs``.
+    target : BinaryPlatform, optional
+        As for :func:`compile_library`.
 
     Raises
     ------
@@ -168,7 +175,7 @@ def compile_cached(build: CBuild, library: Path, generated: dict[str, str] | Non
             (Path(tmp) / name).write_text(text, encoding="ascii")
         built = Path(tmp) / library.name
         folders = (Path(tmp), *build.include_dirs)
-        compile_library(dataclasses.replace(build, include_dirs=folders), built)
+        compile_library(dataclasses.replace(build, include_dirs=folders), built, target)
         os.replace(built, library)
 
 
