@@ -208,20 +208,30 @@ def test_the_fmi3_greybox_carries_its_windows_binary_too(native_greybox, tmp_pat
     assert library[:2] == b"MZ" and b"fmi3InstantiateCoSimulation" in library
 
 
+def win64_against_linux64(
+    fmu: Path, recording, steps: int, moves: float, tmp_path: Path
+) -> dict[str, object]:
+    """``fmu`` stepped over the first ``steps`` input rows of ``recording`` by the bare C master
+    for Windows (under Wine) and for Linux: the ram position moves by more than ``moves`` m,
+    every output agrees within 1e-9 of its range, and the same steps are refused with the same
+    status. Returns both runs."""
+    rows = np.column_stack([recording[n] for n in INPUTS])[:steps]
+    runs = bench_windows.both_masters(fmu, rows, tmp_path)
+    names = bench_windows.real_outputs(fmu)
+    assert np.ptp(runs["linux64"].outputs[:, names.index("ram_position")]) > moves
+    differences = bench_windows.relative_differences(runs, names)
+    assert max(differences.values()) <= 1e-9, differences
+    assert runs["win64"].refusals == runs["linux64"].refusals
+    return runs
+
+
 def test_the_win64_greybox_under_wine_gives_the_linux64_numbers_and_refusals(
     trained_greybox, tmp_path
 ) -> None:
     """The bare C master for Windows (under Wine) against the same master for Linux: every
     output within 1e-9 of its range (compiled from the same sources with the same options: in
     practice equal), the refused steps refused with the same fmi2Status (fmi2Error)."""
-    native_greybox, recording = trained_greybox
-    rows = np.column_stack([recording[n] for n in INPUTS])[:1000]
-    runs = bench_windows.both_masters(native_greybox, rows, tmp_path)
-    names = bench_windows.real_outputs(native_greybox)
-    assert np.ptp(runs["linux64"].outputs[:, names.index("ram_position")]) > 1e-3
-    differences = bench_windows.relative_differences(runs, names)
-    assert max(differences.values()) <= 1e-9, differences
-    assert runs["win64"].refusals == runs["linux64"].refusals
+    runs = win64_against_linux64(*trained_greybox, 1000, 1e-3, tmp_path)
     assert set(runs["win64"].refusals.values()) == {3}  # fmi2Error
     assert not runs["win64"].python_in_process
 
@@ -260,14 +270,7 @@ def test_the_cross_compiled_whitebox_under_wine_gives_the_linux64_numbers(
 ) -> None:
     """The grey-box of a white-box cross-compiled at export, stepped by the Windows C master
     under Wine and by the Linux one: every output within 1e-9 of its range."""
-    fmu, recording = sources_greybox
-    rows = np.column_stack([recording[n] for n in INPUTS])[:300]
-    runs = bench_windows.both_masters(fmu, rows, tmp_path)
-    names = bench_windows.real_outputs(fmu)
-    assert np.ptp(runs["linux64"].outputs[:, names.index("ram_position")]) > 1e-4
-    differences = bench_windows.relative_differences(runs, names)
-    assert max(differences.values()) <= 1e-9, differences
-    assert runs["win64"].refusals == runs["linux64"].refusals
+    win64_against_linux64(*sources_greybox, 300, 1e-4, tmp_path)
 
 
 def test_a_whitebox_whose_sources_do_not_compile_exports_for_linux64_only(
