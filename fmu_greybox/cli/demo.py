@@ -9,19 +9,18 @@ from pathlib import Path
 
 import click
 
-from fmu_greybox.cli.options import inducing_option, info, max_iter_option, out_option
+from fmu_greybox.cli.options import (
+    inducing_option,
+    info,
+    max_iter_option,
+    out_option,
+    truth_options,
+)
 
 
 @click.command()
 @out_option("out", "Folder for everything produced (report.html first)", folder=True)
-@click.option(
-    "--effect",
-    "effects",
-    multiple=True,
-    metavar="NAME=VALUE",
-    help="Concealed truth effect (repeatable; default: one drawn by --seed).",
-)
-@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@truth_options("Concealed truth effect (repeatable; default: one drawn by --seed).")
 @click.option(
     "--duration",
     type=click.FloatRange(min=5.0),

@@ -72,6 +72,16 @@ def fmi_option(what: str) -> Decorator:
     )
 
 
+def truth_options(effects_help: str) -> Decorator:
+    """``--effect NAME=VALUE`` (repeatable, into ``effects``) and ``--seed``, the concealed
+    truth of a synthetic recording."""
+    effect = click.option(
+        "--effect", "effects", multiple=True, metavar="NAME=VALUE", help=effects_help
+    )
+    seed = click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+    return lambda command: effect(seed(command))
+
+
 def inducing_option(default: int | None) -> Decorator:
     """``--inducing``, with the project file's range (``[gp] inducing``: at least 1)."""
     return click.option(

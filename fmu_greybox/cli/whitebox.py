@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from fmu_greybox.cli.options import fmi_option, info, out_option, pairs
+from fmu_greybox.cli.options import fmi_option, info, out_option, pairs, truth_options
 
 
 @click.group()
@@ -97,14 +97,7 @@ def init(ctx: click.Context, fmu_spec: str, out_dir: Path, force: bool) -> None:
 
 
 @click.command()
-@click.option(
-    "--effect",
-    "effects",
-    multiple=True,
-    metavar="NAME=VALUE",
-    help="Switch on a concealed truth effect (repeatable).",
-)
-@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@truth_options("Switch on a concealed truth effect (repeatable).")
 @click.option(
     "--duration",
     type=click.FloatRange(min=0.01),
