@@ -38,8 +38,8 @@ wheel_pid=$!
 status=0
 # one pytest worker per CPU (pytest-xdist); the tests share no files, ports or folders; a
 # module's tests stay on one worker, so that its module- and session-scoped fixtures (trained
-# models, exported FMUs, the demo's run) are built once
-.venv/bin/python -m pytest -q -n auto --dist loadfile "$@" || status=$?
+# models, exported FMUs, the demo's run) are built once; files run heaviest first (tests/file_seconds.txt)
+.venv/bin/python -m pytest -q -n auto --dist loadfile --no-loadscope-reorder "$@" || status=$?
 wheel_status=0
 wait "$wheel_pid" || wheel_status=$?
 grep -v "^WARNING: Location" "$wheel_log" || true

@@ -185,3 +185,21 @@ def dc_servo_fmus(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     from third_party import build_fmus
 
     return build_fmus(tmp_path_factory.mktemp("dc_servo"))
+
+
+#: Seconds each test file took in a full run (``tests/file_seconds.txt``), by file path.
+FILE_SECONDS = {
+    path: float(seconds)
+    for seconds, path in (
+        line.split()
+        for line in (Path(__file__).parent / "file_seconds.txt").read_text().splitlines()
+        if line.strip() and not line.startswith("#")
+    )
+}
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Heaviest test files first (``tests/file_seconds.txt``), so that no long file starts
+    last on one pytest worker while the other idles; the order inside a file is kept.
+    ``scripts/test.sh`` keeps this order with ``--no-loadscope-reorder``."""
+    items.sort(key=lambda item: -FILE_SECONDS.get(item.nodeid.split("::")[0], 0.0))
