@@ -125,6 +125,13 @@ def main() -> None:
         return
     shown = ", ".join(f"{k} {v:.2f}" for k, v in slopes.items())
     print(f"slope of log time against log rows: {shown}")
+    if len(args.inducing) > 1 and None not in args.inducing:
+        for row in table:
+            times = [row[f"train M={m}"]["seconds"] for m in args.inducing]
+            print(
+                f"slope of log train time against log inducing points, {row['rows']} rows: "
+                f"{slope(args.inducing, times):.2f}"
+            )
     print(
         f"one run each; {facts['date']}, {facts['cpus']} CPUs, load average "
         f"{facts['load_before']:.2f} before, {facts['load_after']:.2f} after"
