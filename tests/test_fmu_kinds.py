@@ -77,10 +77,10 @@ def stepped(fmu: Path, rows: np.ndarray) -> np.ndarray:
         return np.array([instance.step(u, DT).copy() for u in rows])
 
 
-def assert_close(got: np.ndarray, ref: np.ndarray, what: str) -> None:
+def assert_close(got: np.ndarray, ref: np.ndarray, what: str, rtol: float = RTOL) -> None:
     scale = max(float(np.ptp(ref)), float(np.max(np.abs(ref))), 1e-300)
     worst = float(np.max(np.abs(np.asarray(got) - ref)))
-    assert worst <= RTOL * scale, f"{what}: max difference {worst:.3g}, scale {scale:.3g}"
+    assert worst <= rtol * scale, f"{what}: max difference {worst:.3g}, scale {scale:.3g}"
 
 
 # ------------------------------------------------------------------------ the FMU and its steps

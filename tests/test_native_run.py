@@ -20,6 +20,7 @@ from fmu_greybox.errors import FmuError
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import reference_fmus
 from fmu_greybox.fmi.compiler import DISABLE_VARIABLE, CBuild, core_flags, load_cached_library
+from fmu_greybox.fmi.kinds import FMI2_CS
 from fmu_greybox.model import terms as term_kinds
 from fmu_greybox.model.native_run import run_native, runs_natively
 from fmu_greybox.model.simulate import run_open_loop, simulate_with_terms
@@ -62,7 +63,7 @@ def in_c(archive, u: np.ndarray, terms, stages=STAGES, parameters=None) -> np.nd
 
 
 def test_the_runner_is_built_here() -> None:
-    assert runs_natively(list(EXAMPLES.values()))
+    assert runs_natively(list(EXAMPLES.values()), FMI2_CS)
 
 
 @pytest.mark.parametrize("kind", sorted(KINDS))
@@ -108,8 +109,9 @@ def test_simulate_with_terms_uses_the_runner_and_matches_the_python_loop(whitebo
 
 def test_the_runner_can_be_switched_off() -> None:
     code = (
+        "from fmu_greybox.fmi.kinds import FMI2_CS;"
         "from fmu_greybox.model.native_run import native_runner, runs_natively;"
-        "print(native_runner() is None, runs_natively([]))"
+        "print(native_runner() is None, runs_natively([], FMI2_CS))"
     )
     env = {**os.environ, DISABLE_VARIABLE: "0"}
     done = subprocess.run(
@@ -138,7 +140,8 @@ def test_without_a_compiler_simulations_step_in_python_and_say_so(tmp_path) -> N
     ``runs_natively`` is false (the caller steps the model in Python)."""
     code = (
         "import warnings; warnings.simplefilter('always');"
-        "from fmu_greybox.model.native_run import runs_natively; print(runs_natively([]))"
+        "from fmu_greybox.fmi.kinds import FMI2_CS;"
+        "from fmu_greybox.model.native_run import runs_natively; print(runs_natively([], FMI2_CS))"
     )
     env = {**os.environ, "CC": "no-such-compiler", "FMU_GREYBOX_CACHE": str(tmp_path)}
     done = subprocess.run(

@@ -9,8 +9,11 @@ both into an extracted FMU (fmpy's ``add_remoting``): the client takes the place
 
 What the remoting cannot do, and so what the FMU's kind (:data:`FMI2_WINE`) refuses:
 
-- the C paths (the native simulation runner, the native grey-box export) load a Linux
-  binary in their own process: they refuse it (:attr:`FmuKind.native` is false);
+- the C paths load a Linux binary in their own process (:attr:`FmuKind.native` is false):
+  the native grey-box export refuses such a white-box, and the diagnosis's simulations run
+  in the C runner cross-compiled for win64 instead, a Windows program under Wine
+  (:mod:`fmu_greybox.model.native_run`, ``native/simulate_main.c``), not through the
+  remoting;
 - fmpy's server listens on one fixed TCP port (8080) and the client keeps its connection in
   a process-wide variable: one instance runs at a time in a process, and one on the machine
   (:class:`RemoteSlot`: a second in the same process is refused, one in another process, such

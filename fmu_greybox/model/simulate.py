@@ -119,7 +119,7 @@ def simulate_with_terms(
             y[:, columns] = cache[key]
             continue
         levels_of = [level] * len(names)
-        if not progress and archive.kind.native and runs_natively(active):
+        if not progress and runs_natively(active, archive.kind):
             y[:, columns] = run_native(
                 archive, inputs, u, dt, names, active, levels_of, parameters, start_time, substeps
             )
