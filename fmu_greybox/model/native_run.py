@@ -46,7 +46,7 @@ from fmu_greybox.fmi.compiler import (
 )
 from fmu_greybox.fmi.instance import status_label
 from fmu_greybox.fmi.kinds import FmuKind, require_native
-from fmu_greybox.fmi.platforms import WIN64, compiler_of
+from fmu_greybox.fmi.platforms import WIN64
 from fmu_greybox.fmi.wine import FMI2_WINE, wine_program
 from fmu_greybox.model.native_data import data_file_bytes
 from fmu_greybox.model.native_terms import NATIVE_KINDS, kind_defines
@@ -142,6 +142,8 @@ def wine_runner_program() -> Path | None:
     cross-compiled with mingw-w64 on first use and cached beside the Linux runner; ``None``,
     with a warning that says why, where it cannot be built (the white-box then steps through
     fmpy's remoting, one remote call per FMI function)."""
+    if os.environ.get(DISABLE_VARIABLE) == "0":
+        return None
     build = CBuild(
         what="the native simulation runner for win64",
         sources=tuple(NATIVE_DIR / s for s in (PROGRAM_SOURCE, *SOURCES)),
@@ -151,11 +153,8 @@ def wine_runner_program() -> Path | None:
         shared=False,
     )
     program = cache_dir().parent / "native-run" / _digest() / "fgbsimulate.exe"
-    if os.environ.get(DISABLE_VARIABLE) == "0":
-        return None
     try:
         if not program.is_file():
-            compiler_of(WIN64)
             compile_cached(build, program, _config_header(), target=WIN64)
     except FmuBuildError as exc:
         warnings.warn(
