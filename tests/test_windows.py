@@ -22,6 +22,8 @@ import hashlib
 import os
 import re
 import shutil
+import signal
+import time
 import zipfile
 from pathlib import Path
 
@@ -203,7 +205,7 @@ def test_a_win64_whitebox_refusal_under_wine_is_the_linux64_error(
 
 def test_the_win64_runner_is_one_process_per_process_and_ends_with_it(win64_whitebox) -> None:
     """One Wine process serves a process's runs; a runner that died is started again; closed,
-    it ends with exit status 0 (its input's end)."""
+    it ends with exit status 0 (its input's end), also while a forked child lives on."""
     rows = run_input_rows(synth_recording(0.2, seed=5))
     with open_fmu(win64_whitebox) as archive:
         first = run_native(archive, RUN_INPUTS, rows, DT, RUN_OUTPUTS, [], STAGES, None, 0.0, 4)
@@ -215,8 +217,16 @@ def test_the_win64_runner_is_one_process_per_process_and_ends_with_it(win64_whit
     np.testing.assert_array_equal(again, first)
     restarted = WineRunner.of_this_process(wine_runner_program())
     assert restarted is not runner
-    WineRunner.close_all()
-    assert restarted.process.returncode == 0
+    child = os.fork()  # as a diagnosis's worker is made: it must not keep the runner's input
+    if child == 0:
+        time.sleep(30)
+        os._exit(0)
+    try:
+        WineRunner.close_all()
+        assert restarted.process.returncode == 0  # its input ended (killed after 10 s: -9)
+    finally:
+        os.kill(child, signal.SIGKILL)
+        os.waitpid(child, 0)
 
 
 # ------------------------------------------------------------------------ diagnosis and training

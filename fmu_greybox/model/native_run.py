@@ -266,7 +266,21 @@ class WineRunner:
 
 #: The win64 runner of each process that started one, by process id.
 _RUNNERS: dict[int, WineRunner] = {}
+
+
+def _forget_parent_runners() -> None:
+    """In a forked child: close its copies of the parent's runner pipes (flushed after every
+    job, so nothing is written), so that the parent's runner sees the end of its input when
+    the parent closes it, whatever the child is still doing."""
+    for runner in _RUNNERS.values():
+        for stream in (runner.process.stdin, runner.process.stdout):
+            if stream is not None:
+                stream.close()
+    _RUNNERS.clear()
+
+
 atexit.register(WineRunner.close_all)
+os.register_at_fork(after_in_child=_forget_parent_runners)
 
 
 def windows_path(path: Path) -> str:
