@@ -14,8 +14,12 @@ over the linux64 run; the worst of these; both step times; both sets of refusal 
 the cost of a white-box with a win64 binary only, stepped through fmpy's remoting over Wine,
 beside its linux64 build (start-up and wall time per step).
 
-Usage: ``.venv/bin/python benchmarks/bench_windows.py [--rows N]`` (needs ``wine64`` and
-``gcc-mingw-w64-x86-64``).
+With ``--diagnosis``, printed instead: the wall time of the diagnosis of a 2 s recording with
+concealed Coulomb friction through the reference white-box's linux64 build and through its
+win64 build (its simulations in the C runner's win64 program under Wine), and what each named.
+
+Usage: ``.venv/bin/python benchmarks/bench_windows.py [--rows N | --diagnosis]`` (needs
+``wine64`` and ``gcc-mingw-w64-x86-64``).
 """
 
 from __future__ import annotations
@@ -31,11 +35,13 @@ import c_master
 import numpy as np
 from fmpy import read_model_description
 
+from fmu_greybox.diagnosis import Diagnosis
 from fmu_greybox.export.fmu import export_greybox
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import model_fmus, reference_project
 from fmu_greybox.fmi.instance import fmu_instance
 from fmu_greybox.fmi.platforms import WIN64
+from fmu_greybox.model.native_run import native_runner, wine_runner_program
 from fmu_greybox.model.store import save_model
 from fmu_greybox.project.config import load_config
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
@@ -60,13 +66,18 @@ def dual_platform_whitebox(folder: Path) -> Path:
     return both
 
 
+def bench_recording(whitebox: Path, effects: dict[str, float], seed: int, duration: float):
+    """A synthetic recording of the truth model with ``effects``, on ``whitebox``'s signals."""
+    truth = model_fmus("HydraulicActuator")["HydraulicActuatorTruth"]
+    request = SynthRequest(effects, seed=seed, profile=FlightTestProfile(duration=duration))
+    with open_fmu(truth) as truth_archive, open_fmu(whitebox) as whitebox_archive:
+        return synthesise(truth_archive, whitebox_archive, request)
+
+
 def native_greybox(folder: Path, whitebox: Path, duration: float = 2.0) -> tuple[Path, object]:
     """Train a small grey-box on ``whitebox`` and export it natively; returns the FMU and the
     recording it was trained on."""
-    truth = model_fmus("HydraulicActuator")["HydraulicActuatorTruth"]
-    request = SynthRequest(EFFECTS, seed=11, profile=FlightTestProfile(duration=duration))
-    with open_fmu(truth) as truth_archive, open_fmu(whitebox) as whitebox_archive:
-        recording = synthesise(truth_archive, whitebox_archive, request)
+    recording = bench_recording(whitebox, EFFECTS, 11, duration)
     config = with_inducing(load_config(reference_project()), 20, max_iter=15)
     model = train_model(dataclasses.replace(config, fmu=str(whitebox)), recording)
     save_model(model, folder / "model")
@@ -127,10 +138,49 @@ def whitebox_step_times(rows: np.ndarray) -> dict[str, tuple[float, float]]:
     return times
 
 
+def diagnosis_times(duration: float = 2.0) -> dict[str, tuple[float, list]]:
+    """Wall time [s] and findings of the diagnosis of one recording with concealed Coulomb
+    friction (700 N), through the linux64 white-box (its simulations in the C runner here) and
+    the win64 one (in the C runner's win64 program under Wine), as ``tests/test_windows.py``;
+    the runners are built (or found in the cache) before the clock starts."""
+    builds = {
+        "linux64": model_fmus("HydraulicActuator")["HydraulicActuator"],
+        "win64 under Wine": model_fmus("HydraulicActuator", target=WIN64)["HydraulicActuator"],
+    }
+    recording = bench_recording(builds["linux64"], {"coulomb_friction": 700.0}, 23, duration)
+    project = load_config(reference_project())
+    native_runner(), wine_runner_program()  # built once and cached, not timed
+    result = {}
+    for label, fmu in builds.items():
+        started = time.perf_counter()
+        diagnosis = Diagnosis(dataclasses.replace(project, fmu=str(fmu)), greybox=None)
+        findings = diagnosis.fit(recording).findings_
+        result[label] = (time.perf_counter() - started, findings)
+    return result
+
+
+def print_diagnosis_times() -> None:
+    """Print :func:`diagnosis_times`: per white-box, the time and each finding's magnitude."""
+    for label, (seconds, findings) in diagnosis_times().items():
+        named = "; ".join(
+            f"{f.effect} at {f.stage}: {f.magnitude['value']:.8f} {f.magnitude['unit']}"
+            for f in findings
+        )
+        print(f"diagnosis through {label}: {seconds:.1f} s; {named}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--rows", type=int, default=2000, help="steps of 1 ms")
+    parser.add_argument(
+        "--diagnosis",
+        action="store_true",
+        help="only time the diagnosis of a 2 s recording through linux64 and win64 under Wine",
+    )
     args = parser.parse_args()
+    if args.diagnosis:
+        print_diagnosis_times()
+        return
     with tempfile.TemporaryDirectory(prefix="bench_windows_") as tmp:
         folder = Path(tmp)
         fmu, recording = native_greybox(folder, dual_platform_whitebox(folder))

@@ -9,7 +9,7 @@ functions (glibc's and msvcrt's); the outputs are compared to 1e-12 of each sign
 over a few hundred implicit integrator steps, stays far below that) and are in practice equal
 to the last bit. The diagnosis's simulations do not go through the remoting (a round trip to
 the server per FMI call: a diagnosis of a 1 s recording did not finish in 20 minutes) but
-through the C runner cross-compiled for win64, one Wine process per Python process.
+through the C runner cross-compiled for win64, one Wine process per thread of a process.
 
 Wine (Debian's ``wine64``) and mingw-w64 (``gcc-mingw-w64-x86-64``) are installed by
 ``scripts/test.sh``; without them the tests skip, except in CI (``CI`` set), where they fail.
@@ -25,6 +25,7 @@ import shutil
 import signal
 import time
 import zipfile
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import bench_windows
@@ -204,18 +205,18 @@ def test_a_win64_whitebox_refusal_under_wine_is_the_linux64_error(
 
 
 def test_the_win64_runner_is_one_process_per_process_and_ends_with_it(win64_whitebox) -> None:
-    """One Wine process serves a process's runs; a runner that died is started again; closed,
+    """One Wine process serves a thread's runs; a runner that died is started again; closed,
     it ends with exit status 0 (its input's end), also while a forked child lives on."""
     rows = run_input_rows(synth_recording(0.2, seed=5))
     with open_fmu(win64_whitebox) as archive:
         first = run_native(archive, RUN_INPUTS, rows, DT, RUN_OUTPUTS, [], STAGES, None, 0.0, 4)
-        runner = WineRunner.of_this_process(wine_runner_program())
-        assert WineRunner.of_this_process(wine_runner_program()) is runner
+        runner = WineRunner.of_this_thread(wine_runner_program())
+        assert WineRunner.of_this_thread(wine_runner_program()) is runner
         runner.process.kill()
         runner.process.wait()
         again = run_native(archive, RUN_INPUTS, rows, DT, RUN_OUTPUTS, [], STAGES, None, 0.0, 4)
     np.testing.assert_array_equal(again, first)
-    restarted = WineRunner.of_this_process(wine_runner_program())
+    restarted = WineRunner.of_this_thread(wine_runner_program())
     assert restarted is not runner
     child = os.fork()  # as a diagnosis's worker is made: it must not keep the runner's input
     if child == 0:
@@ -227,6 +228,72 @@ def test_the_win64_runner_is_one_process_per_process_and_ends_with_it(win64_whit
     finally:
         os.kill(child, signal.SIGKILL)
         os.waitpid(child, 0)
+
+
+def test_threads_run_the_win64_whitebox_each_in_its_own_runner(win64_whitebox) -> None:
+    """Two threads at once (as a Dask worker's threads run simulations): each its own Wine
+    process, so the jobs do not cross, and each gets what it gets alone, bit for bit."""
+    rows = run_input_rows(synth_recording(0.2, seed=5))
+    term_sets = [[], [KINDS["CoulombForce"]]]
+    with open_fmu(win64_whitebox) as archive:
+
+        def run(terms: list) -> tuple[np.ndarray, WineRunner]:
+            y = run_native(archive, RUN_INPUTS, rows, DT, RUN_OUTPUTS, terms, STAGES, None, 0.0, 4)
+            return y, WineRunner.of_this_thread(wine_runner_program())
+
+        alone = [run(terms)[0] for terms in term_sets]
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            together = list(pool.map(run, term_sets))
+    assert together[0][1] is not together[1][1]
+    for (y, _), reference in zip(together, alone, strict=True):
+        np.testing.assert_array_equal(y, reference)
+    runners = [runner for _, runner in together]
+    WineRunner.close_all()
+    assert [runner.process.returncode for runner in runners] == [0, 0]
+
+
+def test_a_win64_dll_that_does_not_load_is_the_linux64_error(whitebox_fmu, win64_whitebox) -> None:
+    """The white-box's binary damaged after opening: under Wine as on Linux, the FmuError
+    names the FMU and the binary that cannot be loaded (with Windows' or the loader's reason)."""
+    rows = run_input_rows(synth_recording(0.2, seed=5))
+    for path, binary in (
+        (whitebox_fmu, "linux64/HydraulicActuator.so"),
+        (win64_whitebox, "win64/HydraulicActuator.dll"),
+    ):
+        with open_fmu(path) as archive:
+            (archive.unzip_dir / "binaries" / binary).write_bytes(b"not a library")
+            with pytest.raises(FmuError) as caught:
+                run_native(archive, RUN_INPUTS, rows, DT, RUN_OUTPUTS, [], STAGES, None, 0.0, 4)
+        assert caught.value.call == "fgb_simulate"
+        assert str(caught.value).startswith(
+            "fgb_simulate returned an error: HydraulicActuator.fmu: cannot load the embedded "
+            "white-box binary "
+        )
+        assert f"whitebox/binaries/{binary}: " in str(caught.value)
+    assert "HydraulicActuator.dll: Windows error 193: " in str(caught.value)  # not a DLL
+
+
+def test_a_win64_runner_that_dies_during_a_run_is_an_fmu_error_saying_what_to_do(
+    win64_whitebox,
+) -> None:
+    """The runner killed (as the kernel's out-of-memory killer or a crash of the DLL ends it):
+    the run raises the FmuError the diagnosis counts as a failed simulation, with the exit
+    status and the switch that steps the white-box through the remoting instead; the next run
+    starts a new runner."""
+    rows = run_input_rows(synth_recording(0.2, seed=5))
+    with open_fmu(win64_whitebox) as archive:
+        first = run_native(archive, RUN_INPUTS, rows, DT, RUN_OUTPUTS, [], STAGES, None, 0.0, 4)
+        runner = WineRunner.of_this_thread(wine_runner_program())
+        runner.process.kill()
+        runner.process.wait()
+        with pytest.raises(FmuError, match=r"ended with exit status -9 during a run") as caught:
+            runner.call(archive.unzip_dir, "0" * 64, str(archive.unzip_dir), DT, 0.0, rows, 2)
+        assert "set FMU_GREYBOX_NATIVE_RUN=0 to step the white-box through fmpy's remoting" in str(
+            caught.value
+        )
+        again = run_native(archive, RUN_INPUTS, rows, DT, RUN_OUTPUTS, [], STAGES, None, 0.0, 4)
+    np.testing.assert_array_equal(again, first)
+    WineRunner.close_all()
 
 
 # ------------------------------------------------------------------------ diagnosis and training

@@ -25,6 +25,7 @@ import os
 import struct
 import subprocess
 import tempfile
+import threading
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -61,6 +62,8 @@ HEADERS = ("whitebox.h", "dynlib.h", "terms.h", "greybox_data.h", "sha256.h")
 PROGRAM_SOURCE = "simulate_main.c"
 #: Bytes kept for the runner's error message.
 MESSAGE_SIZE = 2048
+#: Characters of Wine's standard error quoted when the win64 runner ends during a run.
+STDERR_KEPT = 600
 
 
 def _digest() -> str:
@@ -181,33 +184,35 @@ class RunAnswer:
 
 
 class WineRunner:
-    """The win64 runner program under Wine, serving this process's runs one job at a time
-    over its standard input and output (``native/simulate_main.c`` gives the protocol). One
-    per process: a diagnosis's forked workers each start their own."""
+    """The win64 runner program under Wine, serving one thread's runs one job at a time over
+    its standard input and output (``native/simulate_main.c`` gives the protocol). One per
+    thread of a process: a diagnosis's forked workers each start their own, and so do the
+    threads of a Dask worker, whose jobs would otherwise cross on one pipe."""
 
     def __init__(self, program: Path) -> None:
         self.program = program
+        self.stderr = tempfile.TemporaryFile()  # Wine's own messages, quoted if it ends
         self.process = subprocess.Popen(
             [wine_program(), str(program)],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
-            stderr=subprocess.DEVNULL,
+            stderr=self.stderr,
         )
 
     @classmethod
-    def of_this_process(cls, program: Path) -> WineRunner:
-        """The runner of the calling process, started on first use (or again if it died)."""
-        runner = _RUNNERS.get(os.getpid())
+    def of_this_thread(cls, program: Path) -> WineRunner:
+        """The runner of the calling thread, started on first use (or again if it died)."""
+        key = (os.getpid(), threading.get_ident())
+        runner = _RUNNERS.get(key)
         if runner is None or runner.process.poll() is not None:
-            runner = _RUNNERS[os.getpid()] = cls(program)
+            runner = _RUNNERS[key] = cls(program)
         return runner
 
     @classmethod
     def close_all(cls) -> None:
-        """Stop this process's runner (its input closed, then waited for)."""
-        runner = _RUNNERS.pop(os.getpid(), None)
-        if runner is not None:
-            runner.close()
+        """Stop this process's runners (each one's input closed, then waited for)."""
+        for key in [k for k in _RUNNERS if k[0] == os.getpid()]:
+            _RUNNERS.pop(key).close()
 
     def close(self) -> None:
         """Close the program's input and wait for it to end (killed after 10 s)."""
@@ -220,6 +225,7 @@ class WineRunner:
             self.process.wait()
         if self.process.stdout is not None:
             self.process.stdout.close()
+        self.stderr.close()
 
     def call(
         self,
@@ -246,15 +252,29 @@ class WineRunner:
                 else None
             )
         except (OSError, EOFError) as exc:
-            code = self.process.poll()
-            raise FmuError(
-                "fgb_simulate",
-                "an error",
-                detail=f"the win64 runner under Wine ended ({code}): {exc}",
-            ) from exc
+            raise FmuError("fgb_simulate", "an error", detail=self._ended(exc)) from exc
+        except BaseException:  # interrupted mid-job: the next job would read this one's answer
+            self.process.kill()
+            raise
         shape = (u.shape[0], n_outputs)
         y = np.empty(shape) if y is None else y.reshape(shape).copy()
         return RunAnswer(int(status), y, message, failure, int(fmi_status), at, log)
+
+    def _ended(self, exc: Exception) -> str:
+        """Why a run got no answer: the program's exit status and Wine's last words."""
+        try:
+            code = self.process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            code = self.process.wait()
+        self.stderr.seek(0)
+        said = self.stderr.read().decode(errors="replace").strip()[-STDERR_KEPT:]
+        return (
+            f"the win64 simulation runner under Wine ({self.program}) ended with exit status "
+            f"{code} during a run ({exc}){f'; Wine said: {said}' if said else ''}. A crash of "
+            f"the white-box's DLL ends it too: set {DISABLE_VARIABLE}=0 to step the white-box "
+            "through fmpy's remoting, which names the FMI call that fails"
+        )
 
     def _read(self, n: int) -> bytes:
         assert self.process.stdout is not None
@@ -264,8 +284,8 @@ class WineRunner:
         return chunk
 
 
-#: The win64 runner of each process that started one, by process id.
-_RUNNERS: dict[int, WineRunner] = {}
+#: The win64 runner of each thread that started one, by process and thread id.
+_RUNNERS: dict[tuple[int, int], WineRunner] = {}
 
 
 def _forget_parent_runners() -> None:
@@ -273,7 +293,7 @@ def _forget_parent_runners() -> None:
     job, so nothing is written), so that the parent's runner sees the end of its input when
     the parent closes it, whatever the child is still doing."""
     for runner in _RUNNERS.values():
-        for stream in (runner.process.stdin, runner.process.stdout):
+        for stream in (runner.process.stdin, runner.process.stdout, runner.stderr):
             if stream is not None:
                 stream.close()
     _RUNNERS.clear()
@@ -301,7 +321,7 @@ def run_native(
     substeps: int,
 ) -> np.ndarray:
     """Run the white-box with ``terms`` over the input rows in C: in this process, or, for a
-    white-box with Windows binaries only, in this process's win64 runner under Wine.
+    white-box with Windows binaries only, in this thread's win64 runner under Wine.
 
     Arguments as :class:`~fmu_greybox.model.whitebox.NamedModel` (the start values are the
     first row of ``u``) and :func:`~fmu_greybox.model.simulate.run_open_loop`.
@@ -340,7 +360,7 @@ def run_native(
             program = wine_runner_program()
             if program is None:
                 raise FmuError("fgb_simulate", "nothing", detail="the win64 runner is not built")
-            runner = WineRunner.of_this_process(program)
+            runner = WineRunner.of_this_thread(program)
             answer = runner.call(path, sha256, tmp, dt, start_time, rows, len(outputs))
         else:
             answer = _call_here(path, sha256, tmp, dt, start_time, rows, len(outputs))

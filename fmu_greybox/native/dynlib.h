@@ -80,7 +80,15 @@ static inline void dynlib_close(void *library) {
 /* Why the last dynlib_open failed, into message (size bytes); returns message. */
 static inline const char *dynlib_error(char *message, size_t size) {
 #if defined(_WIN32)
-    snprintf(message, size, "Windows error %lu", (unsigned long)GetLastError());
+    DWORD code = GetLastError();
+    char text[256] = "";
+    size_t n = FormatMessageA(FORMAT_MESSAGE_FROM_SYSTEM | FORMAT_MESSAGE_IGNORE_INSERTS, NULL,
+                              code, 0, text, sizeof text, NULL);
+    while (n > 0 && (text[n - 1] == '\n' || text[n - 1] == '\r' || text[n - 1] == ' ')) {
+        text[--n] = '\0';  /* the system's text ends with a line break */
+    }
+    snprintf(message, size, "Windows error %lu%s%s", (unsigned long)code, n > 0 ? ": " : "",
+             text);
 #else
     const char *reason = dlerror();
     snprintf(message, size, "%s", reason != NULL ? reason : "unknown reason");

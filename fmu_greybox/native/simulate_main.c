@@ -2,8 +2,8 @@
  * simulate_main.c -- the native simulation runner as a program that serves many runs: each
  * job read from stdin is one fgb_simulate call (simulate.c), its result written to stdout.
  * fmu_greybox/model/native_run.py cross-compiles it for win64 and runs it under Wine, so that
- * a white-box with Windows binaries only is stepped in C, one Wine process per Python process,
- * instead of one remote call per FMI function.
+ * a white-box with Windows binaries only is stepped in C, one Wine process per thread of a
+ * Python process, instead of one remote call per FMI function.
  *
  * Every integer is a little-endian int64, every real a double. A job:
  *     "FGB1", path_len, sha_len, dir_len, n_rows, n_inputs, n_outputs, dt, start_time,
