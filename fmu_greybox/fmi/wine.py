@@ -17,7 +17,12 @@ What the remoting cannot do, and so what the FMU's kind (:data:`FMI2_WINE`) refu
 - fmpy's server listens on one fixed TCP port (8080) and the client keeps its connection in
   a process-wide variable: one instance runs at a time in a process, and one on the machine
   (:class:`RemoteSlot`: a second in the same process is refused, one in another process, such
-  as a diagnosis worker, waits its turn).
+  as a diagnosis worker, waits its turn);
+- every FMI call is a round trip to the server (about 7 ms a step of the reference actuator,
+  against 24 us for its linux64 build: ``docs/bench.md``), too slow for the diagnosis's
+  hundreds of simulations, which is why they take the C runner's road above: one Wine
+  process per thread of a Python process, one job per simulation, no limit on how many run
+  at once.
 
 And what it gets wrong under Wine: the server is to stop when the client dies, which it learns
 by opening the client's lock file with exclusive access every 0.5 s; the client holds that file
