@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import multiprocessing
 import os
 import re
 import shutil
@@ -230,6 +231,28 @@ def test_the_win64_runner_is_one_process_per_process_and_ends_with_it(win64_whit
         os.waitpid(child, 0)
 
 
+def _runner_pid_of_a_run(fmu: Path, pids) -> None:
+    """In a worker: one run of ``fmu``, its runner's process id put on ``pids``."""
+    rows = run_input_rows(synth_recording(0.2, seed=5))
+    with open_fmu(fmu) as archive:
+        run_native(archive, RUN_INPUTS, rows, DT, RUN_OUTPUTS, [], STAGES, None, 0.0, 4)
+    pids.put(WineRunner.of_this_thread(wine_runner_program()).process.pid)
+
+
+def test_a_forked_worker_s_runner_has_ended_when_the_worker_has(win64_whitebox) -> None:
+    """A worker made as the diagnosis makes them (fork) and ended as a pool ends them (its
+    function returns): its Wine process was waited for, not left to end on its own."""
+    context = multiprocessing.get_context("fork")
+    pids = context.SimpleQueue()
+    worker = context.Process(target=_runner_pid_of_a_run, args=(win64_whitebox, pids))
+    worker.start()
+    pid = pids.get()
+    worker.join()
+    assert worker.exitcode == 0
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)
+
+
 def test_threads_run_the_win64_whitebox_each_in_its_own_runner(win64_whitebox) -> None:
     """Two threads at once (as a Dask worker's threads run simulations): each its own Wine
     process, so the jobs do not cross, and each gets what it gets alone, bit for bit."""
@@ -293,6 +316,27 @@ def test_a_win64_runner_that_dies_during_a_run_is_an_fmu_error_saying_what_to_do
         )
         again = run_native(archive, RUN_INPUTS, rows, DT, RUN_OUTPUTS, [], STAGES, None, 0.0, 4)
     np.testing.assert_array_equal(again, first)
+    WineRunner.close_all()
+
+
+def test_a_run_interrupted_mid_job_leaves_no_answer_behind(win64_whitebox, monkeypatch) -> None:
+    """Ctrl-C while the answer is read (as in a notebook): the runner is ended, so the next
+    run does not read the interrupted one's answer as its own and gets its own numbers."""
+    rows = run_input_rows(synth_recording(0.2, seed=5))
+    friction = [KINDS["CoulombForce"]]
+    with open_fmu(win64_whitebox) as archive:
+        expected = run_native(
+            archive, RUN_INPUTS, rows, DT, RUN_OUTPUTS, friction, STAGES, None, 0.0, 4
+        )
+
+        def interrupted(self, n: int) -> bytes:
+            raise KeyboardInterrupt
+
+        with monkeypatch.context() as patch, pytest.raises(KeyboardInterrupt):
+            patch.setattr(WineRunner, "_read", interrupted)
+            run_native(archive, RUN_INPUTS, rows, DT, RUN_OUTPUTS, [], STAGES, None, 0.0, 4)
+        got = run_native(archive, RUN_INPUTS, rows, DT, RUN_OUTPUTS, friction, STAGES, None, 0.0, 4)
+    np.testing.assert_array_equal(got, expected)
     WineRunner.close_all()
 
 

@@ -17,10 +17,11 @@ steps the model in Python.
 
 from __future__ import annotations
 
-import atexit
+import contextlib
 import ctypes
 import functools
 import hashlib
+import multiprocessing.util
 import os
 import struct
 import subprocess
@@ -198,6 +199,9 @@ class WineRunner:
             stdout=subprocess.PIPE,
             stderr=self.stderr,
         )
+        # Closed at the exit of the process that started it, a diagnosis worker included: a
+        # worker ends through multiprocessing, which runs these finalizers, not atexit's.
+        self.finalizer = multiprocessing.util.Finalize(self, self.close, exitpriority=0)
 
     @classmethod
     def of_this_thread(cls, program: Path) -> WineRunner:
@@ -205,6 +209,8 @@ class WineRunner:
         key = (os.getpid(), threading.get_ident())
         runner = _RUNNERS.get(key)
         if runner is None or runner.process.poll() is not None:
+            if runner is not None:
+                runner.close()
             runner = _RUNNERS[key] = cls(program)
         return runner
 
@@ -215,9 +221,12 @@ class WineRunner:
             _RUNNERS.pop(key).close()
 
     def close(self) -> None:
-        """Close the program's input and wait for it to end (killed after 10 s)."""
+        """Close the program's input and wait for it to end (killed after 10 s); again, or
+        after it died, does nothing more."""
+        self.finalizer.cancel()
         if self.process.stdin is not None:
-            self.process.stdin.close()
+            with contextlib.suppress(OSError):  # a job left unsent by a dead program
+                self.process.stdin.close()
         try:
             self.process.wait(timeout=10)
         except subprocess.TimeoutExpired:
@@ -293,13 +302,13 @@ def _forget_parent_runners() -> None:
     job, so nothing is written), so that the parent's runner sees the end of its input when
     the parent closes it, whatever the child is still doing."""
     for runner in _RUNNERS.values():
+        runner.finalizer.cancel()
         for stream in (runner.process.stdin, runner.process.stdout, runner.stderr):
             if stream is not None:
                 stream.close()
     _RUNNERS.clear()
 
 
-atexit.register(WineRunner.close_all)
 os.register_at_fork(after_in_child=_forget_parent_runners)
 
 
