@@ -56,8 +56,10 @@ from fmu_greybox.model.native_run import (
     runs_natively,
     wine_runner_program,
 )
+from fmu_greybox.model.native_whitebox import whitebox_sections
 from fmu_greybox.model.store import load_model, save_model
 from fmu_greybox.model.terms import ParameterChange
+from fmu_greybox.model.whitebox import part_layouts
 from fmu_greybox.project.config import load_config
 from fmu_greybox.workflow.train import train_model, with_inducing
 
@@ -229,6 +231,17 @@ def test_the_win64_runner_is_one_process_per_process_and_ends_with_it(win64_whit
     finally:
         os.kill(child, signal.SIGKILL)
         os.waitpid(child, 0)
+
+
+def test_a_run_through_wine_hashes_the_win64_dll_alone(win64_whitebox) -> None:
+    """The runner checks the DLL against the data file's hash; fmpy's remoting client, which
+    stands in the linux64 folder (2.6 MB), is no part of the white-box and is not hashed."""
+    layouts = part_layouts(RUN_OUTPUTS, [], STAGES, None, 4)
+    with open_fmu(win64_whitebox) as archive:
+        dll = (archive.unzip_dir / "binaries" / "win64" / "HydraulicActuator.dll").read_bytes()
+        sections = whitebox_sections(archive, RUN_INPUTS, layouts, DT, len(RUN_OUTPUTS))
+        assert (archive.unzip_dir / "binaries" / "linux64").is_dir()  # the remoting's client
+    assert sections["wb_binaries"] == f"win64 {hashlib.sha256(dll).hexdigest()}"
 
 
 def _runner_pid_of_a_run(fmu: Path, pids) -> None:

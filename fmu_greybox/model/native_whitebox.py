@@ -40,7 +40,9 @@ def whitebox_sections(
         "wb_input_vr": _references(archive, list(inputs)),
         "wb_guid": archive.guid,
         "wb_identifier": archive.model_identifier,
-        "wb_binaries": _binary_hashes(unpacked or archive.unzip_dir, archive.model_identifier),
+        "wb_binaries": _binary_hashes(
+            unpacked or archive.unzip_dir, archive.model_identifier, archive.kind.remote
+        ),
         **_part_sections(list(layouts), archive, list(inputs), dt),
     }
 
@@ -85,10 +87,14 @@ def _part_sections(layouts: list, archive: FmuArchive, inputs: list[str], dt: fl
     }
 
 
-def _binary_hashes(unpacked: Path, identifier: str) -> str:
-    """``platform sha256`` lines of the white-box's binaries (checked before dlopen)."""
+def _binary_hashes(unpacked: Path, identifier: str, remote: str = "") -> str:
+    """``platform sha256`` lines of the white-box's binaries (checked before dlopen); of one
+    run through Wine (``remote``, its kind's :attr:`~fmu_greybox.fmi.kinds.FmuKind.remote`),
+    that platform's only: its host folder holds fmpy's remoting client (2.6 MB, hashed at
+    every simulation for nothing), not the white-box."""
     lines = []
-    for folder in sorted((unpacked / "binaries").iterdir()):
+    folders = [unpacked / "binaries" / remote] if remote else (unpacked / "binaries").iterdir()
+    for folder in sorted(folders):
         for library in sorted(folder.glob(f"{identifier}.*")):
             lines.append(f"{folder.name} {file_sha256(library)}")
     return "\n".join(lines)
