@@ -332,6 +332,20 @@ def test_a_win64_runner_that_dies_during_a_run_is_an_fmu_error_saying_what_to_do
     WineRunner.close_all()
 
 
+def test_a_wine_that_cannot_start_is_an_fmu_error_quoting_wine(
+    win64_whitebox, tmp_path, monkeypatch
+) -> None:
+    """Wine's prefix unusable (here a file): the run's FmuError quotes Wine's own words."""
+    rows = run_input_rows(synth_recording(0.2, seed=5))
+    (tmp_path / "prefix").touch()
+    with open_fmu(win64_whitebox) as archive:
+        WineRunner.close_all()
+        monkeypatch.setenv("WINEPREFIX", str(tmp_path / "prefix"))
+        with pytest.raises(FmuError, match=r"Wine said: wine: cannot use directory .*prefix"):
+            run_native(archive, RUN_INPUTS, rows, DT, RUN_OUTPUTS, [], STAGES, None, 0.0, 4)
+    WineRunner.close_all()
+
+
 def test_a_run_interrupted_mid_job_leaves_no_answer_behind(win64_whitebox, monkeypatch) -> None:
     """Ctrl-C while the answer is read (as in a notebook): the runner is ended, so the next
     run does not read the interrupted one's answer as its own and gets its own numbers."""

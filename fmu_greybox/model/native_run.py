@@ -280,9 +280,9 @@ class WineRunner:
         said = self.stderr.read().decode(errors="replace").strip()[-STDERR_KEPT:]
         return (
             f"the win64 simulation runner under Wine ({self.program}) ended with exit status "
-            f"{code} during a run ({exc}){f'; Wine said: {said}' if said else ''}. A crash of "
-            f"the white-box's DLL ends it too: set {DISABLE_VARIABLE}=0 to step the white-box "
-            "through fmpy's remoting, which names the FMI call that fails"
+            f"{code} during a run ({exc}){f'; Wine said: {said}' if said else ''}. Where Wine "
+            f"does not say why, the white-box's DLL may have crashed: set {DISABLE_VARIABLE}=0 "
+            "to step the white-box through fmpy's remoting, which names the FMI call that fails"
         )
 
     def _read(self, n: int) -> bytes:
