@@ -612,8 +612,9 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
         const double n_real = ceil(h / d->real[FW_SOLVER_STEP] - 1e-9);
         const long n = n_real < 1.0 ? 1 : (long)n_real;
         const double hs = h / (double)n;
+        FwIteration iteration = {.fresh = 1};
         for (long k = 1; k <= n; k++) {
-            if (fw_rosenbrock_step(d, d->x, hs) != 0) {
+            if (fw_rosenbrock_step(d, d->x, hs, &iteration) != 0) {
                 return fail(inst, call, "singular iteration matrix at t = %.9g s; reduce "
                             "solver_step or check the parameters.", d->time);
             }

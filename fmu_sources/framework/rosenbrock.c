@@ -10,7 +10,8 @@
  *     x_{n+1} = x_n + sum_i b_i k_i
  *
  * As a W-method it keeps order 3 for any matrix J, so the forward-difference Jacobian costs no
- * accuracy; L-stability damps stiff pressure dynamics and steep regularisations (orifice square
+ * accuracy, and one J (and W factorised) serves every internal step of a communication step;
+ * L-stability damps stiff pressure dynamics and steep regularisations (orifice square
  * root near zero pressure drop, friction tanh) instead of letting them ring or blow up.
  * J is built column by column, W factorised by Gaussian elimination with partial pivoting.
  */
@@ -87,15 +88,12 @@ static void lu_solve(double lu[N_STATES][N_STATES], const int pivot[N_STATES], d
     }
 }
 
-int fw_rosenbrock_step(const SimData *d, double x[N_STATES], double h) {
-    double jac[N_STATES][N_STATES], w[N_STATES][N_STATES], k[STAGES][N_STATES];
-    double f0[N_STATES], probe[N_STATES], fp[N_STATES], sum[N_STATES];
-    int pivot[N_STATES];
+/* J by forward differences at x, column by column (f0 = f(x)); W = I - gamma h J factorised. */
+static int iteration_matrix(const SimData *d, const double x[N_STATES], const double f0[N_STATES],
+                            double h, FwIteration *it) {
+    double probe[N_STATES], fp[N_STATES];
     const double root_eps = sqrt(DBL_EPSILON);
 
-    model_derivatives(d, x, f0);
-
-    /* J by forward differences, column by column; W = I - gamma h J. */
     memcpy(probe, x, sizeof probe);
     for (int j = 0; j < N_STATES; j++) {
         const double scale = fmax(fabs(x[j]), model_state_nominal[j]);
@@ -104,12 +102,24 @@ int fw_rosenbrock_step(const SimData *d, double x[N_STATES], double h) {
         model_derivatives(d, probe, fp);
         probe[j] = x[j];
         for (int i = 0; i < N_STATES; i++) {
-            jac[i][j] = (fp[i] - f0[i]) / delta;
-            w[i][j] = -GAMMA * h * jac[i][j];
+            it->jac[i][j] = (fp[i] - f0[i]) / delta;
+            it->lu[i][j] = -GAMMA * h * it->jac[i][j];
         }
-        w[j][j] += 1.0;
+        it->lu[j][j] += 1.0;
     }
-    if (lu_factor(w, pivot) != 0) return -1;
+    it->h = h;
+    it->fresh = 0;
+    return lu_factor(it->lu, it->pivot);
+}
+
+int fw_rosenbrock_step(const SimData *d, double x[N_STATES], double h, FwIteration *it) {
+    double k[STAGES][N_STATES], f0[N_STATES], probe[N_STATES], fp[N_STATES], sum[N_STATES];
+
+    model_derivatives(d, x, f0);
+    if ((it->fresh || it->h != h) && iteration_matrix(d, x, f0, h, it) != 0) {
+        it->fresh = 1;
+        return -1;
+    }
 
     for (int s = 0; s < STAGES; s++) {
         /* probe = x + sum a_sj k_j, sum = sum g_sj k_j */
@@ -130,11 +140,11 @@ int fw_rosenbrock_step(const SimData *d, double x[N_STATES], double h) {
         for (int i = 0; i < N_STATES; i++) {
             double js = 0.0;
             if (s > 0) { /* stage 1 has no coupling term */
-                for (int j = 0; j < N_STATES; j++) js += jac[i][j] * sum[j];
+                for (int j = 0; j < N_STATES; j++) js += it->jac[i][j] * sum[j];
             }
             k[s][i] = h * (fp[i] + js);
         }
-        lu_solve(w, pivot, k[s]);
+        lu_solve(it->lu, it->pivot, k[s]);
     }
     for (int i = 0; i < N_STATES; i++) {
         double increment = 0.0;
