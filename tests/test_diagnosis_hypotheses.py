@@ -173,6 +173,30 @@ def test_simulator_runs_a_repeated_term_set_once(whitebox_fmu, truth_fmu) -> Non
     assert not first[1].flags.writeable
 
 
+def test_a_calibrator_scores_a_simulation_once(whitebox_fmu, truth_fmu) -> None:
+    """A screen's candidates all start from one simulation: its residual is computed once per
+    view (and read-only), and is the residual computed afresh, on the raw and low-passed views."""
+    recording = actuator_recording(whitebox_fmu, truth_fmu, {"offset": 0.2})
+    config = load_config(CONFIGS / "hydraulic_actuator.toml")
+    with open_fmu(whitebox_fmu) as whitebox:
+        signals = SignalMap.from_project(config, whitebox, recording)
+        experiment = Experiment.from_project(config, whitebox, recording, signals, 2000)
+        with Simulator(experiment, workers=1) as simulator:
+            sims = simulator.run([[], [InputOffset(input="valve_current", offset=0.1)]], 2500)
+            for smoothing in (0.0, 20.0):
+                calibrator = Calibrator(simulator, 2500, smoothing)
+                computed: list[np.ndarray] = []
+                fresh = calibrator._residual
+                calibrator._residual = lambda sim, f=fresh, c=computed: c.append(sim) or f(sim)
+                first = [calibrator.residual(sim) for sim in sims]
+                again = [calibrator.residual(sim) for sim in [*sims, sims[0]]]
+                assert len(computed) == 2
+                assert again[0] is first[0] and again[2] is first[0] and again[1] is first[1]
+                assert not first[0].flags.writeable
+                np.testing.assert_array_equal(first[1], fresh(sims[1].copy()))
+                assert not np.allclose(first[0], first[1])
+
+
 @pytest.mark.parametrize("sign", [1.0, -1.0])
 def test_one_screening_step_finds_an_offset_of_either_sign(whitebox_fmu, truth_fmu, sign) -> None:
     """A command offset drifts the simulated ram to an end stop. The screen's one Gauss-Newton

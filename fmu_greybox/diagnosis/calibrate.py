@@ -38,6 +38,9 @@ from fmu_greybox.diagnosis.runner import Experiment, Simulator
 from fmu_greybox.model.calibration import autocorrelation_time
 from fmu_greybox.model.terms import Term
 
+#: Memory a calibrator keeps the residuals of its latest simulations in.
+RESIDUAL_BYTES = 32 * 2**20
+
 
 class SpectrumView:
     """The spectrum view of a residual over the first ``rows`` rows of an experiment.
@@ -235,12 +238,33 @@ class Calibrator:
         self.smoothing = smoothing
         self.difference_step = difference_step
         self.spectrum = SpectrumView(self.experiment, self.fit_rows) if spectrum else None
+        self._residuals: dict[int, tuple[np.ndarray, np.ndarray | None]] = {}
+        self._residual_bytes = 0
 
     # ------------------------------------------------------------------ residuals
     def residual(self, simulated: np.ndarray | None) -> np.ndarray | None:
-        """Training-row residual vector of a simulation (None if the FMU failed)."""
+        """Training-row residual vector of a simulation (None if the FMU failed; read-only).
+
+        A simulation's residual is computed once while it is among the latest
+        :data:`RESIDUAL_BYTES` kept: a screen's candidates all start from one simulation, and
+        a fit takes the sensitivities and the step from the residual it has just scored.
+        """
         if simulated is None:
             return None
+        kept = self._residuals.get(id(simulated))
+        if kept is not None and kept[0] is simulated:
+            return kept[1]
+        r = self._residual(simulated)
+        if r is not None:
+            r.setflags(write=False)
+            self._residual_bytes += r.nbytes
+        self._residuals[id(simulated)] = (simulated, r)  # the array kept: its id stays its own
+        while self._residual_bytes > RESIDUAL_BYTES and len(self._residuals) > 1:
+            _, old = self._residuals.pop(next(iter(self._residuals)))
+            self._residual_bytes -= 0 if old is None else old.nbytes
+        return r
+
+    def _residual(self, simulated: np.ndarray) -> np.ndarray | None:
         if self.spectrum is not None:
             return self.spectrum.residual(simulated[: self.fit_rows])
         r = self.experiment.residual(simulated[: self.fit_rows])
