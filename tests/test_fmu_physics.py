@@ -74,6 +74,28 @@ def test_halving_solver_step_changes_little(
         assert np.max(np.abs(coarse[name] - fine[name])) <= tolerance * spread, name
 
 
+#: Largest difference allowed, relative to each output's range, between one long communication
+#: step and the same time in 1 ms steps (measured 4.8e-10 on the ram position; with one
+#: Jacobian kept for all 1 000 internal steps of the long step it was 8.3e-7).
+LONG_STEP_TOLERANCE = 1e-8
+
+
+@pytest.mark.parametrize("model", ["whitebox", "truth"])
+def test_a_long_communication_step_renews_its_jacobian(
+    simulate, whitebox_fmu: Path, truth_fmu: Path, model: str
+) -> None:
+    """The integrator keeps a Jacobian for at most ten internal steps, however long the master's
+    communication step: two 0.1 s steps land where two hundred 1 ms steps do."""
+    fmu = whitebox_fmu if model == "whitebox" else truth_fmu
+    inputs = {"valve_current": 0.5, "supply_pressure": 20.7e6, "load_force": 2000.0}
+    short = simulate(fmu, 0.2, step_size=1e-3, inputs=inputs)
+    long = simulate(fmu, 0.2, step_size=0.1, inputs=inputs)
+    for name in ("ram_position", "itfv_pressure", "ram_velocity", "pressure_a", "pressure_b"):
+        spread = np.ptp(short[name])
+        difference = np.abs(short[name][[100, 200]] - long[name][[1, 2]])
+        assert np.max(difference) <= LONG_STEP_TOLERANCE * spread, name
+
+
 def test_no_load_velocity_equals_load_flow_over_area(simulate, whitebox_fmu: Path) -> None:
     for current in (10.0, 3.0, -5.0):
         run = simulate(whitebox_fmu, 0.2, inputs={"valve_current": current})

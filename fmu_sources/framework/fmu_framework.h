@@ -123,20 +123,25 @@ int model_check_memory(const SimData *d, char *message, size_t size);
  * Integrator (rosenbrock.c)
  * ------------------------------------------------------------------------------------------- */
 
+/* Internal steps one Jacobian serves at most. */
+#define FW_JACOBIAN_STEPS 10
+
 /* The iteration matrix of the Rosenbrock-W steps of one communication step: the Jacobian J
- * taken at the first internal step and W = I - gamma h J factorised, kept for the steps after
- * it (a W-method keeps its order with any J). Set fresh = 1 before the first step. */
+ * taken at the first internal step and W = I - gamma h J factorised, kept for the next
+ * FW_JACOBIAN_STEPS - 1 steps (a W-method keeps its order with any J), then taken again. Set
+ * fresh = 1 before the first step. */
 typedef struct {
     double jac[N_STATES][N_STATES];
     double lu[N_STATES][N_STATES];
     int pivot[N_STATES];
     double h;
     int fresh;
+    int served; /* steps taken with this J */
 } FwIteration;
 
 /* Advance x by one step h of the L-stable Rosenbrock-W method ROS34PW2 (order 3), with the
- * finite-difference Jacobian of `it` (taken here at x when it->fresh or h changed). Returns 0,
- * or -1 if the iteration matrix is singular. */
+ * finite-difference Jacobian of `it` (taken here at x when it->fresh, h changed or it has served
+ * FW_JACOBIAN_STEPS steps). Returns 0, or -1 if the iteration matrix is singular. */
 int fw_rosenbrock_step(const SimData *d, double x[N_STATES], double h, FwIteration *it);
 
 #endif /* FMU_FRAMEWORK_H */

@@ -10,7 +10,7 @@
  *     x_{n+1} = x_n + sum_i b_i k_i
  *
  * As a W-method it keeps order 3 for any matrix J, so the forward-difference Jacobian costs no
- * accuracy, and one J (and W factorised) serves every internal step of a communication step;
+ * accuracy, and one J (and W factorised) serves up to FW_JACOBIAN_STEPS internal steps;
  * L-stability damps stiff pressure dynamics and steep regularisations (orifice square
  * root near zero pressure drop, friction tanh) instead of letting them ring or blow up.
  * J is built column by column, W factorised by Gaussian elimination with partial pivoting.
@@ -109,6 +109,7 @@ static int iteration_matrix(const SimData *d, const double x[N_STATES], const do
     }
     it->h = h;
     it->fresh = 0;
+    it->served = 0;
     return lu_factor(it->lu, it->pivot);
 }
 
@@ -116,10 +117,12 @@ int fw_rosenbrock_step(const SimData *d, double x[N_STATES], double h, FwIterati
     double k[STAGES][N_STATES], f0[N_STATES], probe[N_STATES], fp[N_STATES], sum[N_STATES];
 
     model_derivatives(d, x, f0);
-    if ((it->fresh || it->h != h) && iteration_matrix(d, x, f0, h, it) != 0) {
+    if ((it->fresh || it->h != h || it->served >= FW_JACOBIAN_STEPS) &&
+        iteration_matrix(d, x, f0, h, it) != 0) {
         it->fresh = 1;
         return -1;
     }
+    it->served++;
 
     for (int s = 0; s < STAGES; s++) {
         /* probe = x + sum a_sj k_j, sum = sum g_sj k_j */
