@@ -173,6 +173,30 @@ def test_simulator_runs_a_repeated_term_set_once(whitebox_fmu, truth_fmu) -> Non
     assert not first[1].flags.writeable
 
 
+def test_simulation_workers_score_their_simulations(whitebox_fmu, truth_fmu) -> None:
+    """A scored batch's training-row residuals come from the worker processes, equal to the
+    residual computed here; another span of rows, or an unscored batch, is computed here."""
+    recording = actuator_recording(whitebox_fmu, truth_fmu, {"offset": 0.2})
+    config = load_config(CONFIGS / "hydraulic_actuator.toml")
+    offsets = [[InputOffset(input="valve_current", offset=x)] for x in (0.1, 0.2)]
+    with open_fmu(whitebox_fmu) as whitebox:
+        signals = SignalMap.from_project(config, whitebox, recording)
+        experiment = Experiment.from_project(config, whitebox, recording, signals, 2000)
+        with Simulator(experiment, workers=2) as simulator:
+            scored = simulator.run(offsets, 2500, scored=True)
+            plain = simulator.run([[], *offsets[:1]], 1500)
+            for sim in scored:
+                residual = simulator.training_residual(sim, 2000)
+                assert simulator.training_residual(sim, 2000) is residual
+                assert not residual.flags.writeable
+                np.testing.assert_array_equal(residual, experiment.residual(sim[:2000]))
+                shorter = simulator.training_residual(sim, 1000)
+                np.testing.assert_array_equal(shorter, experiment.residual(sim[:1000]))
+            assert simulator.training_residual(plain[0], 1500) is not (
+                simulator.training_residual(plain[0], 1500)
+            )
+
+
 def test_a_calibrator_scores_a_simulation_once(whitebox_fmu, truth_fmu) -> None:
     """A screen's candidates all start from one simulation: its residual is computed once per
     view (and read-only), and is the residual computed afresh, on the raw and low-passed views."""

@@ -38,8 +38,9 @@ from fmu_greybox.diagnosis.runner import Experiment, Simulator
 from fmu_greybox.model.calibration import autocorrelation_time
 from fmu_greybox.model.terms import Term
 
-#: Memory a calibrator keeps the residuals of its latest simulations in.
-RESIDUAL_BYTES = 32 * 2**20
+#: Memory a calibrator keeps the residuals of its latest simulations in (a diagnosis holds
+#: several calibrators at once).
+RESIDUAL_BYTES = 8 * 2**20
 
 
 class SpectrumView:
@@ -267,7 +268,7 @@ class Calibrator:
     def _residual(self, simulated: np.ndarray) -> np.ndarray | None:
         if self.spectrum is not None:
             return self.spectrum.residual(simulated[: self.fit_rows])
-        r = self.experiment.residual(simulated[: self.fit_rows])
+        r = self.simulator.training_residual(simulated, self.fit_rows)
         if not np.all(np.isfinite(r)):
             return None
         if self.smoothing > 0:
@@ -285,9 +286,14 @@ class Calibrator:
             self.experiment.bands(rest, self.fit_rows), np.sqrt(np.mean(judged**2, axis=0))
         )
 
+    def _run(self, term_sets: Sequence[Sequence[Term]]) -> list:
+        """The simulations of ``term_sets`` over :attr:`rows` (their residuals computed by the
+        simulation workers where this view is the time-domain one)."""
+        return self.simulator.run(term_sets, self.rows, scored=self.spectrum is None)
+
     def evaluate(self, candidates: Sequence[Candidate]) -> None:
         """Simulate every candidate at its magnitudes and store cost and simulation."""
-        sims = self.simulator.run([c.terms() for c in candidates], self.rows)
+        sims = self._run([c.terms() for c in candidates])
         for c, sim in zip(candidates, sims, strict=True):
             self._store(c, c.theta, sim)
 
@@ -329,7 +335,7 @@ class Calibrator:
                 theta[k] += h[k]
                 tasks.append(c.terms(theta))
                 owners.append((i, k))
-        sims = self.simulator.run(tasks, self.rows)
+        sims = self._run(tasks)
         base = [self.residual(c.simulated) for c in candidates]
         jac: list[np.ndarray | None] = [
             np.empty((b.size, c.theta.size)) if b is not None else None
@@ -425,7 +431,7 @@ class Calibrator:
                     theta = c.clip(c.theta + alpha * d)
                     tasks.append(c.terms(theta))
                     trials.append((c, theta, alpha))
-            sims = self.simulator.run(tasks, self.rows)
+            sims = self._run(tasks)
             best: dict[int, tuple[float, np.ndarray, float, np.ndarray]] = {}
             for (c, theta, alpha), sim in zip(trials, sims, strict=True):
                 r = self.residual(sim)

@@ -221,7 +221,8 @@ class Experiment:
 
 _WORKER: dict[str, Experiment] = {}
 
-#: Memory the :class:`Simulator` keeps its latest results in.
+#: Memory the :class:`Simulator` keeps its latest results in (their workers' residuals, no larger,
+#: beside them).
 MEMO_BYTES = 64 * 2**20
 
 
@@ -229,9 +230,16 @@ def _init_worker(experiment: Experiment) -> None:
     _WORKER["experiment"] = experiment
 
 
-def _simulate_task(task: tuple[list[Term], int]) -> np.ndarray | None:
-    terms, rows = task
-    return _WORKER["experiment"].simulate(terms, rows)
+def _simulate_task(
+    task: tuple[list[Term], int, bool],
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """A worker's simulation, with the residual of its training rows when ``scored``."""
+    terms, rows, scored = task
+    experiment = _WORKER["experiment"]
+    simulated = experiment.simulate(terms, rows)
+    if not scored or simulated is None:
+        return simulated, None
+    return simulated, experiment.residual(simulated[: experiment.train_rows])
 
 
 #: One simulation of a batch: the terms, and the rows to simulate.
@@ -279,6 +287,11 @@ class Simulator:
         two views of the residual score the same simulations).
     rows_simulated : int
         Total rows simulated so far.
+
+    Notes
+    -----
+    Worker processes also compute the residual of a scored batch's training rows
+    (:meth:`training_residual`), beside the simulations, rather than this process after them.
     """
 
     def __init__(
@@ -290,6 +303,7 @@ class Simulator:
         self.rows_simulated = 0
         self._memo: dict[tuple[str, int], np.ndarray | None] = {}
         self._memo_bytes = 0
+        self._residuals: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._pool = None
         self._placed = None if cluster is None else cluster.place(experiment)
         if self.workers > 1 and cluster is None:
@@ -299,8 +313,13 @@ class Simulator:
                 self.workers, initializer=_init_worker, initargs=(experiment,)
             )
 
-    def run(self, term_sets: Sequence[Sequence[Term]], rows: int | None = None) -> list:
+    def run(
+        self, term_sets: Sequence[Sequence[Term]], rows: int | None = None, scored: bool = False
+    ) -> list:
         """Simulate every set of terms over the first ``rows`` rows.
+
+        With ``scored``, the worker processes also compute each simulation's
+        :meth:`training_residual`.
 
         Returns
         -------
@@ -314,27 +333,55 @@ class Simulator:
         tasks = [(list(terms), rows) for terms in missing.values()]
         self.runs += len(tasks)
         self.rows_simulated += rows * len(tasks)
+        residuals: list[np.ndarray | None] = [None] * len(tasks)
         if self._placed is not None and len(tasks) > 1:
             results = self._placed.run(tasks)
         elif self._pool is None or len(tasks) == 1:
             results = [self.experiment.simulate(terms, rows) for terms, rows in tasks]
         else:
-            results = self._pool.map(_simulate_task, tasks, chunksize=1)
+            answers = self._pool.map(
+                _simulate_task, [(*task, scored) for task in tasks], chunksize=1
+            )
+            results = [simulated for simulated, _ in answers]
+            residuals = [residual for _, residual in answers]
         found = {key: self._memo[key] for key in keys if key in self._memo}
         found.update(zip(missing, results, strict=True))
-        for key, result in zip(missing, results, strict=True):
-            self._remember(key, result)
+        for key, result, residual in zip(missing, results, residuals, strict=True):
+            self._remember(key, result, residual)
         return [found[key] for key in keys]
 
-    def _remember(self, key: tuple[str, int], result: np.ndarray | None) -> None:
-        """Keep a result (read-only), forgetting the oldest beyond :data:`MEMO_BYTES`."""
+    def training_residual(self, simulated: np.ndarray, rows: int) -> np.ndarray:
+        """The residual (:meth:`Experiment.residual`) of the first ``rows`` rows of a
+        simulation this simulator returned: the one its worker computed when ``rows`` are its
+        training rows and the batch was scored (read-only), else computed here.
+
+        Returns
+        -------
+        ndarray, shape (rows, n_outputs)
+        """
+        kept = self._residuals.get(id(simulated))
+        train = min(simulated.shape[0], self.experiment.train_rows)
+        if kept is not None and kept[0] is simulated and rows == train:
+            return kept[1]
+        return self.experiment.residual(simulated[:rows])
+
+    def _remember(
+        self, key: tuple[str, int], result: np.ndarray | None, residual: np.ndarray | None
+    ) -> None:
+        """Keep a result (read-only) and its worker's residual, forgetting the oldest beyond
+        :data:`MEMO_BYTES` of results (a residual goes with its result)."""
         if result is not None:
             result.setflags(write=False)
             self._memo_bytes += result.nbytes
+            if residual is not None:
+                residual.setflags(write=False)
+                self._residuals[id(result)] = (result, residual)
         self._memo[key] = result
         while self._memo_bytes > MEMO_BYTES and len(self._memo) > 1:
             old = self._memo.pop(next(iter(self._memo)))
-            self._memo_bytes -= 0 if old is None else old.nbytes
+            if old is not None:
+                self._memo_bytes -= old.nbytes
+                self._residuals.pop(id(old), None)
 
     def close(self) -> None:
         """Stop the worker processes, release the experiment on a cluster (idempotent)."""
