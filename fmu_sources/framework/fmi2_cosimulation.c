@@ -117,8 +117,8 @@ static void load_start_values(SimData *d) {
     memcpy(d->real, fw_real_start, sizeof d->real);
     memcpy(d->integer, fw_integer_start, sizeof d->integer);
     memcpy(d->boolean, fw_boolean_start, sizeof d->boolean);
-    for (int i = 0; i < N_STRING; i++) {
-        strncpy(d->string[i], fw_string_start[i], FW_STRING_SIZE - 1);
+    for (int i = 0; i < N_STRING; i++) { /* memset above: the last byte stays the terminator */
+        snprintf(d->string[i], FW_STRING_SIZE, "%s", fw_string_start[i]);
     }
     d->parameters_changed = 1;
 }
