@@ -356,12 +356,16 @@ def test_a_run_interrupted_mid_job_leaves_no_answer_behind(win64_whitebox, monke
             archive, RUN_INPUTS, rows, DT, RUN_OUTPUTS, friction, STAGES, None, 0.0, 4
         )
 
+        interrupted_runner = WineRunner.of_this_thread(wine_runner_program())
+
         def interrupted(self, n: int) -> bytes:
             raise KeyboardInterrupt
 
         with monkeypatch.context() as patch, pytest.raises(KeyboardInterrupt):
             patch.setattr(WineRunner, "_read", interrupted)
             run_native(archive, RUN_INPUTS, rows, DT, RUN_OUTPUTS, [], STAGES, None, 0.0, 4)
+        # ended, not only signalled: the next run must see that it died and start another
+        assert WineRunner.of_this_thread(wine_runner_program()) is not interrupted_runner
         got = run_native(archive, RUN_INPUTS, rows, DT, RUN_OUTPUTS, friction, STAGES, None, 0.0, 4)
     np.testing.assert_array_equal(got, expected)
     WineRunner.close_all()

@@ -264,6 +264,7 @@ class WineRunner:
             raise FmuError("fgb_simulate", "an error", detail=self._ended(exc)) from exc
         except BaseException:  # interrupted mid-job: the next job would read this one's answer
             self.process.kill()
+            self.process.wait()  # ended before the next run asks whether it lives (poll)
             raise
         shape = (u.shape[0], n_outputs)
         y = np.empty(shape) if y is None else y.reshape(shape).copy()
