@@ -33,6 +33,8 @@ from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, parse_ef
 
 CONFIG = Path(__file__).resolve().parent.parent / "bench_configs" / "hydraulic_actuator.toml"
 SAMPLES = 25_000
+#: Issue 39's target for the diagnosis of 25 000 samples on the project's 2-core machine.
+TARGET_SECONDS = 20.0
 
 
 def main() -> None:
@@ -87,7 +89,7 @@ def main() -> None:
         "hypotheses": len(diagnosis.hypotheses_),
         "timings": diagnosis.timings_,
         "top_finding": top.summary,
-        "target_seconds": 60.0,
+        "target_seconds": TARGET_SECONDS,
     }
     if args.json:
         print(json.dumps(result))
@@ -101,7 +103,7 @@ def main() -> None:
         f"diagnosis: {shown(figures['diagnosis_seconds'], 3, ' s')} = "
         f"{shown(figures['ratio_to_one_simulation'], 3)} white-box simulations "
         f"({result['simulations']} simulations run, {result['hypotheses']} hypotheses, "
-        f"{args.workers} workers); target < 60 s"
+        f"{args.workers} workers); target < {TARGET_SECONDS:g} s (issue 39)"
     )
     print(f"steps of the last run [s]: {diagnosis.timings_}")
     print(f"top finding: {top.summary}")

@@ -74,6 +74,7 @@ from fmu_greybox.model.native_terms import kind_code, kind_defines
 from fmu_greybox.model.native_whitebox import whitebox_sections
 from fmu_greybox.model.store import file_sha256
 from fmu_greybox.model.whitebox import part_layouts
+from fmu_greybox.side_by_side import run_side_by_side
 
 if TYPE_CHECKING:
     from fmu_greybox.export.fmu import ExportPlan
@@ -154,9 +155,12 @@ def package_native(plan: ExportPlan, archive: FmuArchive, out: Path) -> None:
         description = model_description(plan, kind)
         sources = root / "sources"
         write_sources(sources, plan, kind, file_sha256(resources / DATA_FILE))
-        compile_sources(sources, root / binary_path(identifier, kind, host))
-        if win64:
-            add_win64_binary(sources, root / binary_path(identifier, kind, WIN64))
+        builds = [lambda: compile_sources(sources, root / binary_path(identifier, kind, host))]
+        if win64:  # the two compilers side by side, each in its own process
+            builds.append(
+                lambda: add_win64_binary(sources, root / binary_path(identifier, kind, WIN64))
+            )
+        run_side_by_side(builds)
         cross_compiled = win64 and not has_win64_binary(archive)
         write_binaries_note(root / BINARIES_NOTE, archive.path.name, kind, cross_compiled)
         (root / "modelDescription.xml").write_bytes(description)
