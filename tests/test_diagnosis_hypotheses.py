@@ -16,6 +16,7 @@ from fmu_greybox.diagnosis.hypotheses import (
     _relative_range,
     generate_hypotheses,
 )
+from fmu_greybox.diagnosis.memo import Memo
 from fmu_greybox.diagnosis.runner import Experiment, Simulator
 from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.fmi.archive import open_fmu
@@ -219,6 +220,24 @@ def test_a_calibrator_scores_a_simulation_once(whitebox_fmu, truth_fmu) -> None:
                 assert not first[0].flags.writeable
                 np.testing.assert_array_equal(first[1], fresh(sims[1].copy()))
                 assert not np.allclose(first[0], first[1])
+
+
+def test_a_memo_forgets_its_oldest_beyond_its_budget() -> None:
+    """The simulator's and the calibrators' memory: within its bytes, oldest out first, each
+    forgotten value handed on (the simulator drops its residual with it), the latest kept
+    whatever its size."""
+    forgotten: list[str] = []
+    memo: Memo[str, bytes] = Memo(10, len, lambda value: forgotten.append(value.decode()))
+    for key in "abc":
+        memo.keep(key, key.encode() * 4)
+    assert ("a" in memo, "b" in memo, "c" in memo) == (False, True, True)
+    assert (memo.bytes, forgotten) == (8, ["aaaa"])
+    memo.keep("b", b"bb")  # kept again: counted once, now the latest
+    memo.keep("d", b"dddd")
+    assert (memo.bytes, sorted(forgotten), len(memo)) == (10, ["aaaa"], 3)
+    memo.keep("e", b"e" * 12)
+    assert (memo.get("e"), memo.get("d"), memo.bytes) == (b"e" * 12, None, 12)
+    assert forgotten == ["aaaa", "cccc", "bb", "dddd"]
 
 
 @pytest.mark.parametrize("sign", [1.0, -1.0])

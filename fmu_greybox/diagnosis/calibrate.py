@@ -34,6 +34,7 @@ from scipy.signal import filtfilt, get_window
 
 from fmu_greybox.data.noise import Bands
 from fmu_greybox.diagnosis.hypotheses import Hypothesis
+from fmu_greybox.diagnosis.memo import Memo
 from fmu_greybox.diagnosis.runner import Experiment, Simulator
 from fmu_greybox.model.calibration import autocorrelation_time
 from fmu_greybox.model.terms import Term
@@ -239,8 +240,9 @@ class Calibrator:
         self.smoothing = smoothing
         self.difference_step = difference_step
         self.spectrum = SpectrumView(self.experiment, self.fit_rows) if spectrum else None
-        self._residuals: dict[int, tuple[np.ndarray, np.ndarray | None]] = {}
-        self._residual_bytes = 0
+        self._residuals: Memo[int, tuple[np.ndarray, np.ndarray | None]] = Memo(
+            RESIDUAL_BYTES, lambda kept: 0 if kept[1] is None else kept[1].nbytes
+        )
 
     # ------------------------------------------------------------------ residuals
     def residual(self, simulated: np.ndarray | None) -> np.ndarray | None:
@@ -258,11 +260,7 @@ class Calibrator:
         r = self._residual(simulated)
         if r is not None:
             r.setflags(write=False)
-            self._residual_bytes += r.nbytes
-        self._residuals[id(simulated)] = (simulated, r)  # the array kept: its id stays its own
-        while self._residual_bytes > RESIDUAL_BYTES and len(self._residuals) > 1:
-            _, old = self._residuals.pop(next(iter(self._residuals)))
-            self._residual_bytes -= 0 if old is None else old.nbytes
+        self._residuals.keep(id(simulated), (simulated, r))  # the array kept: its id stays its own
         return r
 
     def _residual(self, simulated: np.ndarray) -> np.ndarray | None:

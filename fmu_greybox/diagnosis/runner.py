@@ -33,6 +33,7 @@ from fmu_greybox.data.noise import (
     residual_bands,
 )
 from fmu_greybox.data.recording import Recording
+from fmu_greybox.diagnosis.memo import Memo
 from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.errors import FmuError
 from fmu_greybox.fmi.archive import FmuArchive
@@ -301,9 +302,12 @@ class Simulator:
         self.workers = max(1, min(int(workers), os.cpu_count() or 1))
         self.runs = 0
         self.rows_simulated = 0
-        self._memo: dict[tuple[str, int], np.ndarray | None] = {}
-        self._memo_bytes = 0
         self._residuals: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._memo: Memo[tuple[str, int], np.ndarray | None] = Memo(
+            MEMO_BYTES,
+            lambda result: 0 if result is None else result.nbytes,
+            lambda old: None if old is None else self._residuals.pop(id(old), None),
+        )
         self._pool = None
         self._placed = None if cluster is None else cluster.place(experiment)
         if self.workers > 1 and cluster is None:
@@ -372,16 +376,10 @@ class Simulator:
         :data:`MEMO_BYTES` of results (a residual goes with its result)."""
         if result is not None:
             result.setflags(write=False)
-            self._memo_bytes += result.nbytes
             if residual is not None:
                 residual.setflags(write=False)
                 self._residuals[id(result)] = (result, residual)
-        self._memo[key] = result
-        while self._memo_bytes > MEMO_BYTES and len(self._memo) > 1:
-            old = self._memo.pop(next(iter(self._memo)))
-            if old is not None:
-                self._memo_bytes -= old.nbytes
-                self._residuals.pop(id(old), None)
+        self._memo.keep(key, result)
 
     def close(self) -> None:
         """Stop the worker processes, release the experiment on a cluster (idempotent)."""
