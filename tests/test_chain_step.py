@@ -23,6 +23,12 @@ from fmu_greybox.model.chain_step import ChainState
 from fmu_greybox.project.config import parse_config
 
 REFERENCE = Path(__file__).resolve().parents[1] / "bench_configs" / "hydraulic_actuator.toml"
+#: The compiled step's output means against the numpy reference's (outputs of order 1): the
+#: single-solve prediction against the batch's two solves is accurate to 1e-11 in standardised
+#: units (docs/sgpr.md), but the two evaluate the kernel rows and sums in their own order, and
+#: the posterior's weights amplify last-bit differences: 1.2e-10 apart on an AMD EPYC machine
+#: (2026-11-29; the same with OPENBLAS_CORETYPE Haswell, SkylakeX or Zen), below 1e-10 before.
+MEAN_ATOL = 1e-9
 
 
 def signals(n: int = 600, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -165,12 +171,11 @@ def test_compiled_step_equals_the_numpy_reference(
     for j in range(400, 600):  # free run on rows the correctors never saw
         expected, expected_score = numpy_step(chain, state.values, exo[j - 1], wb[j])
         score = plan.step(state, exo[j - 1], wb[j])
-        # outputs (of order 1) to the documented accuracy of the single-solve prediction
-        # against the batch's two solves (1e-11); variances to the finite differences'
+        # outputs to MEAN_ATOL; variances to the finite differences'
         reference = ChainState(chain.layout, state.memory_lengths, expected)
         np.testing.assert_array_equal(state.history("wb"), reference.history("wb"))
         np.testing.assert_array_equal(state.history("exo"), reference.history("exo"))
-        np.testing.assert_allclose(state.out_mean, reference.out_mean, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(state.out_mean, reference.out_mean, rtol=0, atol=MEAN_ATOL)
         np.testing.assert_allclose(state.out_var, reference.out_var, rtol=1e-5, atol=1e-15)
         np.testing.assert_array_equal(state.outside, reference.outside)
         for got, want in zip(state.memory_cov, reference.memory_cov, strict=True):
@@ -203,7 +208,7 @@ def test_a_corrector_fades_out_as_its_inputs_leave_its_domain(mode, monkeypatch)
         expected, _ = numpy_step(chain, state.values, exo[j - 1], wb[j])
         plan.step(state, exo[j - 1], wb[j])
         reference = ChainState(chain.layout, state.memory_lengths, expected)
-        np.testing.assert_allclose(state.out_mean, reference.out_mean, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(state.out_mean, reference.out_mean, rtol=0, atol=MEAN_ATOL)
         np.testing.assert_allclose(state.out_var, reference.out_var, rtol=1e-5, atol=1e-15)
         faded += int(np.any(state.out_var > 2e-6 + 1.5 * state.latent_var + 1e-12))
         state.values[:] = expected
