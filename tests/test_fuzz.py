@@ -65,8 +65,7 @@ def test_the_data_file_reader_survives_a_short_fuzz_run(tmp_path: Path) -> None:
     size): no crash, leak, out-of-memory or undefined behaviour in 20 000 runs. Started after
     this test's worker held 1.2 GB, as a worker of the whole suite may have (``FRESH_PEAK``)."""
     binary = build("fuzz_greybox_data", NATIVE, ["greybox_data.c", "sha256.c"], tmp_path)
-    ballast = bytearray(1200 * 2**20)
-    ballast[::4096] = b"\1" * len(range(0, len(ballast), 4096))  # every page resident
+    ballast = b"\1" * (1200 * 2**20)  # written, so resident (zeroed pages would not be)
     del ballast
     fuzz(binary, "greybox_data", 20000, tmp_path)
 
