@@ -113,3 +113,57 @@ def test_training_with_shared_fits_equals_training_without(monkeypatch) -> None:
         for name in ("lengthscales_", "inducing_points_", "signal_variance_", "noise_variance_"):
             np.testing.assert_array_equal(getattr(ca, name), getattr(cb, name))
     assert a.calibration_ == b.calibration_
+
+
+def test_a_row_limit_that_keeps_every_row_is_the_same_fit() -> None:
+    """``optimise_rows`` at or above the rows given changes nothing: the same problem."""
+    cache = FitCache()
+    X, t = _problem(2)
+    for limit in (None, 200, 10_000):
+        corrector = SparseGPR(n_inducing=10, max_iter=5, optimise_rows=limit)
+        cache.fit(corrector, X, t, lambda c=corrector: c.fit(X, t))
+    assert (cache.made, cache.reused) == (1, 2)
+    limited = SparseGPR(n_inducing=10, max_iter=5, optimise_rows=100)
+    cache.fit(limited, X, t, lambda: limited.fit(X, t))
+    assert cache.made == 2
+
+
+class _Settings(FitCache):
+    """Records each fit's row limit and row count."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.asked: list[tuple[int | None, int]] = []
+
+    def fit(self, corrector, X, t, make):
+        self.asked.append((corrector.optimise_rows, len(t)))
+        return super().fit(corrector, X, t, make)
+
+
+def test_only_the_fits_that_choose_optimise_on_spread_rows(monkeypatch) -> None:
+    """``[gp] optimise_rows`` limits the fits that only choose (each stage's two candidate
+    targets, the two comparison chains of ``train --terms``); the correctors that ship and the
+    calibration's halves optimise on every row (a band sized on halves optimised otherwise than
+    the corrector it vouches for failed: docs/greybox.md)."""
+    limit = 300
+    config = train.with_inducing(
+        load_config(ROOT / "bench_configs" / "hydraulic_actuator.toml"), 30
+    )
+    config = dataclasses.replace(
+        config, gp=dataclasses.replace(config.gp, max_iter=15, optimise_rows=limit)
+    )
+    recording = synth_recording(3.0, seed=21)
+    terms = [CoulombForce(input="load_force", source="ram_velocity", force=400.0, smoothing=2e-3)]
+    spy = _Settings()
+    monkeypatch.setattr(train, "FitCache", lambda: spy)
+    model = train.train_model(config, recording, terms=terms, ship="terms+correctors")
+    stages = len(model.chain.stages)
+    # two comparison chains: per stage two candidate targets and a final fit, all limited
+    limited = [rows for rows_limit, rows in spy.asked if rows_limit == limit]
+    assert len(limited) == 2 * 3 * stages and min(limited) > limit
+    # the model that ships: per stage its corrector and one per calibration half, every row
+    every = [rows for rows_limit, rows in spy.asked if rows_limit is None]
+    assert len(every) == 3 * stages == len(spy.asked) - len(limited)
+    assert min(every) > limit
+    for corrector in model.chain.correctors_:
+        assert corrector.optimise_rows is None and corrector.n_eval_ > 1

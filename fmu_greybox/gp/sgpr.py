@@ -347,10 +347,15 @@ def initial_hyperparameters(Xs: FloatArray) -> Hyperparameters:
     )
 
 
+def every_row(n: int, limit: int | None) -> bool:
+    """Whether an optimisation limited to ``limit`` rows (``optimise_rows``) sees all ``n``."""
+    return limit is None or n <= limit
+
+
 def spread_rows(n: int, limit: int | None) -> NDArray[np.intp] | None:
     """At most ``limit`` row indices evenly spread over ``n`` rows, first and last included;
-    ``None`` when every row is kept (``limit`` is ``None`` or at least ``n``)."""
-    if limit is None or n <= limit:
+    ``None`` when every row is kept (:func:`every_row`)."""
+    if every_row(n, limit):
         return None
     return np.linspace(0, n - 1, limit).round().astype(np.intp)
 

@@ -73,6 +73,12 @@ class GreyBoxChain:
     fits : FitCache, optional
         Fits shared with the other chains of one training run: a corrector fitted to the same
         features and targets with the same settings is taken from there, not fitted again.
+    stand_in : bool
+        The chain is trained only to choose between alternatives (a stage's candidate targets,
+        a part in ``train --terms``' comparison): its fits optimise their hyperparameters on at
+        most ``[gp] optimise_rows`` rows, evenly spread. The chain that ships and the halves
+        that calibrate its σ optimise on every row: its band holds on fewer recordings when
+        they do not (measured in ``docs/greybox.md``).
 
     Attributes
     ----------
@@ -117,6 +123,7 @@ class GreyBoxChain:
         calibrate: bool = True,
         fade: bool = True,
         fits: FitCache | None = None,
+        stand_in: bool = False,
     ) -> None:
         mode = target_mode or config.gp.target
         if mode not in (*TARGET_MODES, AUTO):
@@ -129,6 +136,7 @@ class GreyBoxChain:
         self.calibrate = calibrate
         self.fade = fade
         self.fits = fits
+        self.stand_in = stand_in
         self.exo_names: list[str] = []
         for stage in config.stages:
             self.exo_names += [s for s in stage.inputs if s not in self.exo_names]
@@ -317,7 +325,7 @@ class GreyBoxChain:
             n_inducing=min(gp.inducing, t.size),
             inducing=gp.inducing_method,
             max_iter=gp.max_iter,
-            optimise_rows=gp.optimise_rows,
+            optimise_rows=gp.optimise_rows if self.stand_in else None,
             seed=gp.seed,
         )
         callback = _stage_progress(progress, label) if progress is not None else None
@@ -393,6 +401,7 @@ class GreyBoxChain:
         with the stages before it over the rest: that free run's RMSE. Works on a copy of
         the chain, so candidates can run side by side."""
         chain = self._copy()
+        chain.stand_in = True
         chain.stages = list(self.stages)
         chain.stages[q] = copy.copy(self.stages[q])
         chain.stages[q].target_mode = mode

@@ -20,6 +20,7 @@ from concurrent.futures import Future
 import numpy as np
 
 from fmu_greybox.gp import SparseGPR
+from fmu_greybox.gp.sgpr import every_row
 
 
 class FitCache:
@@ -80,8 +81,12 @@ class FitCache:
 
 def fit_key(corrector: SparseGPR, X: np.ndarray, t: np.ndarray) -> str:
     """Digest of a fit's problem: the settings of ``corrector`` and the exact bytes and shapes
-    of ``X`` and ``t``."""
-    digest = hashlib.sha256(repr(sorted(corrector.settings().items())).encode())
+    of ``X`` and ``t``. A limit on the rows the hyperparameters are optimised on that keeps
+    every row is no limit: such a fit is the same as one without it."""
+    settings = corrector.settings()
+    if every_row(len(t), settings["optimise_rows"]):
+        settings["optimise_rows"] = None
+    digest = hashlib.sha256(repr(sorted(settings.items())).encode())
     for array in (X, t):
         array = np.ascontiguousarray(array, dtype=np.float64)
         digest.update(repr(array.shape).encode())

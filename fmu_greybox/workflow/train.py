@@ -247,6 +247,7 @@ def compare_parts_forward(
                 chosen,
                 calibrate=False,
                 fade=False,  # stand-ins for the chain trained on all the rows
+                stand_in=True,
                 pass_=pass_,
                 fits=fits,
             )
@@ -287,6 +288,7 @@ def fit_model(
     fade: bool = True,
     pass_: str = "",
     fits: FitCache | None = None,
+    stand_in: bool = False,
 ) -> FittedModel:
     """One chain of correctors on the white-box with ``terms`` (see :func:`train_model`);
     without ``calibrate``, its σ is the propagated variance (a chain used for its mean only).
@@ -297,10 +299,13 @@ def fit_model(
     whether its correctors fade out of their domain
     (:class:`~fmu_greybox.model.chain.GreyBoxChain`); ``pass_``: which training pass this is,
     in words, for the progress lines; ``fits``: fits shared with the other passes
-    (:class:`~fmu_greybox.model.fit_cache.FitCache`)."""
+    (:class:`~fmu_greybox.model.fit_cache.FitCache`); ``stand_in``: the chain only chooses
+    (its fits optimise on at most ``[gp] optimise_rows`` rows; ``GreyBoxChain``)."""
     started = time.perf_counter()
     fmu_path = whitebox_path(config)
-    chain = GreyBoxChain(config, target_mode, calibrate=calibrate, fade=fade, fits=fits)
+    chain = GreyBoxChain(
+        config, target_mode, calibrate=calibrate, fade=fade, fits=fits, stand_in=stand_in
+    )
     check_training_size(config, chain, recording)
     with open_fmu(fmu_path) as archive:
         config.check_against_fmu(archive)
