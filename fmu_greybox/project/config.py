@@ -158,9 +158,11 @@ class GPConfig:
     max_train_samples : int
         Training rows used per stage at most (evenly thinned beyond that).
     optimise_rows : int
-        Rows the hyperparameters are optimised on at most (evenly thinned beyond that); the
-        posterior is then conditioned on every training row
-        (:class:`~fmu_greybox.gp.SparseGPR`'s ``optimise_rows``).
+        Rows the hyperparameters of a fit that only chooses (a stage's candidate targets, the
+        comparison of the parts) are optimised on at most (evenly thinned beyond that; its
+        posterior is then conditioned on every row: :class:`~fmu_greybox.gp.SparseGPR`'s
+        ``optimise_rows``). The correctors that ship and the halves that calibrate their σ
+        are optimised on every training row.
     seed : int
         Seed of every random choice in training.
     """
