@@ -143,8 +143,8 @@ class _Settings(FitCache):
 def test_only_the_fits_that_choose_optimise_on_spread_rows(monkeypatch) -> None:
     """``[gp] optimise_rows`` limits the fits that only choose (each stage's two candidate
     targets, the two comparison chains of ``train --terms``); the correctors that ship and the
-    calibration's halves optimise on every row (a band sized on halves optimised otherwise than
-    the corrector it vouches for failed: docs/greybox.md)."""
+    calibration's halves optimise on every row (with the limit for them too, more of Experiment
+    1's bands failed: docs/greybox.md)."""
     limit = 300
     config = train.with_inducing(
         load_config(ROOT / "bench_configs" / "hydraulic_actuator.toml"), 30
