@@ -445,16 +445,19 @@ class GreyBoxChain:
             folds = self._halves(training, progress)
         calibration = [UNCALIBRATED] * len(self.stages)
         # a free run's means do not depend on the calibration (the variances propagate to first
-        # order beside them): each fold's held-out chain runs once
-        held_out = [
-            None if chain is self else chain.free_run_variances(*run.head(stop), first - 1).mean
-            for chain, run, first, stop in folds
-        ]
+        # order beside them): each fold's held-out chain runs once; the folds' free runs go
+        # side by side (the compiled run releases the GIL and has its own scratch)
+        held_out = run_side_by_side([functools.partial(_fold_means, self, *fold) for fold in folds])
         for q, name in enumerate(self.stage_names):
             residual, latent_var, whitebox = [], [], []
-            for (_, run, first, stop), means in zip(folds, held_out, strict=True):
-                self.calibration_ = calibration  # the stages before q already calibrated
-                shipped = self.free_run_variances(*run.head(stop), first - 1)
+            self.calibration_ = calibration  # the stages before q already calibrated
+            runs = run_side_by_side(
+                [
+                    functools.partial(self.free_run_variances, *run.head(stop), first - 1)
+                    for _, run, first, stop in folds
+                ]
+            )
+            for (_, run, first, stop), means, shipped in zip(folds, held_out, runs, strict=True):
                 means = shipped.mean if means is None else means
                 residual.append(run.outputs[first:stop, q] - means[:, q])
                 latent_var.append(shipped.latent_var[:, q])
@@ -707,6 +710,17 @@ class FreeRun:
     var: np.ndarray
     latent_var: np.ndarray
     in_domain: np.ndarray
+
+
+def _fold_means(
+    shipped: GreyBoxChain, chain: GreyBoxChain, run: RecordedRun, first: int, stop: int
+) -> np.ndarray | None:
+    """The free-run means of a calibration fold's rows ``first:stop`` by the chain trained
+    without them; ``None`` when that is the ``shipped`` chain itself (a calibration recording:
+    its means come with its variances)."""
+    if chain is shipped:
+        return None
+    return chain.free_run_variances(*run.head(stop), first - 1).mean
 
 
 def _widened_range(X: np.ndarray) -> np.ndarray:
