@@ -18,6 +18,7 @@ from fmu_greybox.diagnosis.hypotheses import (
 )
 from fmu_greybox.diagnosis.memo import Memo
 from fmu_greybox.diagnosis.runner import Experiment, Simulator
+from fmu_greybox.diagnosis.select import SCREEN_PROMISE
 from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import model_fmus
@@ -35,6 +36,16 @@ def experiment_and_hypothesis(
 ) -> tuple[Experiment, Hypothesis]:
     """The diagnosis' experiment (its noise model: smoothed inputs, whitening) over
     ``train`` rows fitted (default: all), and its hypothesis ``key``."""
+    experiment, (hypothesis,) = experiment_and_hypotheses(
+        config_name, whitebox, recording, [key], train
+    )
+    return experiment, hypothesis
+
+
+def experiment_and_hypotheses(
+    config_name: str, whitebox, recording, keys: list[str], train: int | None = None
+) -> tuple[Experiment, list[Hypothesis]]:
+    """As :func:`experiment_and_hypothesis`, with the hypotheses ``keys``."""
     config = load_config(CONFIGS / config_name)
     signals = SignalMap.from_project(config, whitebox, recording)
     train = recording.n_samples if train is None else train
@@ -43,7 +54,7 @@ def experiment_and_hypothesis(
     experiment.stages = signals.observed_stages
     scales = data_scales(whitebox, signals, experiment, 4000)
     hypotheses = {h.key: h for h in generate_hypotheses(signals, whitebox, scales, {})}
-    return experiment, hypotheses[key]
+    return experiment, [hypotheses[key] for key in keys]
 
 
 def calibrate(config_name: str, whitebox, recording, key: str) -> Candidate:
@@ -264,3 +275,43 @@ def test_one_screening_step_finds_an_offset_of_either_sign(whitebox_fmu, truth_f
             window.fit([candidate], max_iter=1, tries=1, both_sides=True)
     assert candidate.theta[0] == pytest.approx(0.15 * sign, rel=0.1)
     assert candidate.cost < 0.05 * before
+
+
+def test_the_screen_tries_no_step_that_promises_nothing(whitebox_fmu, truth_fmu) -> None:
+    """A screen's step costs two simulations a candidate (two step lengths). A candidate whose
+    linearised step promises less than :data:`SCREEN_PROMISE` of the window's cost stays at "no
+    effect" without them; a promising one steps exactly as without the rule. Here the pressure
+    sensor's offset cannot explain a command offset: tried anyway, its step would not have
+    reached the 1 % a screened candidate must explain to go on."""
+    recording = actuator_recording(whitebox_fmu, truth_fmu, {"offset": 0.2})
+    train = int(0.8 * recording.n_samples)
+    keys = ["offset@valve_current", "sensor_offset@itfv_pressure"]
+    outcome = {}
+    with open_fmu(whitebox_fmu) as whitebox:
+        experiment, hypotheses = experiment_and_hypotheses(
+            "hydraulic_actuator.toml", whitebox, recording, keys, train
+        )
+        for promise in (0.0, SCREEN_PROMISE):
+            with Simulator(experiment, workers=1) as simulator:
+                window = Calibrator(simulator, train, 20.0, difference_step=2.0)  # the screen's
+                candidates = [Candidate([h], h.start()) for h in hypotheses]
+                window.evaluate(candidates)
+                start = [c.cost for c in candidates]
+                runs = simulator.runs
+                window.fit(
+                    candidates, max_iter=1, tries=1, both_sides=True, min_predicted_gain=promise
+                )
+                outcome[promise] = (
+                    simulator.runs - runs,
+                    [
+                        (c.theta.copy(), c.cost / cost)
+                        for c, cost in zip(candidates, start, strict=True)
+                    ],
+                )
+    (runs_all, (offset_all, sensor_all)) = outcome[0.0]
+    (runs_kept, (offset_kept, sensor_kept)) = outcome[SCREEN_PROMISE]
+    np.testing.assert_array_equal(offset_kept[0], offset_all[0])
+    assert offset_kept[1] == offset_all[1] < 0.5
+    assert sensor_all[1] >= 0.99  # tried, it would not have gone on
+    assert (sensor_kept[1], runs_all - runs_kept) == (1.0, 2)
+    np.testing.assert_array_equal(sensor_kept[0], hypotheses[1].start())

@@ -355,6 +355,7 @@ class Calibrator:
         tol: float = 1e-3,
         tries: int = 3,
         both_sides: bool = False,
+        min_predicted_gain: float = 0.0,
     ) -> None:
         """Damped Gauss-Newton on every candidate at once, in place.
 
@@ -369,6 +370,10 @@ class Calibrator:
         effect is not known, and a secant taken on the wrong side of a response that saturates
         says little: a command offset makes the simulated ram drift to an end stop, and a step
         that drifts it there sooner barely changes the misfit, while a step the other way does.
+
+        A candidate whose best step's linear model predicts that the cost falls by less than
+        ``min_predicted_gain`` (relative) stops without trying it: a screen asks far more of a
+        candidate than its step could give, and its trial runs are the screen's largest cost.
         """
         active = [c for c in candidates if math.isfinite(c.cost)]
         for c in active:
@@ -391,11 +396,17 @@ class Calibrator:
                         found[id(c)] = (predicted, step)
             directions = []
             for c in active:
-                if id(c) in found:
+                if id(c) in found and not self._unpromising(c, found[id(c)][0], min_predicted_gain):
                     directions.append((c, found[id(c)][1]))
                 else:
                     c._done = True
             self._line_search(directions, tol, tries)
+
+    @staticmethod
+    def _unpromising(c: Candidate, predicted: float, min_gain: float) -> bool:
+        """Whether a step predicted to reach cost ``predicted`` gains less than ``min_gain``
+        (relative) on ``c``'s cost (never with ``min_gain`` 0)."""
+        return min_gain > 0 and predicted > (1.0 - min_gain) * c.cost
 
     def _direction(self, c: Candidate, jac: np.ndarray) -> tuple[np.ndarray, float]:
         """The Gauss-Newton step (in magnitude units), lightly regularised, and the cost its

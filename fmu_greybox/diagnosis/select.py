@@ -313,7 +313,13 @@ class ForwardSelection:
                 c.cost, c.simulated, c.heldout = start.cost, start.simulated, start.heldout
             spectral = window.spectrum is not None
             # both signs on the low-passed view, where a drift shows and refinement starts
-            window.fit(candidates, max_iter=1, tries=1, both_sides=window.smoothing > 0)
+            window.fit(
+                candidates,
+                max_iter=1,
+                tries=1,
+                both_sides=window.smoothing > 0,
+                min_predicted_gain=SCREEN_PROMISE,
+            )
             if spectral:
                 _probe(window, candidates)
             for c in candidates:
@@ -452,6 +458,10 @@ def _own_parameter_first(
     return min(tied, key=lambda pair: pair[1], default=(best, best_bic))
 
 
+#: A screened candidate's step is tried only when its linear model predicts that the window's
+#: cost falls by at least this share: a tenth of the 1 % a candidate must explain to go on
+#: (``ratio >= 0.99`` ends the screen's ranking).
+SCREEN_PROMISE = 1e-3
 #: Most variants of one physics refined in a round (the best and those tied with it).
 TIED_VARIANTS = 3
 #: A variant is tied with its physics' best when it explains at least this share of what the
