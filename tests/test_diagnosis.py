@@ -18,6 +18,7 @@ from fmu_greybox.diagnosis import SCHEMA_VERSION, Diagnosis
 from fmu_greybox.diagnosis.alternatives import nearly_as_good
 from fmu_greybox.diagnosis.findings import named_physics
 from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.project.config import load_config, parse_config
 from fmu_greybox.synth.actuator import FlightTestProfile, SynthRequest, synthesise
 from fmu_greybox.workflow.parts import DIAGNOSIS_PARTS, PART_WORDS, PARTS
@@ -121,7 +122,16 @@ def test_five_effects_at_once_are_all_named(whitebox_fmu, truth_fmu) -> None:
         assert fit["named_rmse"] < 0.2 * fit["wb_rmse"], stage
 
 
-def test_diagnose_command_writes_json_and_report(whitebox_fmu, truth_fmu, tmp_path) -> None:
+def test_diagnose_command_writes_json_and_report(
+    whitebox_fmu, truth_fmu, tmp_path, monkeypatch
+) -> None:
+    """``diagnose`` writes ``diagnosis.json`` and its report; its quick grey-box (the parts'
+    check) spends nothing on calibrating a σ it does not show."""
+
+    def no_calibration(*args, **kwargs) -> None:
+        raise AssertionError("the diagnosis' grey-box calibrated its σ")
+
+    monkeypatch.setattr(GreyBoxChain, "_calibrate", no_calibration)
     recording = actuator_recording(
         whitebox_fmu, truth_fmu, {"coulomb_friction": 700.0}, seed=23, duration=6.0
     )
@@ -168,6 +178,34 @@ def test_diagnose_command_writes_json_and_report(whitebox_fmu, truth_fmu, tmp_pa
     assert f"<p>1. {top['summary']}</p>" in unescape(findings)
     assert top["summary"] not in unescape(findings[: findings.index("</table>")])
     assert "<dt id='glossary-inherited'>" in html and "href='#glossary-inherited'" in html
+
+
+def test_a_diagnosis_without_its_grey_box_calls_nothing_a_grey_box(
+    whitebox_fmu, truth_fmu, tmp_path
+) -> None:
+    """``diagnose --no-greybox`` (and the demo, which trains the grey-box next) trains no
+    corrector: its held-out fit, verdict and report give the white-box and the named terms, and
+    no grey-box column, line or comparison of the parts."""
+    recording = actuator_recording(
+        whitebox_fmu, truth_fmu, {"coulomb_friction": 700.0}, seed=23, duration=6.0
+    )
+    save_recording(recording, tmp_path / "rec.csv")
+    out = tmp_path / "diag"
+    args = ["diagnose", str(ACTUATOR), "--recording", str(tmp_path / "rec.csv")]
+    result = CliRunner().invoke(main, [*args, "--out", str(out), "--no-greybox"])
+    assert result.exit_code == 0, result.output
+    payload = json.loads((out / "diagnosis.json").read_text())
+    assert payload["findings"][0]["effect"] == "coulomb_friction"
+    assert payload["parts"] is None
+    for row in payload["fit"].values():
+        assert {"wb_rmse", "named_rmse", "named_improvement"} <= set(row)
+        assert not {"gb_rmse", "gb_improvement", "correctors_rmse", "best"} & set(row)
+    assert not [
+        line for line in payload["verdict"] if "grey-box" in line or DIAGNOSIS_PARTS in line
+    ]
+    html = (out / "report.html").read_text()
+    held_out = html[html.index("<h2>Diagnosis: fit") : html.index("<h2>Residual per stage")]
+    assert "white-box RMSE" in held_out and "grey-box" not in held_out
 
 
 def test_an_alternative_fits_nearly_as_well_by_either_measure() -> None:

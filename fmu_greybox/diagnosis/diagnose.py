@@ -117,12 +117,12 @@ class Diagnosis:
     origin_stage_ : str or None
     simulated_ : dict[str, ndarray]
         ``whitebox`` and ``named`` predictions of the observed signals, shape (n, n_observed);
-        ``greybox`` / ``greybox_std`` of the stage targets on the held-out rows, shape
-        (n_heldout, Q).
+        with the grey-box, ``greybox``: its free run of the stage targets over the held-out
+        rows, shape (n_heldout, Q).
     fit_ : dict[str, dict[str, float]]
-        Stage -> ``wb_rmse``, ``named_rmse``, ``gb_rmse`` and improvements, on held-out rows;
-        with the grey-box also ``correctors_rmse`` (correctors on the plain white-box) and
-        ``best`` (of the three parts, :mod:`fmu_greybox.workflow.parts`).
+        Stage -> ``wb_rmse``, ``named_rmse`` and its improvement, on held-out rows; with the
+        grey-box also ``gb_rmse``, ``gb_improvement``, ``correctors_rmse`` (correctors on the
+        plain white-box) and ``best`` (of the three parts, :mod:`fmu_greybox.workflow.parts`).
     parts_ : PartsComparison or None
         The correctors alone, the named terms alone and both on the held-out rows (``None``
         without the grey-box or without named terms).
@@ -328,7 +328,7 @@ class Diagnosis:
         recorded = experiment.recorded[:, targets]
         wb = self.simulated_["whitebox"][:, targets]
         named = self.simulated_["named"][:, targets]
-        gb, gb_std = named[train:], np.zeros_like(named[train:])
+        gb = None
         self.parts_ = None
         both = self.simulated_["named"] is not self.simulated_["whitebox"]
         if self.greybox is not None:
@@ -340,9 +340,9 @@ class Diagnosis:
             runs = run_side_by_side(
                 [functools.partial(self._greybox, recording, y, recorded, train) for y in on]
             )
-            gb, gb_std = runs[0]
-        if self.greybox is not None and both:
-            alone, _ = runs[1]
+            gb = self.simulated_["greybox"] = runs[0]
+        if gb is not None and both:
+            alone = runs[1]
             self.parts_ = compare_parts(
                 names,
                 recorded[train:],
@@ -354,18 +354,18 @@ class Diagnosis:
                     None if experiment.whitening is None else experiment.whitening.columns(targets),
                 ),
             )
-        self.simulated_["greybox"], self.simulated_["greybox_std"] = gb, gb_std
         for q, name in enumerate(names):
             rec = recorded[train:, q]
             row = {
                 "wb_rmse": rmse(wb[train:, q], rec),
                 "named_rmse": rmse(named[train:, q], rec),
-                "gb_rmse": rmse(gb[:, q], rec),
                 "noise": float(experiment.sigma[targets[q]]),
                 "unit": self.signals_.observed[targets[q]].unit,
             }
             row["named_improvement"] = improvement(row["wb_rmse"], row["named_rmse"])
-            row["gb_improvement"] = improvement(row["wb_rmse"], row["gb_rmse"])
+            if gb is not None:
+                row["gb_rmse"] = rmse(gb[:, q], rec)
+                row["gb_improvement"] = improvement(row["wb_rmse"], row["gb_rmse"])
             if self.parts_ is not None:
                 row["correctors_rmse"] = self.parts_.stages[name]["correctors_rmse"]
                 row["best"] = self.parts_.stages[name]["best"]
@@ -373,7 +373,10 @@ class Diagnosis:
 
     def _greybox(
         self, recording: Recording, named: np.ndarray, recorded: np.ndarray, train: int
-    ) -> tuple[np.ndarray, np.ndarray]:
+    ) -> np.ndarray:
+        """The grey-box on ``named`` (shape (n, Q)) trained on the first ``train`` rows, free-run
+        over the rest: its means, shape (n - train, Q). No band is shown, so its σ is not
+        calibrated (a free run's means do not depend on the calibration)."""
         config = self.config
         settings = self.greybox
         gp = dataclasses.replace(
@@ -382,10 +385,11 @@ class Diagnosis:
             max_iter=min(config.gp.max_iter, settings.max_iter),
             max_train_samples=min(config.gp.max_train_samples, settings.max_train_samples),
         )
-        chain = GreyBoxChain(dataclasses.replace(config, gp=gp))
+        chain = GreyBoxChain(dataclasses.replace(config, gp=gp), calibrate=False)
         exo = np.column_stack([recording[config.signals[s].column] for s in chain.exo_names])
         chain.fit(exo[:train], named[:train], recorded[:train])
-        return chain.free_run(exo, named, recorded, train - 1)
+        mean, _ = chain.free_run(exo, named, recorded, train - 1)
+        return mean
 
 
 def data_scales(

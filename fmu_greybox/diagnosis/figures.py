@@ -88,20 +88,21 @@ def regime_figure(diagnosis) -> plt.Figure:
 
 
 def trace_figure(diagnosis) -> plt.Figure:
-    """Held-out traces per stage: recording, white-box, named terms, grey-box."""
+    """Held-out traces per stage: recording, white-box, named terms and, when trained, the
+    grey-box."""
     exp = diagnosis.experiment_
     observed = diagnosis.signals_.observed
     targets = [j for j, s in enumerate(observed) if s.is_target]
     rows = slice(exp.train_rows, exp.n_samples)
     time = exp.start_time + exp.dt * np.arange(exp.n_samples)[rows]
-    gb = diagnosis.simulated_["greybox"]
+    gb = diagnosis.simulated_.get("greybox")  # None: no grey-box was trained
     fig, axes = plt.subplots(len(targets), 1, figsize=(10, 2.4 * len(targets)), squeeze=False)
     for q, (ax, j) in enumerate(zip(axes[:, 0], targets, strict=True)):
         sig = observed[j]
         ax.plot(*envelope(time, diagnosis.simulated_["whitebox"][rows, j]), **WB_STYLE)
         ax.plot(*envelope(time, exp.recorded[rows, j]), **REC_STYLE)
         ax.plot(*envelope(time, diagnosis.simulated_["named"][rows, j]), **NAMED_STYLE)
-        if q < gb.shape[1]:
+        if gb is not None and q < gb.shape[1]:
             ax.plot(*envelope(time, gb[:, q]), **GB_STYLE)
         ax.set_ylabel(f"{diagnosis.signals_.stage_names[sig.stage]}\n{sig.name} [{sig.unit}]")
         ax.grid(alpha=0.3)

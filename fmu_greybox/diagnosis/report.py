@@ -131,9 +131,10 @@ def verdict_lines(diagnosis) -> list[str]:
     for name, row in diagnosis.fit_.items():
         unit = row["unit"]
         alone = f"; correctors alone {row['correctors_rmse']:.3g}" if "best" in row else ""
+        greybox = f" -> grey-box {row['gb_rmse']:.3g}" if "gb_rmse" in row else ""
         lines.append(
             f"   {name}: held-out RMSE white-box {row['wb_rmse']:.3g} -> named "
-            f"{row['named_rmse']:.3g} -> grey-box {row['gb_rmse']:.3g}{alone} {unit}"
+            f"{row['named_rmse']:.3g}{greybox}{alone} {unit}"
         )
     if diagnosis.parts_ is not None:
         parts = parts_text(parts_payload(diagnosis.parts_))
@@ -215,6 +216,7 @@ def diagnosis_sections(diagnosis, payload: dict) -> list[str]:
                 else f"{100 * f['explained_fraction']:.0f} %",
             )
         )
+    greybox = all("gb_rmse" in row for row in payload["fit"].values())
     fit = [
         (
             name,
@@ -222,7 +224,7 @@ def diagnosis_sections(diagnosis, payload: dict) -> list[str]:
             fmt(row["noise"]),
             fmt(row["wb_rmse"]),
             f"{fmt(row['named_rmse'])} ({percent(row['named_improvement'])})",
-            f"{fmt(row['gb_rmse'])} ({percent(row['gb_improvement'])})",
+            *([f"{fmt(row['gb_rmse'])} ({percent(row['gb_improvement'])})"] if greybox else []),
         )
         for name, row in payload["fit"].items()
     ]
@@ -260,7 +262,7 @@ def diagnosis_sections(diagnosis, payload: dict) -> list[str]:
                 "noise",
                 "white-box RMSE",
                 Html(f"+ {term('named-terms')}"),
-                Html(f"grey-box ({term('corrector', 'correctors')})"),
+                *([Html(f"grey-box ({term('corrector', 'correctors')})")] if greybox else []),
             ),
             fit,
         ),

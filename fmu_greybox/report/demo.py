@@ -8,7 +8,9 @@ On the reference actuator, with nothing but this repository:
    :data:`~fmu_greybox.synth.actuator.TYPICAL_MAGNITUDES` unless given), plus an independent
    validation
    recording of the same actuator;
-3. diagnose the training recording, given only the white-box FMU and the project file;
+3. diagnose the training recording, given only the white-box FMU and the project file (without
+   the diagnosis' quick grey-box check of the parts: step 4 compares the same parts with the
+   project's settings, and decides what ships);
 4. fold the diagnosis' named terms into the white-box, train the grey-box correctors on what
    remains, and validate the whole corrected model, free-running, on the validation recording;
 5. export the grey-box FMU and run it on an SSP bench in fmpy and in libcosim, checking both
@@ -31,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from fmu_greybox.data.recording import Recording, save_recording
-from fmu_greybox.diagnosis import Diagnosis, GreyBoxSettings
+from fmu_greybox.diagnosis import Diagnosis
 from fmu_greybox.diagnosis.findings import named_physics
 from fmu_greybox.diagnosis.report import diagnosis_payload, write_json
 from fmu_greybox.export.fmu import export_greybox
@@ -278,9 +280,8 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
     step("record")
 
     say("[3/6] diagnosing the recording (given only the white-box FMU and the project)")
-    diagnosis = Diagnosis(
-        config, greybox=GreyBoxSettings(), progress=lambda m: say(f"      {m}")
-    ).fit(training)
+    # no quick grey-box check of the parts here: training compares them next, and decides
+    diagnosis = Diagnosis(config, greybox=None, progress=lambda m: say(f"      {m}")).fit(training)
     payload = diagnosis_payload(diagnosis, training)
     write_json(payload, out / "diagnosis.json")
     step("diagnose")
