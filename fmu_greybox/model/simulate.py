@@ -24,10 +24,12 @@ from fmu_greybox.fmi.binding import InputBinding, bind_inputs, input_units
 from fmu_greybox.model.native_run import run_native, runs_natively
 from fmu_greybox.model.terms import Term
 from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS, NamedModel, term_groups
-from fmu_greybox.progress import track
+from fmu_greybox.progress import Progress, track
 
 #: Largest number of runs :func:`simulate_with_terms` keeps in a cache.
 CACHE_SIZE = 8
+#: What a run's progress says.
+STEPPING = "Stepping the white-box over the recording"
 
 
 class Stepper(Protocol):
@@ -62,7 +64,7 @@ def run_open_loop(model: Stepper, u: np.ndarray, progress: bool = False) -> np.n
     first = model.outputs()
     y = np.empty((n, first.size))
     y[0] = first
-    for k in track(range(n - 1), "Stepping the white-box over the recording", n - 1, progress):
+    for k in track(range(n - 1), STEPPING, n - 1, progress):
         y[k + 1] = model.step(u[k])
     return y
 
@@ -84,8 +86,8 @@ def simulate_with_terms(
     """Run the white-box open-loop over recorded inputs with correction terms applied.
 
     The run is stepped in C (:mod:`~fmu_greybox.model.native_run`, the same numbers without
-    Python between the steps) unless a progress bar is asked for, the runner cannot be built or
-    the white-box is of a kind it does not load (FMI 3.0: stepped by fmpy in Python).
+    Python between the steps; its progress is shown when it is done) unless the runner cannot be
+    built or the white-box is of a kind it does not load (FMI 3.0: stepped by fmpy in Python).
 
     Parameters
     ----------
@@ -119,10 +121,21 @@ def simulate_with_terms(
             y[:, columns] = cache[key]
             continue
         levels_of = [level] * len(names)
-        if not progress and runs_natively(active, archive.kind):
-            y[:, columns] = run_native(
-                archive, inputs, u, dt, names, active, levels_of, parameters, start_time, substeps
-            )
+        if runs_natively(active, archive.kind):
+            with Progress(STEPPING, u.shape[0] - 1, progress) as bar:
+                y[:, columns] = run_native(
+                    archive,
+                    inputs,
+                    u,
+                    dt,
+                    names,
+                    active,
+                    levels_of,
+                    parameters,
+                    start_time,
+                    substeps,
+                )
+                bar.update(u.shape[0] - 1)
         else:
             start = dict(zip(inputs, u[0], strict=True))
             with NamedModel(
