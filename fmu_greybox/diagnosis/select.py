@@ -7,7 +7,9 @@ Each round, on top of the hypotheses already kept:
    simulation starts at the first row, and the mismatch may show only later): one
    linearised (Gauss-Newton) step from "no effect" on top of the kept hypotheses, with
    sensitivities over a long difference step (two scales), tried at two step lengths, on the
-   low-passed residual, the raw one and the spectrum; a hypothesis ranks by its best view (a
+   low-passed residual, the raw one and the spectrum (on the first two only when its linear
+   model promises :data:`SCREEN_PROMISE` of the window's cost); a hypothesis ranks by its best
+   view (a
    delay shows in the fast part the low-pass removes, a stiffness in the slow part the ripples
    of the raw misfit hide, a lightly damped mode's frequency in the spectrum, where the step
    is also compared with probes at a few multiples of its scale) and is refined
