@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import math
 from pathlib import Path
+from typing import NamedTuple
 from unittest import mock
 
 from fmu_greybox.diagnosis import Diagnosis, calibrate, select
@@ -36,11 +37,19 @@ EFFECTS = (
 )
 
 
-def screened_steps(effect: str, seed: int, duration: float) -> list[tuple[float, float, str, bool]]:
-    """Diagnose one recording with every screened step tried; per step ``(promised, gained,
-    what, spectral)``: relative falls of the window's cost, the hypothesis and view in words,
-    and whether the view is the spectrum."""
-    steps: list[tuple[float, float, str, bool]] = []
+class Step(NamedTuple):
+    """One screened step: the relative fall of the window's cost its linear model promised and
+    the one it gave, the hypothesis and view in words, and whether the view is the spectrum."""
+
+    promised: float
+    gained: float
+    what: str
+    spectral: bool
+
+
+def screened_steps(effect: str, seed: int, duration: float) -> list[Step]:
+    """Diagnose one recording with every screened step tried; each step, as tried."""
+    steps: list[Step] = []
     direction, line_search = calibrate.Calibrator._direction, calibrate.Calibrator._line_search
 
     def predicted(self, c, jac):
@@ -52,11 +61,11 @@ def screened_steps(effect: str, seed: int, duration: float) -> list[tuple[float,
         before = [(c, c.cost, c.promised) for c, _ in directions]
         line_search(self, directions, tol, tries)
         if tries == 1:  # the screen's single try
-            view = "spectrum" if self.spectrum is not None else "time-domain"
-            view = f"{'low-passed ' if self.smoothing > 0 else ''}{view} view"
             spectral = self.spectrum is not None
+            view = "spectrum" if spectral else "time-domain"
+            view = f"{'low-passed ' if self.smoothing > 0 else ''}{view} view"
             steps.extend(
-                (
+                Step(
                     1 - promised / cost,
                     1 - c.cost / cost,
                     f"{c.hypotheses[-1].key}, {view}",
@@ -97,18 +106,20 @@ def main() -> None:
     for effect in args.effect or EFFECTS:
         steps = screened_steps(effect, args.seed, args.duration)
         for spectral in (False, True):
-            untried = [s for s in steps if s[0] < threshold and s[3] == spectral]
-            promised, most, what, _ = max(untried, key=lambda s: s[1], default=(0, 0, "-", 0))
+            view = [s for s in steps if s.spectral == spectral]
+            untried = [s for s in view if s.promised < threshold]
+            most = max(untried, key=lambda s: s.gained, default=Step(0.0, 0.0, "-", spectral))
             if not spectral:
-                worst, skipped = max(worst, most), skipped + len(untried)
+                worst, skipped = max(worst, most.gained), skipped + len(untried)
+                total += len(view)
             print(
                 f"{effect:24s} {'spectrum' if spectral else 'time domain':11s} "
-                f"{sum(s[3] == spectral for s in steps):4d} screened steps, {len(untried):4d} "
+                f"{len(view):4d} screened steps, {len(untried):4d} "
                 f"promised less than {100 * threshold:g} %; the most one of those gained when "
-                f"tried: {100 * most:.3f} % ({what}; promised {100 * promised:.3f} %)",
+                f"tried: {100 * most.gained:.3f} % ({most.what}; promised "
+                f"{100 * most.promised:.3f} %)",
                 flush=True,
             )
-        total += sum(not s[3] for s in steps)
     print(
         f"time domain, all: {total} screened steps, {skipped} not tried under the rule; the most "
         f"one of them would have gained: {100 * worst:.3f} % (a hypothesis goes on from 1 %)"
