@@ -8,7 +8,9 @@ as ``correctors`` (``--ship``). Each model is validated on every independent rec
 stage and recording, the parts are the white-box, the named terms alone, terms + correctors and
 correctors alone; printed: the shipped model's RMSE against the best of them, and the two
 counts of the issue's targets (within 5 % of the best part; never worse than the white-box by
-more than 5 %).
+more than 5 %), and the same counts for the choice no rule can beat: on each case and stage the
+one part that is within 5 % of the best on the most independent recordings, chosen knowing them
+all. A rule that chooses from the training recording alone cannot do better than that bound.
 
 Usage::
 
@@ -109,6 +111,46 @@ def case_rows(effects: tuple[str, ...], args: argparse.Namespace) -> list[dict]:
 
 #: The models trained per case: as shipped, and one part on every stage.
 SHIPS = ("best", "terms+correctors", "correctors")
+#: The parts compared on every stage and recording.
+PARTS = ("white-box", "terms", "terms+correctors", "correctors")
+
+
+def within(row: dict, part: str) -> bool:
+    """Whether ``part``'s RMSE on this stage-recording is within :data:`MARGIN` of the best
+    part's."""
+    return row[part] <= (1 + MARGIN) * min(row[p] for p in PARTS)
+
+
+def not_worse(row: dict, part: str) -> bool:
+    """Whether ``part``'s RMSE on this stage-recording is not worse than the white-box's by more
+    than :data:`MARGIN`."""
+    return row[part] <= (1 + MARGIN) * row["white-box"]
+
+
+def best_fixed_choice(rows: list[dict]) -> tuple[int, int]:
+    """The bound on any rule that ships one part per case and stage: for each, the part within
+    :data:`MARGIN` of the best on the most recordings (ties: the one not worse than the
+    white-box on more), chosen knowing every independent recording.
+
+    Returns
+    -------
+    (int, int)
+        Stage-recordings within the margin of the best part, and not worse than the white-box,
+        under that choice.
+    """
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for row in rows:
+        groups.setdefault((row["case"], row["stage"]), []).append(row)
+    best_within = best_not_worse = 0
+    for group in groups.values():
+        counts = {
+            p: (sum(within(r, p) for r in group), sum(not_worse(r, p) for r in group))
+            for p in PARTS
+        }
+        chosen = max(PARTS, key=counts.__getitem__)
+        best_within += counts[chosen][0]
+        best_not_worse += counts[chosen][1]
+    return best_within, best_not_worse
 
 
 def main() -> None:
@@ -127,9 +169,9 @@ def main() -> None:
     for i, effects in enumerate(cases, 1):
         print(f"case {i} of {len(cases)}: {' + '.join(effects)}", file=sys.stderr)
         for row in case_rows(effects, args):
-            best = min(row[p] for p in ("white-box", "terms", "terms+correctors", "correctors"))
-            row["within"] = row["shipped"] <= (1 + MARGIN) * best
-            row["not_worse"] = row["shipped"] <= (1 + MARGIN) * row["white-box"]
+            best = min(row[p] for p in PARTS)
+            row["within"] = within(row, "shipped")
+            row["not_worse"] = not_worse(row, "shipped")
             rows.append(row)
             print(
                 f"{row['case']:40s} rec {row['recording']:2d} {row['stage']:5s} shipped "
@@ -139,14 +181,21 @@ def main() -> None:
                 flush=True,
             )
     n = len(rows)
-    within = sum(r["within"] for r in rows)
-    not_worse = sum(r["not_worse"] for r in rows)
+    near_best = sum(r["within"] for r in rows)
+    kept = sum(r["not_worse"] for r in rows)
     print(
         f"{n} stage-recordings of {len(cases)} cases in {time.perf_counter() - started:.0f} s: "
-        f"shipped within {100 * MARGIN:.0f} % of the best part on {within} "
-        f"({100 * within / max(n, 1):.1f} %, target 95 %); not worse than the white-box by more "
-        f"than {100 * MARGIN:.0f} % on {not_worse} ({100 * not_worse / max(n, 1):.1f} %, target "
+        f"shipped within {100 * MARGIN:.0f} % of the best part on {near_best} "
+        f"({100 * near_best / max(n, 1):.1f} %, target 95 %); not worse than the white-box by more "
+        f"than {100 * MARGIN:.0f} % on {kept} ({100 * kept / max(n, 1):.1f} %, target "
         "100 %)"
+    )
+    bound_within, bound_not_worse = best_fixed_choice(rows)
+    print(
+        "the best one part per case and stage, chosen knowing every independent recording: "
+        f"within {100 * MARGIN:.0f} % of the best part on {bound_within} "
+        f"({100 * bound_within / max(n, 1):.1f} %); not worse than the white-box by more than "
+        f"{100 * MARGIN:.0f} % on {bound_not_worse} ({100 * bound_not_worse / max(n, 1):.1f} %)"
     )
 
 

@@ -137,11 +137,11 @@ def noisy_signals(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return exo, wb, truth + rng.standard_normal(truth.shape) * np.array(NOISE)
 
 
-def small_chain() -> GreyBoxChain:
+def small_chain(**gp: int) -> GreyBoxChain:
     """The reference chain made small: 30 inducing points, 30 iterations, one lag, residual
-    targets fed the recorded outputs."""
+    targets fed the recorded outputs (other ``[gp]`` settings from ``gp``)."""
     raw = tomllib.loads(REFERENCE.read_text())
-    raw["gp"].update(inducing=30, max_iter=30, target="residual", feeds="recorded")
+    raw["gp"].update(inducing=30, max_iter=30, target="residual", feeds="recorded", **gp)
     for stage in raw["stages"]:
         stage.update(lags=1, differences=0)
     return GreyBoxChain(parse_config(raw, REFERENCE))
@@ -166,6 +166,28 @@ def test_a_chain_reports_the_known_noise_and_covers_95_percent_of_unseen_rows() 
         assert 0.62 <= coverage(residual[:, q], std[:, q], 1.0) <= 0.74
         # the propagated variance alone claims far more certainty than the data allow
         assert np.median(np.sqrt(run.latent_var[:, q])) < 0.5 * noise
+
+
+def test_the_halves_hold_half_the_rows_the_correctors_that_ship_hold(monkeypatch) -> None:
+    """On a recording longer than ``max_train_samples`` rows, a calibration half is trained on
+    half of what the shipped correctors hold, as on a short recording, not on as much."""
+    import fmu_greybox.model.chain as chain_module
+
+    thin, held = chain_module._thin, []
+
+    def counted(X: np.ndarray, t: np.ndarray, limit: int) -> tuple[np.ndarray, np.ndarray]:
+        kept = thin(X, t, limit)
+        held.append(kept[1].size)
+        return kept
+
+    monkeypatch.setattr(chain_module, "_thin", counted)
+    exo, wb, out = noisy_signals(3000, seed=4)
+    small_chain(max_train_samples=1000).fit(exo, wb, out)
+    assert sorted(held) == [500] * 6 + [1000] * 3  # three stages, then two halves of them
+    held.clear()
+    small_chain(max_train_samples=3000).fit(exo, wb, out)  # every row counts, in halves too
+    lost = 3000 - max(held)  # the rows before a fit's first full history
+    assert sorted(held) == [1500 - lost] * 6 + [3000 - lost] * 3
 
 
 def test_calibration_recordings_are_free_run_whole_by_the_chain_that_ships() -> None:

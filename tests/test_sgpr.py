@@ -381,3 +381,94 @@ def test_hyperparameters_optimised_on_spread_rows_condition_on_every_row():
     plain = SparseGPR(n_inducing=30, max_iter=60).fit(X, y)
     everything = SparseGPR(n_inducing=30, max_iter=60, optimise_rows=2000).fit(X, y)
     assert everything.bound_ == plain.bound_ and everything.n_eval_ == plain.n_eval_
+
+
+# ------------------------------------------------------------- the bound in two blocks
+
+
+def _bound_parts(result) -> np.ndarray:
+    g = result.gradient
+    return np.concatenate(
+        [
+            [result.value, g.log_signal_variance, g.log_noise_variance],
+            g.log_lengthscales,
+            g.inducing_points.ravel(),
+            result.mean_weights,
+        ]
+    )
+
+
+@pytest.fixture()
+def blocked(monkeypatch):
+    """Bounds of 50 rows or more are evaluated in two blocks."""
+    import fmu_greybox.gp.bound as bound_module
+
+    monkeypatch.setattr(bound_module, "BLOCK_ROWS", 50)
+    return bound_module
+
+
+def test_the_bound_in_two_blocks_equals_the_bound_in_one(blocked):
+    X, y = toy_data(n=80, d=3, seed=4)
+    Z = X[:15] + 0.05
+    whole = CollapsedBound(X[:49], y[:49]).evaluate(HYP, Z, inducing_gradient=True)
+    assert len(CollapsedBound(X[:49], y[:49])._blocks) == 1
+    two = CollapsedBound(X, y)
+    assert [b.y.size for b in two._blocks] == [40, 40]
+    one = CollapsedBound(X, y)
+    one._blocks = [blocked._Block(np.vstack([b.features for b in two._blocks]), y)]
+    expected = _bound_parts(one.evaluate(HYP, Z, inducing_gradient=True))
+    assert _bound_parts(two.evaluate(HYP, Z, inducing_gradient=True)) == pytest.approx(
+        expected, rel=1e-11, abs=1e-11
+    )
+    assert not np.allclose(_bound_parts(whole), expected)  # the rows count
+
+
+def test_the_blocks_give_the_same_bits_side_by_side_or_one_after_the_other(blocked, monkeypatch):
+    import threading
+
+    from fmu_greybox import side_by_side
+
+    if side_by_side.available_cores() < 2:
+        pytest.skip("one core: the blocks never run side by side")
+    X, y = toy_data(n=120, d=3, seed=5)
+    Z = X[:20] + 0.05
+    threads: set[str] = set()
+    gram = blocked._Block.gram
+    together_now: list[threading.Barrier] = []
+
+    def spied(block, *args):
+        threads.add(threading.current_thread().name)
+        for barrier in together_now:  # both blocks at once, or a timeout
+            barrier.wait(timeout=10)
+        return gram(block, *args)
+
+    monkeypatch.setattr(blocked._Block, "gram", spied)
+    in_turn = _bound_parts(CollapsedBound(X, y).evaluate(HYP, Z, inducing_gradient=True))
+    assert threads == {threading.current_thread().name}  # BLAS not held to one thread
+    threads.clear()
+    together_now.append(threading.Barrier(2))
+    with side_by_side.one_blas_thread():
+        assert side_by_side.spare_core()
+        together = _bound_parts(CollapsedBound(X, y).evaluate(HYP, Z, inducing_gradient=True))
+    assert len(threads) == 2 and threading.current_thread().name not in threads
+    np.testing.assert_array_equal(together, in_turn)
+
+
+def test_no_core_is_spare_while_two_tasks_run_side_by_side():
+    import threading
+
+    from fmu_greybox import side_by_side
+
+    if side_by_side.available_cores() < 2:
+        pytest.skip("one core")
+    both_running = threading.Barrier(2)
+
+    def ask() -> bool:
+        both_running.wait(timeout=10)
+        spare = side_by_side.spare_core()
+        both_running.wait(timeout=10)
+        return spare
+
+    assert side_by_side.run_side_by_side([ask, ask]) == [False, False]
+    assert side_by_side.run_side_by_side([side_by_side.spare_core]) == [True]
+    assert not side_by_side.spare_core()  # BLAS is free again outside

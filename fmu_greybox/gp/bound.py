@@ -20,11 +20,21 @@ work per call is: one thin product and one in-place ``exp`` for Kuf, one triangu
 for A, one syrk ``[A; yᵀ][A; yᵀ]ᵀ`` (giving AAᵀ and Ay together), one gemm ``[H, u][A; yᵀ]``
 (∂F/∂Kuf up to the factor ``L⁻ᵀ`` folded into H), one elementwise product with Kuf and one
 thin moment product. Nothing N×N is ever formed, and the three M×N buffers are reused.
+
+From :data:`BLOCK_ROWS` training rows on, that work is done in two blocks of columns, each with
+its own buffers and BLAS calls, whose M×M products are added: when a core is free
+(:func:`~fmu_greybox.side_by_side.spare_core`, a fit running alone with one BLAS thread) the
+two blocks run side by side, otherwise one after the other. The blocks do not depend on where
+the fit runs, so neither do its numbers.
 """
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,10 +52,14 @@ from fmu_greybox.gp.linalg import (
     lower_inverse,
     solve_lower_wide,
 )
+from fmu_greybox.side_by_side import spare_core
 
 FloatArray = NDArray[np.float64]
+T = TypeVar("T")
 
 LOG_2PI = float(np.log(2.0 * np.pi))
+#: Training rows from which the bound's M×N work is done in two blocks of columns.
+BLOCK_ROWS = 8192
 
 
 @dataclass(frozen=True)
@@ -107,11 +121,9 @@ class BoundResult:
 class _Factors:
     """Intermediate quantities of one evaluation, shared by the bound and its gradient."""
 
-    Kuf: FloatArray  # (M, N)
     Kuu: FloatArray  # (M, M), without jitter
     L: FloatArray  # (M, M), chol(Kuu + jitter·I)
     jitter: float
-    A_aug: FloatArray  # (M+1, N), [A; yᵀ] with A = L⁻¹ Kuf / σ
     AAT: FloatArray  # (M, M)
     Ay: FloatArray  # (M,)
     LB: FloatArray  # (M, M), chol(I + AAᵀ)
@@ -119,11 +131,55 @@ class _Factors:
     c: FloatArray  # (M,), L_B⁻¹ A y / σ
 
 
+class _Block:
+    """A block of consecutive training rows with its M×n work buffers: Kuf; ``[A; yᵀ]``,
+    whose last row is y; the gradient weights W.
+
+    Parameters
+    ----------
+    features : ndarray, shape (n, 2D+1)
+        The rows' :func:`~fmu_greybox.gp.kernel.expand_inputs`.
+    y : ndarray, shape (n,)
+    """
+
+    def __init__(self, features: FloatArray, y: FloatArray) -> None:
+        self.features = features
+        self.y = y
+        self._buffers: tuple[FloatArray, FloatArray, FloatArray] | None = None
+
+    def buffers(self, m: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Kuf (M, n), ``[A; yᵀ]`` (M+1, n) and W (M, n), allocated once per M."""
+        if self._buffers is None or self._buffers[0].shape[0] != m:
+            n = self.y.size
+            A_aug = np.empty((m + 1, n))
+            A_aug[m] = self.y
+            self._buffers = (np.empty((m, n)), A_aug, np.empty((m, n)))
+        return self._buffers
+
+    def gram(self, Z_features: FloatArray, L: FloatArray, sigma: float) -> FloatArray:
+        """Kuf and ``A = L⁻¹ Kuf / σ`` of these rows into the buffers; returns their share of
+        ``[A; yᵀ][A; yᵀ]ᵀ``, shape (M+1, M+1)."""
+        m = L.shape[0]
+        Kuf, A_aug, _ = self.buffers(m)
+        cross_covariance(Z_features, self.features, out=Kuf)
+        solve_lower_wide(L, Kuf, A_aug[:m], scale=1.0 / sigma)
+        return A_aug @ A_aug.T  # one syrk
+
+    def moments(self, H_aug: FloatArray) -> FloatArray:
+        """These rows' share of ``W @ features`` with ``W = ([H, u] @ [A; yᵀ]) ∘ Kuf``, from
+        the buffers :meth:`gram` filled; shape (M, 2D+1)."""
+        Kuf, A_aug, W = self.buffers(H_aug.shape[0])
+        np.matmul(H_aug, A_aug, out=W)
+        W *= Kuf
+        return W @ self.features
+
+
 class CollapsedBound:
     """The collapsed VFE bound for one training set, evaluated at any hyperparameters.
 
-    Holds the input features and three preallocated M×N work buffers, so repeated
-    evaluations (one per optimiser step) allocate nothing large.
+    Holds the input features and three preallocated M×N work buffers (per block of rows, see
+    the module docstring), so repeated evaluations (one per optimiser step) allocate nothing
+    large.
 
     Parameters
     ----------
@@ -149,17 +205,17 @@ class CollapsedBound:
         self.n = self.X.shape[0]
         self.min_relative_jitter = min_relative_jitter
         self.max_relative_jitter = max_relative_jitter
-        self._features = expand_inputs(self.X)  # (N, 2D+1)
+        features = expand_inputs(self.X)  # (N, 2D+1)
         self._yy = float(self.y @ self.y)
-        self._buffers: tuple[FloatArray, FloatArray, FloatArray] | None = None
+        edges = [0, self.n // 2, self.n] if self.n >= BLOCK_ROWS else [0, self.n]
+        self._blocks = [_Block(features[a:b], self.y[a:b]) for a, b in itertools.pairwise(edges)]
 
-    def _work_buffers(self, m: int) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Kuf (M, N); ``[A; yᵀ]`` (M+1, N) whose last row is y; the gradient weights (M, N)."""
-        if self._buffers is None or self._buffers[0].shape[0] != m:
-            A_aug = np.empty((m + 1, self.n))
-            A_aug[m] = self.y
-            self._buffers = (np.empty((m, self.n)), A_aug, np.empty((m, self.n)))
-        return self._buffers
+    def _each_block(self, work: Callable[[_Block], T]) -> list[T]:
+        """``work`` on every block, side by side when a core is free; in block order."""
+        if len(self._blocks) > 1 and spare_core():
+            with ThreadPoolExecutor(len(self._blocks)) as pool:
+                return list(pool.map(work, self._blocks))
+        return [work(block) for block in self._blocks]
 
     def evaluate(
         self,
@@ -203,8 +259,6 @@ class CollapsedBound:
         s2 = float(hyp.signal_variance)
         sigma = float(np.sqrt(hyp.noise_variance))
         m = Z.shape[0]
-        Kuf_buf, A_aug, _ = self._work_buffers(m)
-        Kuf = cross_covariance(expand_inducing(Z, ell, s2), self._features, out=Kuf_buf)
         Kuu = inducing_covariance(Z, ell, s2)
         L, jitter = jittered_cholesky(
             Kuu,
@@ -212,13 +266,17 @@ class CollapsedBound:
             max_relative_jitter=self.max_relative_jitter,
             name="Kuu (inducing covariance)",
         )
-        solve_lower_wide(L, Kuf, A_aug[:m], scale=1.0 / sigma)  # A = L⁻¹ Kuf / σ
-        gram = A_aug @ A_aug.T  # (M+1, M+1) = [[AAᵀ, Ay], [yᵀAᵀ, yᵀy]], one syrk
+        Z_features = expand_inducing(Z, ell, s2)
+        # (M+1, M+1) = [[AAᵀ, Ay], [yᵀAᵀ, yᵀy]] with A = L⁻¹ Kuf / σ, added over the blocks
+        grams = self._each_block(lambda block: block.gram(Z_features, L, sigma))
+        gram = grams[0]
+        for share in grams[1:]:
+            gram += share
         AAT, Ay = gram[:m, :m], gram[:m, m]
         LB, _ = jittered_cholesky(np.eye(m) + AAT, min_relative_jitter=0.0, name="B = I + AAᵀ")
         LB_inv = lower_inverse(LB)
         c = (LB_inv @ Ay) / sigma
-        return _Factors(Kuf, Kuu, L, jitter, A_aug, AAT, Ay, LB, LB_inv, c)
+        return _Factors(Kuu, L, jitter, AAT, Ay, LB, LB_inv, c)
 
     def _gradient(
         self, f: _Factors, hyp: Hyperparameters, Z: FloatArray, inducing_gradient: bool
@@ -244,14 +302,15 @@ class CollapsedBound:
         inner = C - np.outer(beta, beta) / sn2 - f.AAT
         Lt = L_inv.T @ np.hstack([C, beta[:, None], inner])  # (M, 2M+1)
 
-        # W = ∂F/∂Kuf ∘ Kuf = ([H, u] @ [A; yᵀ]) ∘ Kuf, H = L⁻ᵀC/σ − u βᵀ, u = L⁻ᵀβ/σ³
+        # W = ∂F/∂Kuf ∘ Kuf = ([H, u] @ [A; yᵀ]) ∘ Kuf, H = L⁻ᵀC/σ − u βᵀ, u = L⁻ᵀβ/σ³ (per block)
         u = Lt[:, m] / (sigma * sn2)
         H_aug = np.empty((m, m + 1))
         H_aug[:, :m] = Lt[:, :m] / sigma - np.outer(u, beta)
         H_aug[:, m] = u
-        W = np.matmul(H_aug, f.A_aug, out=self._work_buffers(m)[2])  # (M, N)
-        W *= f.Kuf
-        moments_f = W @ self._features  # (M, 2D+1)
+        shares = self._each_block(lambda block: block.moments(H_aug))
+        moments_f = shares[0]  # (M, 2D+1)
+        for share in shares[1:]:
+            moments_f += share
 
         G_uu = 0.5 * (Lt[:, m + 1 :] @ L_inv)  # ∂F/∂Kuu = ½ L⁻ᵀ inner L⁻¹
         moments_u = (G_uu * f.Kuu) @ expand_inputs(Z)  # (M, 2D+1)

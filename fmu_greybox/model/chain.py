@@ -232,11 +232,14 @@ class GreyBoxChain:
         by two-fold cross-validation: each half of the rows is free-run by a chain whose correctors
         were trained (hyperparameters and all, the two halves side by side) on the other half only,
         so no corrector has seen the rows it predicts (hyperparameters taken from this chain instead
-        make the held-out residuals too small: measured in ``docs/speed.md``). Each of those
-        residuals is paired with the propagated variance that this chain, trained on all rows,
-        reports at the same row (its own free run over the half): that is the variance ``a`` will
-        scale when the chain ships, and a corrector trained on half the rows usually reports a
-        larger one. The pairs of both halves give ``a`` and ``b``
+        make the held-out residuals too small: measured in ``docs/speed.md``), on at most half the
+        rows this chain's correctors hold (``[gp] max_train_samples``), as on a recording short
+        enough for every row to count: a half then stands for a chain trained on half the data
+        however long the recording, and a 10-minute flight test calibrates at half the cost.
+        Each of those residuals is paired with the propagated variance that this chain, trained on
+        all rows, reports at the same row (its own free run over the half): that is the variance
+        ``a`` will scale when the chain ships, and a corrector trained on half the rows usually
+        reports a larger one. The pairs of both halves give ``a`` and ``b``
         (:func:`~fmu_greybox.model.calibration.fit_calibration`), stage by stage in chain order (a
         stage's propagated variance holds the calibrated variances of the stages feeding it). Given
         ``calibration_runs``, recordings no corrector is trained on, the calibration takes their
@@ -309,14 +312,16 @@ class GreyBoxChain:
         outputs: np.ndarray,
         progress: ProgressCallback | None,
         label: str | None,
+        limit: int | None = None,
     ) -> None:
-        """Fit stage ``q``'s corrector on the rows given (the stages before it are fitted);
-        with ``label`` ``None`` only its feature range is set and it keeps no corrector."""
+        """Fit stage ``q``'s corrector on the rows given (the stages before it are fitted),
+        evenly thinned to at most ``limit`` rows (default ``[gp] max_train_samples``); with
+        ``label`` ``None`` only its feature range is set and it keeps no corrector."""
         gp = self.config.gp
         stage = self.stages[q]
         fed = self._fed(q, exo, y_wb, outputs) if gp.feeds == "free_run" and q else None
         X, t = stage.teacher_forced(self.layout, exo, y_wb, outputs, fed)
-        X, t = _thin(X, t, gp.max_train_samples)
+        X, t = _thin(X, t, gp.max_train_samples if limit is None else limit)
         self.feature_bounds_[q] = _widened_range(X)
         if label is None:
             self.correctors_[q] = None
@@ -520,7 +525,8 @@ class GreyBoxChain:
         rows: str,
     ) -> GreyBoxChain:
         """A copy of the chain (its stages' target modes, the stages it passes through) with
-        every other corrector trained on the rows given only, hyperparameters and all.
+        every other corrector trained on the rows given only, hyperparameters and all, on at
+        most half the rows this chain's correctors hold (see :meth:`fit`).
 
         Parameters
         ----------
@@ -533,7 +539,8 @@ class GreyBoxChain:
         for q, stage in enumerate(self.stages):
             if self.active_[q]:  # a stage passed through has nothing to train
                 label = f"{stage.name} corrector on the {rows} (to calibrate its uncertainty)"
-                chain._fit_stage(q, exo, y_wb, outputs, progress, label)
+                limit = max(1, self.config.gp.max_train_samples // 2)
+                chain._fit_stage(q, exo, y_wb, outputs, progress, label, limit)
         return chain
 
     # ------------------------------------------------------------------ running
