@@ -156,7 +156,8 @@ class GPConfig:
         ``"recorded"`` (teacher forcing) or ``"free_run"`` (the earlier stages' own free run
         over the training rows, as the stage will see them when running).
     max_train_samples : int
-        Training rows used per stage at most (evenly thinned beyond that).
+        Training rows used per stage at most (evenly thinned beyond that); the calibration's
+        halves use half as many at most.
     optimise_rows : int
         Rows the hyperparameters of a fit that only chooses (a stage's candidate targets, the
         comparison of the parts) are optimised on at most (evenly thinned beyond that; its
