@@ -451,22 +451,3 @@ def test_the_blocks_give_the_same_bits_side_by_side_or_one_after_the_other(block
         together = _bound_parts(CollapsedBound(X, y).evaluate(HYP, Z, inducing_gradient=True))
     assert len(threads) == 2 and threading.current_thread().name not in threads
     np.testing.assert_array_equal(together, in_turn)
-
-
-def test_no_core_is_spare_while_two_tasks_run_side_by_side(monkeypatch):
-    import threading
-
-    from fmu_greybox import side_by_side
-
-    monkeypatch.setattr(side_by_side, "available_cores", lambda: 2)
-    both_running = threading.Barrier(2)
-
-    def ask() -> bool:
-        both_running.wait(timeout=10)
-        spare = side_by_side.spare_core()
-        both_running.wait(timeout=10)
-        return spare
-
-    assert side_by_side.run_side_by_side([ask, ask]) == [False, False]
-    assert side_by_side.run_side_by_side([side_by_side.spare_core]) == [True]
-    assert not side_by_side.spare_core()  # BLAS is free again outside
