@@ -9,10 +9,9 @@ Each round, on top of the hypotheses already kept:
    sensitivities over a long difference step (two scales), tried at two step lengths, on the
    low-passed residual, the raw one and the spectrum (on the first two only when its linear
    model promises :data:`SCREEN_PROMISE` of the window's cost); a hypothesis ranks by its best
-   view (a
-   delay shows in the fast part the low-pass removes, a stiffness in the slow part the ripples
-   of the raw misfit hide, a lightly damped mode's frequency in the spectrum, where the step
-   is also compared with probes at a few multiples of its scale) and is refined
+   view (a delay shows in the fast part the low-pass removes, a stiffness in the slow part the
+   ripples of the raw misfit hide, a lightly damped mode's frequency in the spectrum, where the
+   step is also compared with probes at a few multiples of its scale) and is refined
    from its low-passed step, or from its spectrum step when the spectrum ranked it best. The
    best ``refine_top`` of distinct physics go on;
 2. **refine** them on a longer leading window (at least ``refine_rows``, and 60 % of the

@@ -536,10 +536,10 @@ class GreyBoxChain:
             Which rows, in words (for ``progress``).
         """
         chain = self._copy()
+        limit = max(1, self.config.gp.max_train_samples // 2)
         for q, stage in enumerate(self.stages):
             if self.active_[q]:  # a stage passed through has nothing to train
                 label = f"{stage.name} corrector on the {rows} (to calibrate its uncertainty)"
-                limit = max(1, self.config.gp.max_train_samples // 2)
                 chain._fit_stage(q, exo, y_wb, outputs, progress, label, limit)
         return chain
 
