@@ -29,6 +29,7 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 from fmpy.model_description import ModelDescription
 
+from fmu_greybox import side_by_side
 from fmu_greybox.fmi.build import build_reference_fmus
 
 OUTPUTS = (
@@ -176,6 +177,12 @@ def instantiate() -> Callable[..., tuple[FMU2Slave, dict[str, int]]]:
 def simulate() -> Callable[..., dict[str, np.ndarray]]:
     """:func:`simulate_fmu_loop`."""
     return simulate_fmu_loop
+
+
+@pytest.fixture()
+def two_cores(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The process may use two cores (one core runs two threads too, in turns)."""
+    monkeypatch.setattr(side_by_side, "available_cores", lambda: 2)
 
 
 @pytest.fixture(scope="session")

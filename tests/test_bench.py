@@ -32,10 +32,18 @@ from test_export import (
 from fmu_greybox.cli import main
 from fmu_greybox.data.recording import Recording, load_recording, save_recording
 from fmu_greybox.errors import BenchError, RecordingError
+from fmu_greybox.export import libcosim_run
 from fmu_greybox.export.fmu import RUNTIMES
 from fmu_greybox.export.libcosim_run import libcosim_columns
 from fmu_greybox.export.slave import GreyBoxSlave
-from fmu_greybox.export.ssp import SSD_FILE, build_playback_fmu, make_bench, read_layout, run_bench
+from fmu_greybox.export.ssp import (
+    SSD_FILE,
+    build_playback_fmu,
+    make_bench,
+    read_layout,
+    run_bench,
+    run_benches,
+)
 from fmu_greybox.model.store import load_model
 
 #: 1024 steps: the recording's mean step (the master's) is then exactly libcosim's 1 ms, which
@@ -275,6 +283,32 @@ def test_a_failing_fmpy_bench_leaves_no_unpacked_fmus(
     with pytest.raises(BenchError, match="failed in fmpy"):
         run_bench(ssp, "fmpy")
     assert sorted(temp.iterdir()) == before
+
+
+def test_both_engines_side_by_side_give_what_each_gives_alone(
+    greybox_fmu: Path, validation: Recording, tmp_path: Path, monkeypatch, two_cores
+) -> None:
+    """fmpy (here) and libcosim (in its child) run at once; fmpy points the temporary folder
+    at a private one while it runs, and libcosim's request and answer stay out of it."""
+    temp = tmp_path / "temp"
+    temp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))
+    ssp = make_bench(greybox_fmu, first_rows(validation, 0.5), tmp_path / "b.ssp")
+    alone = [run_bench(ssp, engine) for engine in ("libcosim", "fmpy")]
+    scratches, real = [], libcosim_run.run_libcosim
+
+    def spy(*args, **kwargs):
+        scratches.append(args[5])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(libcosim_run, "run_libcosim", spy)
+    together = run_benches(ssp, ("libcosim", "fmpy"))
+    assert scratches == [str(temp)]
+    for (result, seconds), single in zip(together, alone, strict=True):
+        assert seconds > 0 and result.names == single.names
+        for name in single.names:
+            np.testing.assert_array_equal(result[name], single[name], err_msg=name)
+    assert list(temp.iterdir()) == []
 
 
 def test_run_bench_errors_are_clear(bench: Path, tmp_path: Path) -> None:

@@ -3,6 +3,8 @@ commands, the drift input noise drives, and structure concentrated in one band."
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pytest
 from third_party import INPUTS as SERVO_INPUTS
@@ -12,6 +14,7 @@ from third_party import record
 from fmu_greybox.data.noise import (
     DriftWhitening,
     InputSmoother,
+    estimate_noise_model,
     input_noise_levels,
     noise_level,
     residual_bands,
@@ -20,6 +23,7 @@ from fmu_greybox.data.noise import (
 )
 from fmu_greybox.diagnosis.runner import Experiment
 from fmu_greybox.fmi.archive import open_fmu
+from fmu_greybox.model.native_run import runs_side_by_side
 from fmu_greybox.model.simulate import simulate_with_terms
 from fmu_greybox.synth.actuator import (
     INPUTS,
@@ -146,3 +150,44 @@ def test_inputs_without_noise_are_not_renoised() -> None:
         input_sigma=np.zeros(2),
     )
     np.testing.assert_array_equal(experiment.renoised(np.random.default_rng(0)).u, u)
+
+
+def test_the_noise_model_is_the_same_with_its_runs_side_by_side_or_in_turn(
+    whitebox_fmu, truth_fmu, two_cores
+) -> None:
+    """The re-drawn runs that measure the drift go in two threads when the white-box allows
+    it; the noise model is the same to the bit (the draws are made first, in turn)."""
+    profile = FlightTestProfile(duration=3.0)
+    with open_fmu(truth_fmu) as truth, open_fmu(whitebox_fmu) as whitebox:
+        recording = record_actuator(truth, whitebox, SynthRequest({}, seed=3, profile=profile))
+        u = np.column_stack([recording[name] for name in INPUTS])
+        names = ["spool_position", "ram_position", "itfv_pressure"]
+        outputs = np.column_stack([recording[name] for name in names])
+        threads: set[int] = set()
+
+        def simulate(inputs: np.ndarray) -> np.ndarray:
+            threads.add(threading.get_ident())
+            return simulate_with_terms(whitebox, INPUTS, inputs, recording.dt, names)
+
+        assert runs_side_by_side([], whitebox)
+        in_turn = estimate_noise_model(u, outputs, simulate, recording.dt)
+        assert threads == {threading.get_ident()}
+        side_by_side = estimate_noise_model(u, outputs, simulate, recording.dt, side_by_side=True)
+    assert len(threads) >= 3  # this thread's first run, and two threads for the re-drawn runs
+    assert in_turn is not None and side_by_side is not None
+    assert in_turn.whitening is not None and side_by_side.whitening is not None
+    np.testing.assert_array_equal(side_by_side.sigma, in_turn.sigma)
+    np.testing.assert_array_equal(side_by_side.whitening.ratio, in_turn.whitening.ratio)
+    np.testing.assert_array_equal(side_by_side.whitening.drift, in_turn.whitening.drift)
+
+
+def test_a_white_box_instantiated_once_per_process_runs_in_turn(
+    whitebox_fmu, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An FMU that says it can be instantiated only once per process never runs in two
+    threads at once."""
+    with open_fmu(whitebox_fmu) as whitebox:
+        assert runs_side_by_side([], whitebox)
+        flags = whitebox.model_description.coSimulation
+        monkeypatch.setattr(flags, "canBeInstantiatedOnlyOncePerProcess", True)
+        assert not runs_side_by_side([], whitebox)

@@ -8,12 +8,15 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from test_export import synth_recording
+from test_fmu_archive import description, rewrite
 
+import fmu_greybox.model.simulate as simulate
 import fmu_greybox.workflow.train as train
 from fmu_greybox.gp import SparseGPR
 from fmu_greybox.model.fit_cache import FitCache
@@ -167,3 +170,41 @@ def test_only_the_fits_that_choose_optimise_on_spread_rows(monkeypatch) -> None:
     assert min(every) > limit
     for corrector in model.chain.correctors_:
         assert corrector.optimise_rows is None and corrector.n_eval_ > 1
+
+
+def test_a_white_box_instantiated_once_per_process_is_never_run_twice_at_once(
+    monkeypatch, whitebox_fmu, tmp_path, two_cores
+) -> None:
+    """An FMU that says it can be instantiated only once per process: the comparison's two
+    passes (each runs the white-box) and the noise model's runs go one after the other."""
+    xml = description(whitebox_fmu).replace(
+        b'canBeInstantiatedOnlyOncePerProcess="false"',
+        b'canBeInstantiatedOnlyOncePerProcess="true"',
+    )
+    assert b'canBeInstantiatedOnlyOncePerProcess="true"' in xml
+    once = rewrite(whitebox_fmu, tmp_path / "once.fmu", {"modelDescription.xml": xml})
+    config = train.with_inducing(
+        load_config(ROOT / "bench_configs" / "hydraulic_actuator.toml"), 20
+    )
+    config = dataclasses.replace(
+        config, fmu=str(once), gp=dataclasses.replace(config.gp, max_iter=5)
+    )
+    running, most, lock = [0], [0], threading.Lock()
+    real = simulate.run_native
+
+    def counted(*args, **kwargs):
+        with lock:
+            running[0] += 1
+            most[0] = max(most[0], running[0])
+        try:
+            time.sleep(0.05)  # two runs at once would overlap here
+            return real(*args, **kwargs)
+        finally:
+            with lock:
+                running[0] -= 1
+
+    monkeypatch.setattr(simulate, "run_native", counted)
+    terms = [CoulombForce(input="load_force", source="ram_velocity", force=400.0, smoothing=2e-3)]
+    model = train.train_model(config, synth_recording(3.0, seed=22), terms=terms)
+    assert model.training.parts is not None
+    assert most == [1]

@@ -4,15 +4,7 @@ from __future__ import annotations
 
 import threading
 
-import pytest
-
 from fmu_greybox import side_by_side
-
-
-@pytest.fixture()
-def two_cores(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The process may use two cores (one core runs two threads too, in turns)."""
-    monkeypatch.setattr(side_by_side, "available_cores", lambda: 2)
 
 
 def test_no_core_is_spare_while_two_tasks_run_side_by_side(two_cores: None) -> None:

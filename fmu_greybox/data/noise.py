@@ -30,12 +30,15 @@ Three estimates, each from the recording and the FMU, none from a model of the t
 from __future__ import annotations
 
 import copy
+import functools
 import itertools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import chi2
+
+from fmu_greybox.side_by_side import run_side_by_side
 
 #: A residual is significant when its RMS exceeds this many noise levels: structure of about
 #: 0.83 noise levels (RMS) on top of the noise.
@@ -313,6 +316,7 @@ def estimate_noise_model(
     dt: float,
     runs: int = 4,
     seed: int = 0,
+    side_by_side: bool = False,
 ) -> NoiseModel | None:
     """Estimate the noise of a recording against its white-box (see the module docstring).
 
@@ -335,6 +339,11 @@ def estimate_noise_model(
         Simulations with re-drawn input error.
     seed : int
         Seed of the re-drawing.
+    side_by_side : bool
+        Run the re-drawn simulations in threads side by side
+        (:func:`~fmu_greybox.side_by_side.run_side_by_side`): ``simulate`` may be called from
+        several threads at once. The same numbers either way (the draws are made first, in
+        turn).
 
     Returns
     -------
@@ -353,7 +362,9 @@ def estimate_noise_model(
     whitening = None
     if smoother is not None and runs >= 1:
         rng = np.random.default_rng(seed)
-        runs_ = (simulate(u + smoother.noise(rng, input_sigma)) for _ in range(runs))
+        drawn = [u + smoother.noise(rng, input_sigma) for _ in range(runs)]
+        tasks = [functools.partial(simulate, inputs) for inputs in drawn]
+        runs_ = run_side_by_side(tasks) if side_by_side else [task() for task in tasks]
         deviations = [run - simulated for run in runs_ if run is not None]
         if deviations:
             whitening = DriftWhitening(np.array(deviations), sigma, dt)

@@ -37,6 +37,7 @@ from fmu_greybox.diagnosis.memo import Memo
 from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.errors import FmuError
 from fmu_greybox.fmi.archive import FmuArchive
+from fmu_greybox.model.native_run import runs_side_by_side
 from fmu_greybox.model.simulate import simulate_with_terms
 from fmu_greybox.model.terms import Term
 from fmu_greybox.project.config import ProjectConfig
@@ -141,10 +142,19 @@ class Experiment:
         caches: list[dict] = []  # the first run is over the inputs kept: its cache is kept
 
         def simulate_over(u: np.ndarray) -> np.ndarray | None:
-            caches.append({})
-            return dataclasses.replace(self, u=u, _cache=caches[-1]).simulate([])
+            cache: dict = {}
+            caches.append(cache)
+            return dataclasses.replace(self, u=u, _cache=cache).simulate([])
 
-        noise = estimate_noise_model(self.u, self.recorded, simulate_over, self.dt, runs, seed)
+        noise = estimate_noise_model(
+            self.u,
+            self.recorded,
+            simulate_over,
+            self.dt,
+            runs,
+            seed,
+            side_by_side=runs_side_by_side([], self.archive),
+        )
         self._cache = caches[0]
         if noise is None:
             return None

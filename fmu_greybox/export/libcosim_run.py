@@ -127,6 +127,7 @@ def run_libcosim(
     start: float,
     step: float,
     n_steps: int,
+    scratch: str | Path | None = None,
 ) -> dict[str, np.ndarray]:
     """:func:`libcosim_columns` in a child process: an abort inside libcosim ends the child only.
 
@@ -137,6 +138,9 @@ def run_libcosim(
     ----------
     ssp, outputs, start, step, n_steps
         As for :func:`libcosim_columns`.
+    scratch : str or Path, optional
+        The folder in which the request and the child's answer are kept while it runs (removed
+        after); default: the temporary folder.
 
     Returns
     -------
@@ -149,7 +153,7 @@ def run_libcosim(
         A step failed, or libcosim ended the process (the message is the error it ended on).
     """
     ssp = Path(ssp)
-    with tempfile.TemporaryDirectory(prefix="fmu_greybox_libcosim_") as private:
+    with tempfile.TemporaryDirectory(prefix="fmu_greybox_libcosim_", dir=scratch) as private:
         folder = Path(private)
         request = {
             "ssp": str(ssp.resolve()),

@@ -21,15 +21,18 @@ fixed step) and returns every FMU output as a :class:`~fmu_greybox.data.recordin
 from __future__ import annotations
 
 import dataclasses
+import functools
 import io
 import json
 import tempfile
+import threading
 import uuid
 import zipfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from time import perf_counter
 
 import numpy as np
 from lxml import etree
@@ -49,6 +52,7 @@ from fmu_greybox.model.store import MANIFEST, WHITEBOX, file_sha256
 from fmu_greybox.project.config import parse_config
 from fmu_greybox.project.data import check_fixed_inputs, check_sample_time
 from fmu_greybox.resources import data_path
+from fmu_greybox.side_by_side import run_side_by_side
 
 SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
@@ -59,6 +63,8 @@ NS = {"ssd": SSD, "ssc": SSC, "ssv": SSV, "osp": OSP}
 SSD_FILE = "SystemStructure.ssd"
 #: Co-simulation engines of :func:`run_bench`.
 ENGINES = ("fmpy", "libcosim")
+#: Held while an fmpy run points :data:`tempfile.tempdir` at its private folder.
+_TEMPDIR_LOCK = threading.Lock()
 #: Module name of the playback entry in the playback FMU's resources.
 PLAYBACK_ENTRY = "playback_fmu"
 
@@ -476,6 +482,29 @@ def run_bench(
     )
 
 
+def run_benches(ssp: str | Path, engines: Sequence[str]) -> list[tuple[Recording, float]]:
+    """:func:`run_bench` in each engine, side by side (libcosim runs in a child process, fmpy
+    in this one), each over the SSD's step and stop time.
+
+    Returns
+    -------
+    list of (Recording, float)
+        Per engine, in the order given: its run and the wall time it took [s].
+
+    Raises
+    ------
+    BenchError
+        As :func:`run_bench`, for the first engine that failed.
+    """
+
+    def timed(engine: str) -> tuple[Recording, float]:
+        started = perf_counter()
+        result = run_bench(ssp, engine)
+        return result, perf_counter() - started
+
+    return run_side_by_side([functools.partial(timed, engine) for engine in engines])
+
+
 def _units(ssp: Path, layout: BenchLayout) -> dict[str, str]:
     """``<component>.<output>`` -> unit, from the FMUs' model descriptions."""
     from fmpy import read_model_description
@@ -497,9 +526,10 @@ def _unpacked_within() -> Iterator[None]:
     the run fails (fmpy's ``simulate_ssp`` removes them only after a successful run).
 
     fmpy extracts with :func:`tempfile.mkdtemp`, so :data:`tempfile.tempdir` points at the
-    private folder for the block and is restored after it.
+    private folder for the block and is restored after it; one block at a time, and
+    :func:`_run_libcosim` reads the temporary folder outside any block (:data:`_TEMPDIR_LOCK`).
     """
-    with tempfile.TemporaryDirectory(prefix="fmu_greybox_cosim_") as private:
+    with _TEMPDIR_LOCK, tempfile.TemporaryDirectory(prefix="fmu_greybox_cosim_") as private:
         kept = tempfile.tempdir
         tempfile.tempdir = private
         try:
@@ -546,7 +576,9 @@ def _run_libcosim(
 ) -> dict[str, np.ndarray]:
     from fmu_greybox.export.libcosim_run import run_libcosim
 
-    return run_libcosim(ssp, layout.outputs, layout.start, step, n_steps)
+    with _TEMPDIR_LOCK:  # the temporary folder, not an fmpy run's private one
+        scratch = tempfile.gettempdir()
+    return run_libcosim(ssp, layout.outputs, layout.start, step, n_steps, scratch)
 
 
 @dataclass(frozen=True)

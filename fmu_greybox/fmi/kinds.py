@@ -134,6 +134,13 @@ def interface(description: object, kind: FmuKind) -> object:
     return description.modelExchange
 
 
+def one_instance_per_process(description: object, kind: FmuKind) -> bool:
+    """Whether the FMU says it can be instantiated only once per process (then no two of its
+    runs may overlap in one process's threads)."""
+    flags = interface(description, kind)
+    return bool(getattr(flags, "canBeInstantiatedOnlyOncePerProcess", False))
+
+
 def binary_path(unzip_dir: Path, kind: FmuKind, identifier: str) -> Path:
     """Where an extracted FMU of ``kind`` keeps its shared library for this machine."""
     return unzip_dir / "binaries" / kind.binary_folder / f"{identifier}{sharedLibraryExtension}"

@@ -47,7 +47,7 @@ from fmu_greybox.fmi.compiler import (
     load_cached_library,
 )
 from fmu_greybox.fmi.instance import status_label
-from fmu_greybox.fmi.kinds import FmuKind, require_native
+from fmu_greybox.fmi.kinds import FmuKind, one_instance_per_process, require_native
 from fmu_greybox.fmi.platforms import WIN64
 from fmu_greybox.fmi.wine import FMI2_WINE, wine_program
 from fmu_greybox.model.native_data import data_file_bytes
@@ -128,6 +128,16 @@ def runs_natively(terms: Sequence[Term], kind: FmuKind) -> bool:
     if kind == FMI2_WINE:
         return wine_runner_program() is not None
     return kind.native and native_runner() is not None
+
+
+def runs_side_by_side(terms: Sequence[Term], archive: FmuArchive) -> bool:
+    """Whether runs of the white-box with ``terms`` may go side by side in threads of this
+    process: each runs in C here (:func:`runs_natively`; not under Wine, where each thread
+    starts a runner of its own), and the FMU does not say it can be instantiated only once
+    per process."""
+    if archive.kind == FMI2_WINE or not runs_natively(terms, archive.kind):
+        return False
+    return not one_instance_per_process(archive.model_description, archive.kind)
 
 
 def _config_header() -> dict[str, str]:

@@ -18,6 +18,7 @@ from fmu_greybox.errors import FmuError
 from fmu_greybox.fmi.archive import FmuArchive
 from fmu_greybox.fmi.binding import check_unit
 from fmu_greybox.model.chain import GreyBoxChain
+from fmu_greybox.model.native_run import runs_side_by_side
 from fmu_greybox.model.simulate import simulate_with_terms
 from fmu_greybox.model.terms import Term
 from fmu_greybox.model.whitebox import DEFAULT_SUBSTEPS
@@ -117,4 +118,7 @@ def estimate_noise(
             return None
 
     u = data.binding.matrix(data.recording)
-    return estimate_noise_model(u, data.outputs, simulate, data.recording.dt)
+    side_by_side = runs_side_by_side(terms, archive)
+    return estimate_noise_model(
+        u, data.outputs, simulate, data.recording.dt, side_by_side=side_by_side
+    )

@@ -37,7 +37,7 @@ from fmu_greybox.diagnosis import Diagnosis
 from fmu_greybox.diagnosis.findings import named_physics
 from fmu_greybox.diagnosis.report import diagnosis_payload, write_json
 from fmu_greybox.export.fmu import export_greybox
-from fmu_greybox.export.ssp import BenchAgreement, compare_with_master, make_bench, run_bench
+from fmu_greybox.export.ssp import BenchAgreement, compare_with_master, make_bench, run_benches
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import reference_fmus, reference_project, sources_digest
 from fmu_greybox.model.store import GreyBoxModel, file_sha256, load_model, save_model
@@ -306,10 +306,9 @@ def run_demo(settings: DemoSettings, log: Log | None = None, progress: bool = Fa
     )
     ssp = make_bench(fmu, bench_rec, out / "bench.ssp")
     agreements = []
-    for engine in settings.engines:
-        started = time.perf_counter()
-        result = run_bench(ssp, engine)
-        seconds = time.perf_counter() - started
+    for engine, (result, seconds) in zip(
+        settings.engines, run_benches(ssp, settings.engines), strict=True
+    ):
         save_recording(result, out / f"bench_{engine}.csv")
         agreements.append(compare_with_master(model, bench_rec, result, engine, seconds))
     step("export and bench")

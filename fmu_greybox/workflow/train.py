@@ -14,6 +14,7 @@ from fmu_greybox.data.recording import Recording
 from fmu_greybox.errors import ConfigError
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.integrator import whitebox_facts
+from fmu_greybox.fmi.kinds import one_instance_per_process
 from fmu_greybox.model.chain import GreyBoxChain, RecordedRun
 from fmu_greybox.model.domain import training_ranges
 from fmu_greybox.model.fit_cache import FitCache
@@ -235,6 +236,8 @@ def compare_parts_forward(
         "the plain white-box (2)",
         progress,
     )
+    with open_fmu(whitebox_path(config)) as archive:  # each pass runs the white-box
+        once = one_instance_per_process(archive.model_description, archive.kind)
     # the parts are compared by their means: no σ to calibrate
     named, plain = run_side_by_side(
         [
@@ -252,7 +255,8 @@ def compare_parts_forward(
                 fits=fits,
             )
             for chosen, pass_ in ((terms, "pass 1"), ((), "pass 2"))
-        ]
+        ],
+        workers=1 if once else None,
     )
     seconds = max(named.model.training.seconds, plain.model.training.seconds)
     with open_fmu(whitebox_path(config)) as archive:
