@@ -17,7 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
+import pyarrow.csv as pa_csv
 import pytest
 from click.testing import CliRunner
 
@@ -191,13 +191,13 @@ def test_write_failing_midway_keeps_the_earlier_recording(tmp_path: Path, monkey
     old = Recording(np.arange(5) * 0.1, {"x": np.arange(5.0)}, {"x": "m"})
     path = save_recording(old, tmp_path / "rec.csv")
     before = snapshot(tmp_path)
-    write = pd.DataFrame.to_csv
+    write = pa_csv.write_csv
 
-    def disk_full(frame: pd.DataFrame, handle, **kwargs) -> None:
-        write(frame.iloc[: len(frame) // 2], handle, **kwargs)  # half the rows reach the disk
+    def disk_full(table, handle, *args, **kwargs) -> None:
+        write(table.slice(0, table.num_rows // 2), handle, *args, **kwargs)  # half reach the disk
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(pd.DataFrame, "to_csv", disk_full)
+    monkeypatch.setattr(pa_csv, "write_csv", disk_full)
     new = Recording(np.arange(50) * 0.1, {"x": np.ones(50)}, {"x": "mm"})
     with pytest.raises(RecordingError, match=r"rec\.csv: cannot write the file: No space left"):
         save_recording(new, path)

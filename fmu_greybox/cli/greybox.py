@@ -225,6 +225,7 @@ def _validate_several(
     coverage and write the output folder's ``metrics.json`` and ``report.html``; the verdict
     over all."""
     from fmu_greybox.evidence.html import write_page
+    from fmu_greybox.evidence.render import rendering_aside
     from fmu_greybox.report.provenance import command_line
     from fmu_greybox.report.validation import REPORT, pooled_report_html
     from fmu_greybox.workflow.metrics import coverage_text, error_ratio
@@ -236,7 +237,9 @@ def _validate_several(
     for name, validation in result.validations.items():
         _write_validation(validation, model, config, model_dir, out_dir / name, command)
     metrics = write_pooled_metrics(result, out_dir / "metrics.json")
-    write_page(pooled_report_html(result, config, model_dir, command), out_dir / REPORT)
+    with rendering_aside():
+        text = pooled_report_html(result, config, model_dir, command)
+    write_page(text, out_dir / REPORT)
     if as_json:
         click.echo(json.dumps(metrics))
         return result.acceptance.verdict
@@ -272,13 +275,16 @@ def _write_validation(
     """Write one recording's validation into ``folder``: ``metrics.json``, the plots and
     ``report.html``, each atomically, the page last. Returns the metrics and the files' names."""
     from fmu_greybox.evidence.html import write_page
+    from fmu_greybox.evidence.render import rendering_aside
     from fmu_greybox.report.validation import REPORT, validation_report_html
     from fmu_greybox.workflow.validate import write_metrics, write_plots
 
     folder.mkdir(parents=True, exist_ok=True)
     metrics = write_metrics(result, model, folder / "metrics.json")
     plots = write_plots(result, model, folder)
-    write_page(validation_report_html(result, model, config, model_dir, command), folder / REPORT)
+    with rendering_aside():
+        text = validation_report_html(result, model, config, model_dir, command)
+    write_page(text, folder / REPORT)
     return metrics, ["metrics.json", *plots, REPORT]
 
 

@@ -13,7 +13,10 @@ import warnings
 from collections.abc import Mapping
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.csv as pa_csv
 
 from fmu_greybox.atomic import atomic_write
 from fmu_greybox.data.checks import cell_value, header_columns
@@ -121,13 +124,25 @@ def read_csv(path: Path, data: bytes) -> Table:
     return Table(columns, units, {}, Rows("file line", 2), "column")
 
 
-def write_csv(frame: pd.DataFrame, units: Mapping[str, str], path: Path) -> None:
-    """Write ``frame`` (a time column then the signals, shape (n, 1 + n_signals)) to ``path``
-    and every column's unit to its sidecar, both atomically."""
+def write_csv(columns: Mapping[str, np.ndarray], units: Mapping[str, str], path: Path) -> None:
+    """Write ``columns`` (the time column then the signals, float64 arrays of one length n) to
+    ``path`` and every column's unit to its sidecar, both atomically.
+
+    The header is written as Python's :mod:`csv` quotes it; the numbers by Arrow's CSV writer,
+    each the shortest text that reads back to the same float (``1e-7``, ``0``), about seven
+    times faster than pandas's writer (``docs/speed.md``).
+    """
+    header = io.StringIO()
+    csv.writer(header, lineterminator="\n").writerow(columns)
+    body = pa.Table.from_arrays(
+        [pa.array(np.asarray(values, dtype=np.float64)) for values in columns.values()],
+        names=[f"c{j}" for j in range(len(columns))],  # not written: the header above is
+    )
     with (
-        atomic_write(path, "w", newline="") as table,
+        atomic_write(path, "wb") as table,
         atomic_write(sidecar_path(path), "w") as sidecar,
     ):
-        frame.to_csv(table, index=False, lineterminator="\n")
+        table.write(header.getvalue().encode("utf-8"))
+        pa_csv.write_csv(body, table, pa_csv.WriteOptions(include_header=False))
         json.dump(units, sidecar, indent=2, ensure_ascii=False)
         sidecar.write("\n")

@@ -582,7 +582,7 @@ def _check_header_names(recording: Recording, path: Path) -> None:
 
 
 def _write_csv(recording: Recording, path: Path) -> None:
-    write_csv(recording.to_frame(), {TIME: "s", **recording.units}, path)
+    write_csv({TIME: recording.time, **recording.signals}, {TIME: "s", **recording.units}, path)
 
 
 def _write_parquet(recording: Recording, path: Path) -> None:

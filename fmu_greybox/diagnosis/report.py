@@ -28,6 +28,7 @@ from fmu_greybox.evidence.html import (
     verdict,
     write_page,
 )
+from fmu_greybox.evidence.render import rendering_aside
 from fmu_greybox.workflow.parts import DIAGNOSIS_PARTS, parts_text
 
 SCHEMA_VERSION = 1
@@ -160,7 +161,9 @@ def write_outputs(diagnosis, recording, out_dir: str | Path) -> dict:
     Each file is written atomically. Returns the JSON payload.
     """
     payload = diagnosis_payload(diagnosis, recording)
-    write_report_files(payload, report_html(diagnosis, payload), out_dir)
+    with rendering_aside():
+        text = report_html(diagnosis, payload)
+    write_report_files(payload, text, out_dir)
     return payload
 
 

@@ -6,7 +6,6 @@ there is no script, so a report can be mailed, filed with a test campaign or ope
 
 from __future__ import annotations
 
-import base64
 import html
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -14,7 +13,7 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 
 from fmu_greybox.atomic import atomic_write
-from fmu_greybox.evidence.plots import png_bytes
+from fmu_greybox.evidence.render import png_base64, resolve
 
 STYLE = (
     "body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222;}"
@@ -58,9 +57,10 @@ def page(title: str, sections: Iterable[str]) -> str:
     title : str
         Title and first heading.
     sections : iterable of str
-        HTML fragments, in order.
+        HTML fragments, in order (their figures rendered aside are put in place:
+        :func:`~fmu_greybox.evidence.render.resolve`).
     """
-    return "\n".join(
+    text = "\n".join(
         [
             "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
             f"<title>{escape(title)}</title><style>{STYLE}</style></head><body>",
@@ -69,6 +69,7 @@ def page(title: str, sections: Iterable[str]) -> str:
             "</body></html>",
         ]
     )
+    return resolve(text)
 
 
 def verdict(lines: Sequence[str], heading: str = "Verdict") -> str:
@@ -111,7 +112,7 @@ def note_link(number: int, prefix: str = "note") -> str:
 
 def figure(title: str, fig: plt.Figure, caption: str = "") -> str:
     """A titled figure embedded as PNG (the figure is closed)."""
-    data = base64.b64encode(png_bytes(fig)).decode("ascii")
+    data = png_base64(fig)
     note = f"<p>{escape(caption)}</p>" if caption else ""
     return (
         f"<h2>{escape(title)}</h2>{note}"

@@ -33,6 +33,7 @@ from fmu_greybox.evidence.html import (
     write_page,
 )
 from fmu_greybox.evidence.plots import calibration_figure, frequency_figure, trace_figure
+from fmu_greybox.evidence.render import rendering_aside
 from fmu_greybox.model.store import GreyBoxModel
 from fmu_greybox.project.config import ProjectConfig
 from fmu_greybox.report.demo import DemoResult
@@ -655,5 +656,7 @@ def write_report(result: DemoResult) -> dict[str, Any]:
     out = Path(result.settings.out_dir)
     outcome = summary(result)
     write_json(outcome, out / "summary.json")
-    write_page(report_html(result), out / "report.html")
+    with rendering_aside():
+        text = report_html(result)
+    write_page(text, out / "report.html")
     return outcome
