@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import gc
+import importlib.metadata
 import json
 import os
 import re
@@ -17,7 +19,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner, Result
 
-from fmu_greybox.cli import EXIT_INTERRUPTED, EXIT_NOT_ACCEPTED, main
+from fmu_greybox.cli import EXIT_INTERRUPTED, EXIT_NOT_ACCEPTED, main, run
 from fmu_greybox.data.recording import load_recording
 from fmu_greybox.fmi.builtin import sources_digest
 from fmu_greybox.synth.actuator import SENSOR_NOISE
@@ -356,3 +358,21 @@ def test_the_command_line_in_a_report_names_no_local_folder(
     argv = ["x", "validate", "cfg.toml", "--recording", "/data/flight 7.csv", "--out=/tmp/val"]
     monkeypatch.setattr("sys.argv", argv)
     assert command_line() == ("fmu-greybox validate cfg.toml --recording 'flight 7.csv' --out=val")
+
+
+def test_the_console_script_freezes_what_is_left_once_the_command_ended(monkeypatch) -> None:
+    """``fmu-greybox`` is :func:`run`: the command, then :func:`gc.freeze` (whatever the exit),
+    so that the way out does not collect every object again."""
+    (script,) = [
+        e
+        for e in importlib.metadata.entry_points(group="console_scripts")
+        if e.name == "fmu-greybox"
+    ]
+    assert script.value == "fmu_greybox.cli:run"
+    frozen = []
+    monkeypatch.setattr(gc, "freeze", lambda: frozen.append(True))
+    for argv in (["fmu-greybox", "--version"], ["fmu-greybox", "simulate", "nowhere.toml"]):
+        monkeypatch.setattr(sys, "argv", argv)
+        with pytest.raises(SystemExit):
+            run()
+    assert frozen == [True, True]

@@ -17,7 +17,7 @@ starter project, synthetic recordings, open-loop simulation), :mod:`~fmu_greybox
 gathers them, and turns their errors into exit codes, is :mod:`~fmu_greybox.cli.group`.
 """
 
-from fmu_greybox.cli.group import main
+from fmu_greybox.cli.group import main, run
 from fmu_greybox.cli.options import EXIT_INTERRUPTED, EXIT_NOT_ACCEPTED, EXIT_USER_ERROR
 
-__all__ = ["EXIT_INTERRUPTED", "EXIT_NOT_ACCEPTED", "EXIT_USER_ERROR", "main"]
+__all__ = ["EXIT_INTERRUPTED", "EXIT_NOT_ACCEPTED", "EXIT_USER_ERROR", "main", "run"]

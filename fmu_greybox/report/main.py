@@ -610,7 +610,8 @@ def report_html(result: DemoResult) -> str:
         "<h2>The exported FMU on the SSP bench</h2>",
         f"<p>{escape(result.fmu.name)} in {escape(result.ssp.name)} (recording playback → "
         "grey-box, white-box side by side), compared output by output (corrected value, "
-        "_std, _wb) with the in-process master on the same inputs. Wall time includes loading "
+        "_std, _wb) with the in-process master on the same inputs, the engines side by side. "
+        "Wall time includes loading "
         f"and setting up the bench; the target is {STEP_TARGET_US:g} µs per 1 ms step "
         "(benchmarks/bench_export.py measures the step alone).</p>",
         table(
