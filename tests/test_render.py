@@ -3,9 +3,12 @@ page byte for byte, rendered in place where forking is not safe or a child fails
 
 from __future__ import annotations
 
-import os
+import json
+import subprocess
+import sys
 import threading
 from collections.abc import Callable
+from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -35,13 +38,30 @@ def forked_in(block_report: Callable[[], str]) -> tuple[str, int]:
         return text, render._aside.forked
 
 
+def in_a_fresh_process(children_fail: bool = False) -> dict:
+    """The page of :func:`report` in place and aside, built in a fresh Python process (where
+    this one, a test worker, may run other threads): the children forked, whether the pages
+    are equal, and the figures left open."""
+    code = f"""
+import json, os, sys
+sys.path.insert(0, {str(Path(__file__).parent)!r})
+import matplotlib.pyplot as plt
+from test_render import forked_in, report
+from fmu_greybox.evidence import render
+in_place = report()
+if {children_fail}:
+    render._render_into = lambda fig, send: os._exit(3)
+aside, forked = forked_in(report)
+print(json.dumps({{"forked": forked, "same": aside == in_place, "open": plt.get_fignums(),
+                  "pngs": aside.count("data:image/png;base64,iVBOR"), "tokens": "\\0" in aside}}))
+"""
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return json.loads(done.stdout.splitlines()[-1])
+
+
 def test_a_page_rendered_aside_is_the_page_rendered_in_place() -> None:
-    in_place = report()
-    aside, forked = forked_in(report)
-    assert forked == 3
-    assert aside == in_place
-    assert "\0" not in aside and aside.count("data:image/png;base64,iVBOR") == 3
-    assert plt.get_fignums() == []  # every figure closed
+    outcome = in_a_fresh_process()
+    assert outcome == {"forked": 3, "same": True, "open": [], "pngs": 3, "tokens": False}
 
 
 def test_while_another_thread_runs_figures_render_in_place() -> None:
@@ -58,12 +78,9 @@ def test_while_another_thread_runs_figures_render_in_place() -> None:
     assert aside == in_place
 
 
-def test_a_child_that_fails_leaves_its_figure_to_this_process(monkeypatch) -> None:
-    in_place = report(2)
-    monkeypatch.setattr(render, "_render_into", lambda fig, send: os._exit(3))
-    aside, forked = forked_in(lambda: report(2))
-    assert forked == 2
-    assert aside == in_place
+def test_a_child_that_fails_leaves_its_figure_to_this_process() -> None:
+    outcome = in_a_fresh_process(children_fail=True)
+    assert outcome == {"forked": 3, "same": True, "open": [], "pngs": 3, "tokens": False}
 
 
 def test_a_figure_token_outside_the_block_is_refused() -> None:
