@@ -599,8 +599,8 @@ _WRITERS: dict[str, Callable[[Recording, Path], None]] = {
 def save_recording(recording: Recording, path: str | os.PathLike[str]) -> Path:
     """Write a recording to ``.csv`` (with a ``.units.json`` sidecar) or ``.parquet``, atomically.
 
-    CSV values are written with 17 significant digits at most (shortest exact repr), so both
-    formats load back equal (``==``).
+    CSV values are written as the shortest text that reads back to the same float (17
+    significant digits at most), so both formats load back equal, bit for bit.
 
     Returns
     -------
