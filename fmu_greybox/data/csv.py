@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pyarrow as pa
+import pyarrow.compute as pa_compute
 import pyarrow.csv as pa_csv
 
 from fmu_greybox.atomic import atomic_write
@@ -124,9 +125,15 @@ def read_csv(path: Path, data: bytes) -> Table:
     return Table(columns, units, {}, Rows("file line", 2), "column")
 
 
-#: A field that is a negative zero as Arrow writes it (a whole field: after a comma or a line's
-#: start, before a comma or the line's end).
-NEGATIVE_ZERO = re.compile(rb"(?<![^,\n])-0(?![^,\n])")
+def _column(values: np.ndarray) -> pa.Array:
+    """A float64 column as Arrow writes it; with its negative zeros, which Arrow writes ``-0``
+    and pandas reads back as 0, as text: the numbers as Arrow's CSV writer formats them (its
+    cast to string gives the same text), the negative zeros ``-0.0``."""
+    column = pa.array(values)
+    negative_zero = np.signbit(values) & (values == 0.0)
+    if not negative_zero.any():
+        return column
+    return pa_compute.if_else(pa.array(negative_zero), "-0.0", pa_compute.cast(column, pa.string()))
 
 
 def write_csv(columns: Mapping[str, np.ndarray], units: Mapping[str, str], path: Path) -> None:
@@ -134,28 +141,22 @@ def write_csv(columns: Mapping[str, np.ndarray], units: Mapping[str, str], path:
     ``path`` and every column's unit to its sidecar, both atomically.
 
     The header is written as Python's :mod:`csv` quotes it; the numbers by Arrow's CSV writer,
-    each the shortest text that reads back to the same float (``1e-7``, ``0``), about seven
-    times faster than pandas's writer (``docs/speed.md``). A negative zero, which Arrow writes
-    ``-0`` and pandas reads back as 0, is written ``-0.0``.
+    each the shortest text that reads back to the same float (``1e-7``, ``0``), about ten times
+    faster than pandas's writer (``benchmarks/bench_csv.py``). A negative zero, which Arrow
+    writes ``-0`` and pandas reads back as 0, is written ``-0.0`` (:func:`_column`).
     """
     header = io.StringIO()
     csv.writer(header, lineterminator="\n").writerow(columns)
-    arrays = [np.asarray(values, dtype=np.float64) for values in columns.values()]
     body = pa.Table.from_arrays(
-        [pa.array(values) for values in arrays],
-        names=[f"c{j}" for j in range(len(arrays))],  # not written: the header above is
+        [_column(np.asarray(values, dtype=np.float64)) for values in columns.values()],
+        names=[f"c{j}" for j in range(len(columns))],  # not written: the header above is
     )
-    options = pa_csv.WriteOptions(include_header=False)
+    options = pa_csv.WriteOptions(include_header=False, quoting_style="none")  # numbers only
     with (
         atomic_write(path, "wb") as table,
         atomic_write(sidecar_path(path), "w") as sidecar,
     ):
         table.write(header.getvalue().encode("utf-8"))
-        if any(np.any(np.signbit(values) & (values == 0.0)) for values in arrays):
-            text = io.BytesIO()
-            pa_csv.write_csv(body, text, options)
-            table.write(NEGATIVE_ZERO.sub(b"-0.0", text.getvalue()))
-        else:
-            pa_csv.write_csv(body, table, options)
+        pa_csv.write_csv(body, table, options)
         json.dump(units, sidecar, indent=2, ensure_ascii=False)
         sidecar.write("\n")
