@@ -18,22 +18,21 @@ Prints the median fit time of each with its range, and the ratio.
 from __future__ import annotations
 
 import argparse
+import functools
 import os
-import time
 
 import numpy as np
-from spread import conditions, conditions_line, median_range, shown
+from spread import against, alternated, conditions, conditions_line
 
 import fmu_greybox.gp.bound as bound_module
 from fmu_greybox import side_by_side
 from fmu_greybox.gp import SparseGPR
 
 
-def timed_fit(X: np.ndarray, y: np.ndarray, m: int, iters: int) -> tuple[float, SparseGPR]:
-    """Seconds of one fit, and the fit."""
-    started = time.perf_counter()
-    fitted = SparseGPR(n_inducing=m, max_iter=iters, seed=0).fit(X, y)
-    return time.perf_counter() - started, fitted
+def fit(X: np.ndarray, y: np.ndarray, m: int, iters: int, spare: bool) -> SparseGPR:
+    """One fit, its blocks side by side (``spare``) or in turn."""
+    bound_module.spare_core = lambda: spare
+    return SparseGPR(n_inducing=m, max_iter=iters, seed=0).fit(X, y)
 
 
 def main() -> None:
@@ -50,23 +49,20 @@ def main() -> None:
     rng = np.random.default_rng(0)
     X = rng.standard_normal((args.n, args.d))
     y = np.sin(X[:, 0]) + 0.3 * X[:, 1] * X[:, 2] + 0.1 * rng.standard_normal(args.n)
-    seconds: dict[str, list[float]] = {"in turn": [], "side by side": []}
-    fits: dict[str, SparseGPR] = {}
+    ways = {
+        "blocks in turn": functools.partial(fit, X, y, args.m, args.iters, False),
+        "side by side": functools.partial(fit, X, y, args.m, args.iters, True),
+    }
     with side_by_side.one_blas_thread():
-        for _ in range(args.repeat):
-            for how, spare in (("in turn", False), ("side by side", True)):
-                bound_module.spare_core = lambda spare=spare: spare
-                secs, fits[how] = timed_fit(X, y, args.m, args.iters)
-                seconds[how].append(secs)
-    same = fits["in turn"].bound_ == fits["side by side"].bound_ and np.array_equal(
-        fits["in turn"].posterior_.mean_weights, fits["side by side"].posterior_.mean_weights
+        figures, fits = alternated(ways, args.repeat)
+    turn, both = fits["blocks in turn"], fits["side by side"]
+    same = turn.bound_ == both.bound_ and np.array_equal(
+        turn.posterior_.mean_weights, both.posterior_.mean_weights
     )
-    turn, both = median_range(seconds["in turn"]), median_range(seconds["side by side"])
-    evaluations = fits["in turn"].n_eval_
     print(
-        f"one fit, N = {args.n}, M = {args.m}, D = {args.d}, {evaluations} bound evaluations: "
-        f"blocks in turn {shown(turn, unit=' s')}, side by side {shown(both, unit=' s')}: "
-        f"{turn['median'] / both['median']:.2f}x; the same numbers: {'yes' if same else 'NO'}"
+        f"one fit, N = {args.n}, M = {args.m}, D = {args.d}, {turn.n_eval_} bound evaluations: "
+        f"{against(figures, 'side by side', 'blocks in turn')}; the same numbers: "
+        f"{'yes' if same else 'NO'}"
     )
     print(conditions_line(conditions(load_before), args.repeat))
 

@@ -18,11 +18,10 @@ from __future__ import annotations
 import argparse
 import os
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
-from spread import conditions, conditions_line, median_range, shown
+from spread import against, alternated, conditions, conditions_line
 
 from fmu_greybox.data.recording import Recording, load_recording, save_recording
 
@@ -56,21 +55,19 @@ def main() -> None:
     args = parser.parse_args()
     load_before = os.getloadavg()[0]
     rec = recording(args.rows, args.signals)
-    writers = {"fmu-greybox": save_recording, "pandas": write_pandas}
-    seconds: dict[str, list[float]] = {name: [] for name in writers}
     with tempfile.TemporaryDirectory() as tmp:
-        paths = {name: Path(tmp) / f"{name}.csv" for name in writers}
-        for _ in range(args.repeat):
-            for name, write in writers.items():
-                started = time.perf_counter()
-                write(rec, paths[name])
-                seconds[name].append(time.perf_counter() - started)
+        paths = {"fmu-greybox": Path(tmp) / "ours.csv", "pandas": Path(tmp) / "peer.csv"}
+        figures, _ = alternated(
+            {
+                "fmu-greybox": lambda: save_recording(rec, paths["fmu-greybox"]),
+                "pandas": lambda: write_pandas(rec, paths["pandas"]),
+            },
+            args.repeat,
+        )
         same = {name: exact(rec, path) for name, path in paths.items()}
-    ours, peer = median_range(seconds["fmu-greybox"]), median_range(seconds["pandas"])
     print(
         f"a recording of {args.rows} rows x {1 + args.signals} columns to CSV: "
-        f"fmu-greybox {shown(ours, unit=' s')}, pandas {shown(peer, unit=' s')}: "
-        f"{peer['median'] / ours['median']:.1f}x; read back bit for bit: "
+        f"{against(figures, 'fmu-greybox', 'pandas')}; read back bit for bit: "
         + ", ".join(f"{name} {'yes' if ok else 'NO'}" for name, ok in same.items())
     )
     print(conditions_line(conditions(load_before), args.repeat))

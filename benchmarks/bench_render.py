@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import os
-import time
+from collections.abc import Callable
 
 import matplotlib.pyplot as plt
 import numpy as np
-from spread import conditions, conditions_line, median_range, shown
+from spread import against, alternated, conditions, conditions_line
 
 from fmu_greybox.evidence.html import figure, page
 from fmu_greybox.evidence.render import rendering_aside
@@ -51,20 +52,18 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()
     load_before = os.getloadavg()[0]
+
+    def built(block: Callable[[], contextlib.AbstractContextManager]) -> str:
+        with block():
+            return report(args.figures, args.points)
+
     ways = {"in place": contextlib.nullcontext, "aside": rendering_aside}
-    seconds: dict[str, list[float]] = {way: [] for way in ways}
-    pages: dict[str, str] = {}
-    for _ in range(args.repeat):
-        for way, block in ways.items():
-            started = time.perf_counter()
-            with block():
-                pages[way] = report(args.figures, args.points)
-            seconds[way].append(time.perf_counter() - started)
-    here, aside = median_range(seconds["in place"]), median_range(seconds["aside"])
+    figures, pages = alternated(
+        {way: functools.partial(built, block) for way, block in ways.items()}, args.repeat
+    )
     print(
         f"a page of {args.figures} figures (2 x 2 panels of {args.points} points): "
-        f"in place {shown(here, unit=' s')}, aside {shown(aside, unit=' s')}: "
-        f"{here['median'] / aside['median']:.2f}x; the same page: "
+        f"{against(figures, 'aside', 'in place')}; the same page: "
         f"{'yes' if pages['in place'] == pages['aside'] else 'NO'}"
     )
     print(conditions_line(conditions(load_before), args.repeat))
