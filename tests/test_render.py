@@ -35,7 +35,7 @@ def forked_in(block_report: Callable[[], str]) -> tuple[str, int]:
     """The page built inside :func:`render.rendering_aside` and the children forked."""
     with render.rendering_aside():
         text = block_report()
-        return text, render._aside.forked
+        return text, len(render._aside.renders)
 
 
 def in_a_fresh_process(children_fail: bool = False) -> dict:

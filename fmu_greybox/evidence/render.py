@@ -50,8 +50,7 @@ class _Renders:
 
     def __init__(self, limit: int) -> None:
         self.limit = limit
-        self.renders: list[_Render] = []
-        self.forked = 0
+        self.renders: list[_Render] = []  # every figure handed to a child, in token order
 
     def submit(self, fig: plt.Figure) -> str:
         """Fork a child rendering ``fig``; its token."""
@@ -62,7 +61,6 @@ class _Renders:
         process = context.Process(target=_render_into, args=(fig, send), daemon=True)
         process.start()
         send.close()
-        self.forked += 1
         self.renders.append(_Render(fig, process, answer))
         return TOKEN.format(len(self.renders) - 1)
 

@@ -34,7 +34,6 @@ import itertools
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -55,7 +54,6 @@ from fmu_greybox.gp.linalg import (
 from fmu_greybox.side_by_side import spare_core
 
 FloatArray = NDArray[np.float64]
-T = TypeVar("T")
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 #: Training rows from which the bound's M×N work is done in two blocks of columns.
@@ -210,12 +208,18 @@ class CollapsedBound:
         edges = [0, self.n // 2, self.n] if self.n >= BLOCK_ROWS else [0, self.n]
         self._blocks = [_Block(features[a:b], self.y[a:b]) for a, b in itertools.pairwise(edges)]
 
-    def _each_block(self, work: Callable[[_Block], T]) -> list[T]:
-        """``work`` on every block, side by side when a core is free; in block order."""
+    def _summed_over_blocks(self, work: Callable[[_Block], FloatArray]) -> FloatArray:
+        """The sum of ``work`` over the blocks, added in block order (the same numbers however
+        they ran); the blocks run side by side when a core is free."""
         if len(self._blocks) > 1 and spare_core():
             with ThreadPoolExecutor(len(self._blocks)) as pool:
-                return list(pool.map(work, self._blocks))
-        return [work(block) for block in self._blocks]
+                shares = list(pool.map(work, self._blocks))
+        else:
+            shares = [work(block) for block in self._blocks]
+        total = shares[0]
+        for share in shares[1:]:
+            total += share
+        return total
 
     def evaluate(
         self,
@@ -268,10 +272,7 @@ class CollapsedBound:
         )
         Z_features = expand_inducing(Z, ell, s2)
         # (M+1, M+1) = [[AAᵀ, Ay], [yᵀAᵀ, yᵀy]] with A = L⁻¹ Kuf / σ, added over the blocks
-        grams = self._each_block(lambda block: block.gram(Z_features, L, sigma))
-        gram = grams[0]
-        for share in grams[1:]:
-            gram += share
+        gram = self._summed_over_blocks(lambda block: block.gram(Z_features, L, sigma))
         AAT, Ay = gram[:m, :m], gram[:m, m]
         LB, _ = jittered_cholesky(np.eye(m) + AAT, min_relative_jitter=0.0, name="B = I + AAᵀ")
         LB_inv = lower_inverse(LB)
@@ -307,10 +308,7 @@ class CollapsedBound:
         H_aug = np.empty((m, m + 1))
         H_aug[:, :m] = Lt[:, :m] / sigma - np.outer(u, beta)
         H_aug[:, m] = u
-        shares = self._each_block(lambda block: block.moments(H_aug))
-        moments_f = shares[0]  # (M, 2D+1)
-        for share in shares[1:]:
-            moments_f += share
+        moments_f = self._summed_over_blocks(lambda block: block.moments(H_aug))  # (M, 2D+1)
 
         G_uu = 0.5 * (Lt[:, m + 1 :] @ L_inv)  # ∂F/∂Kuu = ½ L⁻ᵀ inner L⁻¹
         moments_u = (G_uu * f.Kuu) @ expand_inputs(Z)  # (M, 2D+1)

@@ -230,37 +230,38 @@ def compare_parts_forward(
         of them (``fit_model``'s ``targets_from``).
     """
     early = comparison_config(config, GreyBoxChain(config, target_mode), recording.n_samples)
-    announce(
-        "Training passes 1 and 2 of 3, side by side, on the first half of the training rows "
-        "(to compare the parts): correctors on the white-box with named terms (1), and on "
-        "the plain white-box (2)",
-        progress,
-    )
-    with open_fmu(whitebox_path(config)) as archive:  # each pass runs the white-box
-        once = one_instance_per_process(archive.model_description, archive.kind)
-    # the parts are compared by their means: no σ to calibrate
-    named, plain = run_side_by_side(
-        [
-            functools.partial(
-                fit_model,
-                early,
-                recording,
-                progress,
-                target_mode,
-                chosen,
-                calibrate=False,
-                fade=False,  # stand-ins for the chain trained on all the rows
-                stand_in=True,
-                pass_=pass_,
-                fits=fits,
-            )
-            for chosen, pass_ in ((terms, "pass 1"), ((), "pass 2"))
-        ],
-        workers=1 if once else None,
-    )
-    seconds = max(named.model.training.seconds, plain.model.training.seconds)
     with open_fmu(whitebox_path(config)) as archive:
+        # each pass runs the white-box: one after the other where it allows one instance only
+        once = one_instance_per_process(archive.model_description, archive.kind)
+        announce(
+            "Training passes 1 and 2 of 3, "
+            + ("one after the other" if once else "side by side")
+            + ", on the first half of the training rows (to compare the parts): correctors on "
+            "the white-box with named terms (1), and on the plain white-box (2)",
+            progress,
+        )
+        # the parts are compared by their means: no σ to calibrate
+        named, plain = run_side_by_side(
+            [
+                functools.partial(
+                    fit_model,
+                    early,
+                    recording,
+                    progress,
+                    target_mode,
+                    chosen,
+                    calibrate=False,
+                    fade=False,  # stand-ins for the chain trained on all the rows
+                    stand_in=True,
+                    pass_=pass_,
+                    fits=fits,
+                )
+                for chosen, pass_ in ((terms, "pass 1"), ((), "pass 2"))
+            ],
+            workers=1 if once else None,
+        )
         noise = estimate_noise(config, named.model.chain, archive, named.data, terms)
+    seconds = max(named.model.training.seconds, plain.model.training.seconds)
     judge = None if noise is None else noise.judge()
     comparison = compare_fitted(named, plain, ship, judge)
     return comparison, seconds, {"terms": named, "correctors": plain}
