@@ -22,7 +22,7 @@ import functools
 import os
 
 import numpy as np
-from spread import against, alternated, conditions, conditions_line
+from spread import alternated, print_against, yes
 
 import fmu_greybox.gp.bound as bound_module
 from fmu_greybox import side_by_side
@@ -59,12 +59,15 @@ def main() -> None:
     same = turn.bound_ == both.bound_ and np.array_equal(
         turn.posterior_.mean_weights, both.posterior_.mean_weights
     )
-    print(
-        f"one fit, N = {args.n}, M = {args.m}, D = {args.d}, {turn.n_eval_} bound evaluations: "
-        f"{against(figures, 'side by side', 'blocks in turn')}; the same numbers: "
-        f"{'yes' if same else 'NO'}"
+    print_against(
+        f"one fit, N = {args.n}, M = {args.m}, D = {args.d}, {turn.n_eval_} bound evaluations",
+        figures,
+        "side by side",
+        "blocks in turn",
+        f"the same numbers: {yes(same)}",
+        load_before,
+        args.repeat,
     )
-    print(conditions_line(conditions(load_before), args.repeat))
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from spread import against, alternated, conditions, conditions_line
+from spread import alternated, print_against, yes
 
 from fmu_greybox.data.recording import Recording, load_recording, save_recording
 
@@ -65,12 +65,15 @@ def main() -> None:
             args.repeat,
         )
         same = {name: exact(rec, path) for name, path in paths.items()}
-    print(
-        f"a recording of {args.rows} rows x {1 + args.signals} columns to CSV: "
-        f"{against(figures, 'fmu-greybox', 'pandas')}; read back bit for bit: "
-        + ", ".join(f"{name} {'yes' if ok else 'NO'}" for name, ok in same.items())
+    print_against(
+        f"a recording of {args.rows} rows x {1 + args.signals} columns to CSV",
+        figures,
+        "fmu-greybox",
+        "pandas",
+        "read back bit for bit: " + ", ".join(f"{name} {yes(ok)}" for name, ok in same.items()),
+        load_before,
+        args.repeat,
     )
-    print(conditions_line(conditions(load_before), args.repeat))
 
 
 if __name__ == "__main__":

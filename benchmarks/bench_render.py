@@ -23,7 +23,7 @@ from collections.abc import Callable
 
 import matplotlib.pyplot as plt
 import numpy as np
-from spread import against, alternated, conditions, conditions_line
+from spread import alternated, print_against, yes
 
 from fmu_greybox.evidence.html import figure, page
 from fmu_greybox.evidence.render import rendering_aside
@@ -61,12 +61,15 @@ def main() -> None:
     figures, pages = alternated(
         {way: functools.partial(built, block) for way, block in ways.items()}, args.repeat
     )
-    print(
-        f"a page of {args.figures} figures (2 x 2 panels of {args.points} points): "
-        f"{against(figures, 'aside', 'in place')}; the same page: "
-        f"{'yes' if pages['in place'] == pages['aside'] else 'NO'}"
+    print_against(
+        f"a page of {args.figures} figures (2 x 2 panels of {args.points} points)",
+        figures,
+        "aside",
+        "in place",
+        f"the same page: {yes(pages['in place'] == pages['aside'])}",
+        load_before,
+        args.repeat,
     )
-    print(conditions_line(conditions(load_before), args.repeat))
 
 
 if __name__ == "__main__":

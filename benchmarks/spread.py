@@ -79,3 +79,23 @@ def against(figures: Mapping[str, dict[str, float]], ours: str, peer: str) -> st
         f"{ours} {shown(figures[ours], unit=' s')}, {peer} {shown(figures[peer], unit=' s')}: "
         f"{ratio:.{1 if ratio >= 10 else 2}f}x"
     )
+
+
+def yes(ok: bool) -> str:
+    """``yes`` or ``NO``: a benchmark's check of its results, shouting when it fails."""
+    return "yes" if ok else "NO"
+
+
+def print_against(
+    what: str,
+    figures: Mapping[str, dict[str, float]],
+    ours: str,
+    peer: str,
+    checked: str,
+    load_before: float,
+    repeat: int,
+) -> None:
+    """Print a two-way benchmark's lines: ``what: ours ..., peer ...: ratio; checked``
+    (:func:`against`), then the conditions of its runs (:func:`conditions_line`)."""
+    print(f"{what}: {against(figures, ours, peer)}; {checked}")
+    print(conditions_line(conditions(load_before), repeat))
