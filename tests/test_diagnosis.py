@@ -16,7 +16,7 @@ from fmu_greybox.cli import main
 from fmu_greybox.data.recording import save_recording
 from fmu_greybox.diagnosis import SCHEMA_VERSION, Diagnosis
 from fmu_greybox.diagnosis.alternatives import nearly_as_good
-from fmu_greybox.diagnosis.findings import named_physics
+from fmu_greybox.diagnosis.findings import alternative_name, named_physics
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.project.config import load_config, parse_config
@@ -213,3 +213,25 @@ def test_an_alternative_fits_nearly_as_well_by_either_measure() -> None:
     assert nearly_as_good(delta_bic=9.9, heldout_ratio=1.5)
     assert nearly_as_good(delta_bic=21.0, heldout_ratio=1.006)
     assert not nearly_as_good(delta_bic=21.0, heldout_ratio=1.2)
+
+
+def test_an_alternative_mis_set_parameter_is_named_by_its_parameter() -> None:
+    """A relative change alone does not say which parameter: the sentence of alternatives names
+    it, with the value it would have; other physics by its effect and magnitude."""
+    parameter = {
+        "effect": "parameter_mismatch",
+        "magnitude": {"value": 0.235, "unit": "1"},
+        "parameter": "ram_stroke",
+        "physics": None,
+        "nominal": 0.05,
+        "estimate": 0.0618,
+        "parameter_unit": "m",
+    }
+    assert alternative_name(parameter) == "parameter ram_stroke at 0.0618 m instead of 0.05 m"
+    labelled = {**parameter, "parameter": "bulk_modulus", "physics": "compliance"}
+    labelled |= {"nominal": 1.2e9, "estimate": 1.02e9, "parameter_unit": "Pa"}
+    assert alternative_name(labelled) == (
+        "parameter bulk_modulus (compliance) at 1.02e+09 Pa instead of 1.20e+09 Pa"
+    )
+    friction = {"effect": "coulomb_friction", "magnitude": {"value": 573.0, "unit": "N"}}
+    assert alternative_name(friction) == "coulomb_friction of 573 N"

@@ -83,6 +83,24 @@ def named_physics(finding: dict) -> str:
     return finding["effect"]
 
 
+def alternative_name(finding: dict) -> str:
+    """A finding (as in ``diagnosis.json``) named in a sentence of alternatives: its physics and
+    magnitude (``coulomb_friction of 573 N``); a mis-set parameter by its name and the value it
+    would have (``parameter ram_stroke at 0.0618 m instead of 0.05 m``), since a relative change
+    alone does not say which parameter."""
+    if finding.get("parameter"):
+        unit = finding.get("parameter_unit", "")
+        physics = finding.get("physics")
+        label = f" ({physics.replace('_', ' ')})" if physics else ""
+        return (
+            f"parameter {finding['parameter']}{label} at {quantity(finding['estimate'], unit)} "
+            f"instead of {quantity(finding['nominal'], unit)}"
+        )
+    magnitude = finding.get("magnitude") or {}
+    shown = quantity(magnitude.get("value", math.nan), magnitude.get("unit", ""))
+    return f"{named_physics(finding)} of {shown}"
+
+
 def where_from(stage: StageResidual | None, limit: int = 4) -> list[dict]:
     """Regimes, main frequency band and windows where a stage's residual concentrates most
     (of its signal furthest above noise)."""
@@ -237,15 +255,13 @@ def _add_alternatives(
                 "separation": None if apart is None else apart.to_dict(),
             }
         )
-        magnitude = alt.magnitude or {}
-        shown = quantity(magnitude.get("value", math.nan), magnitude.get("unit", ""))
         where = (
             ""
             if apart is None
             else f" (they differ most where {apart.label}: record {apart.advice} to tell "
             "them apart)"
         )
-        names.append(f"{named_physics(alt.to_dict())} of {shown}{where}")
+        names.append(f"{alternative_name(alt.to_dict())}{where}")
     finding.details["alternatives"] = alternatives
     finding.summary = f"{finding.summary} Equally consistent with {'; '.join(names)}."
 
