@@ -18,7 +18,7 @@ from fmu_greybox.diagnosis.hypotheses import (
 )
 from fmu_greybox.diagnosis.memo import Memo
 from fmu_greybox.diagnosis.runner import Experiment, Simulator
-from fmu_greybox.diagnosis.select import SCREEN_PROMISE
+from fmu_greybox.diagnosis.select import ESCAPES, SCREEN_PROMISE, _escape
 from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import model_fmus
@@ -315,3 +315,33 @@ def test_the_screen_tries_no_step_that_promises_nothing(whitebox_fmu, truth_fmu)
     assert sensor_all[1] >= 0.99  # tried, it would not have gone on
     assert (sensor_kept[1], runs_all - runs_kept) == (1.0, 2)
     np.testing.assert_array_equal(sensor_kept[0], hypotheses[1].start())
+
+
+def test_a_refinement_stopped_on_a_ripple_goes_on_from_a_probe(whitebox_fmu, truth_fmu) -> None:
+    """Entrained air lowers the bulk modulus, which tunes the ram's lightly damped mode: the
+    low-passed misfit the refinement fits keeps ripples beside its valley. Here (a concealed
+    ``compliance=0.15``, the diagnosis's refinement window) the screen's step put the bulk
+    modulus at -22 %, in a dip where every local step costs more: refined from there, it
+    stays. Probed one scale either way (:func:`~fmu_greybox.diagnosis.select._escape`), it
+    reaches the valley's floor at the true -15 %."""
+    profile = FlightTestProfile(duration=20.0)
+    request = SynthRequest({"compliance": 0.15}, seed=308, profile=profile)
+    with open_fmu(truth_fmu) as truth, open_fmu(whitebox_fmu) as whitebox:
+        recording = synthesise(truth, whitebox, request)
+        train = int(0.8 * recording.n_samples)
+        experiment, hypothesis = experiment_and_hypothesis(
+            "hydraulic_actuator.toml", whitebox, recording, "parameter_mismatch@bulk_modulus", train
+        )
+        with Simulator(experiment, workers=2) as simulator:
+            refine = Calibrator(simulator, 10148, 20.0)  # the refinement's view and window
+            stuck, escaped = (Candidate([hypothesis], np.array([-0.2203])) for _ in range(2))
+            refine.evaluate([stuck, escaped])
+            refine.fit([stuck, escaped], max_iter=5)
+            moves = 0
+            while moves < ESCAPES and _escape(refine, [escaped]):
+                refine.fit([escaped], max_iter=5)
+                moves += 1
+    assert stuck.theta[0] == pytest.approx(-0.22, abs=0.01)
+    assert moves >= 1
+    assert escaped.theta[0] == pytest.approx(-0.15, abs=0.01)
+    assert escaped.cost < 0.95 * stuck.cost

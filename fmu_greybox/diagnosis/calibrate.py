@@ -305,6 +305,46 @@ class Calibrator:
         c.heldout = self.heldout(sim)
         return True
 
+    def move_to_best(
+        self, candidates: Sequence[Candidate], probes: Sequence[Sequence[np.ndarray]]
+    ) -> list[Candidate]:
+        """Simulate each candidate at its probe magnitudes (clipped to its range) and move it to
+        the best probe where that lowers its cost: a local step cannot leave a basin, a probe a
+        few scales away can.
+
+        Parameters
+        ----------
+        candidates : sequence of Candidate
+            Evaluated by this calibrator.
+        probes : sequence of sequence of ndarray
+            Per candidate, the magnitudes to try (each shape (p,)).
+
+        Returns
+        -------
+        list of Candidate
+            The candidates moved.
+        """
+        trials = [
+            (c, Candidate(c.hypotheses, c.clip(theta), fixed=c.fixed))
+            for c, thetas in zip(candidates, probes, strict=True)
+            for theta in thetas
+        ]
+        self.evaluate([trial for _, trial in trials])
+        best: dict[int, Candidate] = {}
+        for c, trial in trials:
+            if trial.cost < best.get(id(c), c).cost:
+                best[id(c)] = trial
+        moved = [c for c in candidates if id(c) in best]
+        for c in moved:
+            found = best[id(c)]
+            c.theta, c.cost, c.simulated, c.heldout = (
+                found.theta,
+                found.cost,
+                found.simulated,
+                found.heldout,
+            )
+        return moved
+
     # ------------------------------------------------------------------ sensitivities
     def _steps(self, c: Candidate, backward: bool = False) -> np.ndarray:
         """Signed finite-difference steps, inside the admissible range: up (down with

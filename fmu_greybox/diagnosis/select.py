@@ -17,7 +17,9 @@ Each round, on top of the hypotheses already kept:
 2. **refine** them on a longer leading window (at least ``refine_rows``, and 60 % of the
    energy beyond noise; damped Gauss-Newton; the spectrum-ranked ones on
    the spectrum first, which brings a mode's frequency into the narrow valley the time-domain
-   misfit has around it) with the kept
+   misfit has around it; a candidate is then probed one scale either way and goes on from a
+   probe that fits better, :func:`_escape`, since a screening step can land in a ripple beside
+   the valley where no local step helps) with the kept
    magnitudes free (an offset kept first may have absorbed part of a leakage's drift: the
    leakage only pays once the offset may move back), and the kept hypotheses alone refined
    the same way as the reference; then score them on the raw residual over the whole
@@ -373,6 +375,12 @@ class ForwardSelection:
         group = [*refined, *retuned]
         smoothed.evaluate(group)
         smoothed.fit(group, max_iter=self.max_iter)
+        stuck = refined
+        for _ in range(ESCAPES):
+            stuck = _escape(smoothed, stuck)
+            if not stuck:
+                break
+            smoothed.fit(stuck, max_iter=self.max_iter)
         full.evaluate(group)
         reference = min([current, *retuned], key=lambda c: c.cost)
         rows = full.fit_rows
@@ -488,14 +496,43 @@ def _probe(window: Calibrator, candidates: list[Candidate]) -> None:
     probes = []
     for c in candidates:
         h = c.hypotheses[-1]
+        thetas = []
         for multiple in PROBES:
             theta = h.start()
             theta[0] += multiple * h.scale[0]
-            probes.append((c, Candidate([h], h.clip(theta), fixed=c.fixed)))
-    window.evaluate([p for _, p in probes])
-    for c, p in probes:
-        if p.cost < c.cost:
-            c.theta, c.cost, c.simulated, c.heldout = p.theta, p.cost, p.simulated, p.heldout
+            thetas.append(theta)
+        probes.append(thetas)
+    window.move_to_best(candidates, probes)
+
+
+#: Times a refined candidate may leave a basin its steps cannot (:func:`_escape`).
+ESCAPES = 2
+
+
+def _escape(calibrator: Calibrator, candidates: list[Candidate]) -> list[Candidate]:
+    """Move each refined candidate one scale either way along each magnitude of its new
+    hypothesis where that lowers its cost (:meth:`~.calibrate.Calibrator.move_to_best`); the
+    candidates moved.
+
+    A parameter that tunes a lightly damped mode (a bulk modulus, a mass) leaves ripples on
+    the low-passed misfit too: a screening step can land in a dip beside the valley, where
+    every local step costs more and the refinement stops, worse than "no effect" on the raw
+    residual. A probe one scale away steps over the ripple; a candidate at its valley's floor
+    stays where it is.
+    """
+    live = [c for c in candidates if math.isfinite(c.cost)]
+    probes = []
+    for c in live:
+        own = c.theta.size - c.hypotheses[-1].n_params
+        scale = c.scale
+        steps = []
+        for k in range(own, c.theta.size):
+            for sign in (-1.0, 1.0):
+                theta = c.theta.copy()
+                theta[k] += sign * scale[k]
+                steps.append(theta)
+        probes.append(steps)
+    return calibrator.move_to_best(live, probes)
 
 
 def informative_rows(residual: np.ndarray, share: float) -> int:
