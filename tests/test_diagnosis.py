@@ -15,8 +15,8 @@ from click.testing import CliRunner
 from fmu_greybox.cli import main
 from fmu_greybox.data.recording import save_recording
 from fmu_greybox.diagnosis import SCHEMA_VERSION, Diagnosis
-from fmu_greybox.diagnosis.alternatives import nearly_as_good
-from fmu_greybox.diagnosis.findings import alternative_name, named_physics
+from fmu_greybox.diagnosis.alternatives import Separation, nearly_as_good
+from fmu_greybox.diagnosis.findings import alternative_name, named_physics, telling_apart
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.model.chain import GreyBoxChain
 from fmu_greybox.project.config import load_config, parse_config
@@ -235,3 +235,19 @@ def test_an_alternative_mis_set_parameter_is_named_by_its_parameter() -> None:
     )
     friction = {"effect": "coulomb_friction", "magnitude": {"value": 573.0, "unit": "N"}}
     assert alternative_name(friction) == "coulomb_friction of 573 N"
+
+
+def test_what_tells_two_explanations_apart_is_said_once() -> None:
+    """The regime where two explanations differ, then what to record there, without saying
+    the regime twice; a frequency band is a place the difference is in."""
+    command = Separation(
+        "ram_velocity", "command", "|valve_current| below 0.107 mA", 0.4, 0.2, "small commands"
+    )
+    assert telling_apart(command) == (
+        "they differ most where |valve_current| below 0.107 mA: record small commands to tell "
+        "them apart"
+    )
+    band = Separation("ram_velocity", "band", "10-100 Hz", 0.6, 0.2, "more excitation in 10-100 Hz")
+    assert telling_apart(band) == (
+        "they differ most in 10-100 Hz: record more excitation in 10-100 Hz to tell them apart"
+    )

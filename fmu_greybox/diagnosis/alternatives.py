@@ -41,16 +41,16 @@ MIN_TIME_SHARE = 0.02
 #: below it the frequency band holding most of the difference is proposed.
 MIN_CONCENTRATION = 1.5
 
-#: What to record for each kind of regime, by its level.
+#: What to record for each kind of regime, by its level (the regime's label says where).
 _ADVICE = {
-    ("direction", "low"): "slow motion (e.g. a slow ramp) with |{label}| below {value}",
-    ("direction", "high"): "fast motion with |{label}| above {value}",
-    ("load", "low"): "light load, |{label}| below {value}",
-    ("load", "high"): "heavy load, |{label}| above {value}",
-    ("pressure", "low"): "{label} below {value}",
-    ("pressure", "high"): "{label} above {value}",
-    ("command", "low"): "small commands, |{label}| below {value}",
-    ("command", "high"): "large commands, |{label}| above {value}",
+    ("direction", "low"): "slow motion (e.g. a slow ramp)",
+    ("direction", "high"): "fast motion",
+    ("load", "low"): "light loads",
+    ("load", "high"): "heavy loads",
+    ("pressure", "low"): "low {label}",
+    ("pressure", "high"): "high {label}",
+    ("command", "low"): "small commands",
+    ("command", "high"): "large commands",
 }
 
 
@@ -176,7 +176,7 @@ def separation(
                 if best is None or concentration > best[0]:
                     unit = units.get(label, "")
                     shown = f"{value:.3g} {unit}".strip()
-                    advice = _ADVICE[(kind, level)].format(label=label, value=shown)
+                    advice = _ADVICE[(kind, level)].format(label=label)
                     best = (
                         concentration,
                         kind,

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fmu_greybox.data.noise import SIGNIFICANT_STRUCTURE, structure_left
-from fmu_greybox.diagnosis.alternatives import separation
+from fmu_greybox.diagnosis.alternatives import Separation, separation
 from fmu_greybox.diagnosis.hypotheses import Hypothesis, quantity
 from fmu_greybox.diagnosis.locate import Regime, StageResidual
 from fmu_greybox.diagnosis.runner import Experiment
@@ -99,6 +99,14 @@ def alternative_name(finding: dict) -> str:
     magnitude = finding.get("magnitude") or {}
     shown = quantity(magnitude.get("value", math.nan), magnitude.get("unit", ""))
     return f"{named_physics(finding)} of {shown}"
+
+
+def telling_apart(apart: Separation) -> str:
+    """Where two explanations differ and what to record to tell them apart, in words: ``they
+    differ most where |valve_current| below 0.107 mA: record small commands to tell them
+    apart``."""
+    where = "in" if apart.kind == "band" else "where"
+    return f"they differ most {where} {apart.label}: record {apart.advice} to tell them apart"
 
 
 def where_from(stage: StageResidual | None, limit: int = 4) -> list[dict]:
@@ -255,12 +263,7 @@ def _add_alternatives(
                 "separation": None if apart is None else apart.to_dict(),
             }
         )
-        where = (
-            ""
-            if apart is None
-            else f" (they differ most where {apart.label}: record {apart.advice} to tell "
-            "them apart)"
-        )
+        where = "" if apart is None else f" ({telling_apart(apart)})"
         names.append(f"{alternative_name(alt.to_dict())}{where}")
     finding.details["alternatives"] = alternatives
     finding.summary = f"{finding.summary} Equally consistent with {'; '.join(names)}."
