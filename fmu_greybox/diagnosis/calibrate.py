@@ -336,13 +336,7 @@ class Calibrator:
                 best[id(c)] = trial
         moved = [c for c in candidates if id(c) in best]
         for c in moved:
-            found = best[id(c)]
-            c.theta, c.cost, c.simulated, c.heldout = (
-                found.theta,
-                found.cost,
-                found.simulated,
-                found.heldout,
-            )
+            self._store(c, best[id(c)].theta, best[id(c)].simulated)
         return moved
 
     # ------------------------------------------------------------------ sensitivities
