@@ -18,7 +18,7 @@ from fmu_greybox.diagnosis.hypotheses import (
 )
 from fmu_greybox.diagnosis.memo import Memo
 from fmu_greybox.diagnosis.runner import Experiment, Simulator
-from fmu_greybox.diagnosis.select import ESCAPES, SCREEN_PROMISE, _escape
+from fmu_greybox.diagnosis.select import SCREEN_PROMISE, past_ripples
 from fmu_greybox.diagnosis.signals import SignalMap
 from fmu_greybox.fmi.archive import open_fmu
 from fmu_greybox.fmi.builtin import model_fmus
@@ -322,7 +322,7 @@ def test_a_refinement_stopped_on_a_ripple_goes_on_from_a_probe(whitebox_fmu, tru
     low-passed misfit the refinement fits keeps ripples beside its valley. Here (a concealed
     ``compliance=0.15``, the diagnosis's refinement window) the screen's step put the bulk
     modulus at -22 %, in a dip where every local step costs more: refined from there, it
-    stays. Probed one scale either way (:func:`~fmu_greybox.diagnosis.select._escape`), it
+    stays. Probed one scale either way (:func:`~fmu_greybox.diagnosis.select.past_ripples`), it
     reaches the valley's floor at the true -15 %."""
     profile = FlightTestProfile(duration=20.0)
     request = SynthRequest({"compliance": 0.15}, seed=308, profile=profile)
@@ -337,10 +337,7 @@ def test_a_refinement_stopped_on_a_ripple_goes_on_from_a_probe(whitebox_fmu, tru
             stuck, escaped = (Candidate([hypothesis], np.array([-0.2203])) for _ in range(2))
             refine.evaluate([stuck, escaped])
             refine.fit([stuck, escaped], max_iter=5)
-            moves = 0
-            while moves < ESCAPES and _escape(refine, [escaped]):
-                refine.fit([escaped], max_iter=5)
-                moves += 1
+            moves = past_ripples(refine, [escaped], max_iter=5)
     assert stuck.theta[0] == pytest.approx(-0.22, abs=0.01)
     assert moves >= 1
     assert escaped.theta[0] == pytest.approx(-0.15, abs=0.01)

@@ -375,12 +375,7 @@ class ForwardSelection:
         group = [*refined, *retuned]
         smoothed.evaluate(group)
         smoothed.fit(group, max_iter=self.max_iter)
-        stuck = refined
-        for _ in range(ESCAPES):
-            stuck = _escape(smoothed, stuck)
-            if not stuck:
-                break
-            smoothed.fit(stuck, max_iter=self.max_iter)
+        past_ripples(smoothed, refined, self.max_iter)
         full.evaluate(group)
         reference = min([current, *retuned], key=lambda c: c.cost)
         rows = full.fit_rows
@@ -533,6 +528,19 @@ def _escape(calibrator: Calibrator, candidates: list[Candidate]) -> list[Candida
                 steps.append(theta)
         probes.append(steps)
     return calibrator.move_to_best(live, probes)
+
+
+def past_ripples(calibrator: Calibrator, candidates: list[Candidate], max_iter: int) -> int:
+    """Refined candidates escape a ripple (:func:`_escape`) and are refined again from there,
+    at most :data:`ESCAPES` times; the number of escapes made."""
+    stuck, escapes = candidates, 0
+    while escapes < ESCAPES:
+        stuck = _escape(calibrator, stuck)
+        if not stuck:
+            break
+        calibrator.fit(stuck, max_iter=max_iter)
+        escapes += 1
+    return escapes
 
 
 def informative_rows(residual: np.ndarray, share: float) -> int:
